@@ -1,0 +1,25 @@
+"""Test configuration: float64 and strict JAX promotion, so a silent float32 or a broadcast bug fails."""
+
+import os
+
+os.environ["JAX_ENABLE_X64"] = "1"
+
+import jax  # noqa: E402
+
+import jcalib  # noqa: E402,F401  (enables float64 on import)
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_dtype_promotion", "strict")
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+# JAX compiles on first call, so the first example of a property test is slow: no deadline.
+settings.register_profile(
+    "jcalib",
+    deadline=None,
+    max_examples=60,
+    suppress_health_check=[HealthCheck.too_slow],
+    derandomize=True,
+)
+settings.load_profile("jcalib")
