@@ -69,7 +69,7 @@ def detect(
     ] = None,
 ) -> None:
     """Detect the cell's calibration target in images and write observations.json."""
-    from jcalib.vision.batch import detect_images_to_file
+    from jcalib.detect import detect_images_to_file
 
     detect_images_to_file(
         cell_path=cell, camera=camera, image_paths=images, out_path=out, target=target

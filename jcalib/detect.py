@@ -1,0 +1,77 @@
+"""Images → observations: the glue behind ``jcalib detect`` (cell spec in, observations.json out)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+from jcalib.errors import BadInputError, DetectionError
+from jcalib.io.cell import load_cell
+from jcalib.io.observations import Detection, Observations, Station, save_observations
+
+
+def detect_images(
+    cell, camera: str, image_paths: Sequence[str | os.PathLike], target: str | None = None,
+    progress: bool = True,
+) -> tuple[Observations, dict[str, DetectionError]]:
+    """Detect the cell's target in each image; one station per image (id = file stem).
+
+    Returns:
+        The observations of the images where the target was found, and ``{image path: error}`` for
+        the others (each error says why: not found, partially visible, too blurred, unreadable).
+    """
+    from jcalib.vision import detect_many
+
+    cell = load_cell(cell)
+    cell.camera(camera)
+    target_spec = cell.target(target)
+    geometry = target_spec.geometry()
+    paths = [Path(p) for p in image_paths]
+    if not paths:
+        raise BadInputError("no images given: pass one or more image files")
+    ids = [p.stem for p in paths]
+    if len(set(ids)) != len(ids):
+        raise BadInputError("two images share a file name stem; station ids must be unique")
+    results = detect_many(paths, geometry, progress=progress)
+    image_size = None
+    stations, failures = [], {}
+    for path, sid, res in zip(paths, ids, results):
+        if isinstance(res, DetectionError):
+            failures[str(path)] = res
+            continue
+        size = tuple(int(v) for v in res.image_size)
+        if image_size is not None and size != image_size:
+            raise BadInputError(
+                f"{path}: image size {size} differs from the first image's {image_size}; "
+                f"all images of camera '{camera}' must have one size"
+            )
+        image_size = size
+        det = Detection(camera=camera, target=target_spec.name, point_index=res.point_index, pixels=res.pixels)
+        stations.append(Station(id=sid, detections=(det,)))
+    obs = Observations(
+        cameras={camera: image_size} if image_size else {},
+        targets={target_spec.name: geometry.points},
+        stations=tuple(stations),
+    )
+    return obs, failures
+
+
+def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None) -> Observations:
+    """``jcalib detect``: detect, write observations.json, print a summary of failures."""
+    from rich.console import Console
+
+    obs, failures = detect_images(cell_path, camera, image_paths, target=target)
+    console = Console(stderr=True)
+    for path, err in failures.items():
+        console.print(f"[yellow]skipped[/] {path}: {err.reason} — {err}", highlight=False)
+    if not obs.stations:
+        raise BadInputError(
+            f"the target was found in none of the {len(failures)} images; check the cell's target "
+            "geometry (cols/rows are INNER corners for a checkerboard) and the images"
+        )
+    save_observations(out_path, obs)
+    console.print(
+        f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped", highlight=False
+    )
+    return obs

@@ -1,0 +1,349 @@
+"""The cell spec (``cell.yaml``, schema ``jcalib.cell/1``): what is in the cell and what is unknown.
+
+See DESIGN.md, "File formats and entry points". Loading validates everything a later stage relies
+on and raises :class:`~jcalib.errors.BadInputError` naming the file, the key and what to do.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jcalib.errors import BadInputError
+
+SCHEMA = "jcalib.cell/1"
+CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye")
+CAMERA_MOUNTS = ("flange", "base", "free")
+TARGET_MOUNTS = ("flange", "base", "free")
+TARGET_TYPES = ("checkerboard", "charuco", "circles")
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """One camera of the cell.
+
+    Attributes:
+        name: camera id, e.g. ``"cam0"``.
+        model: lens model name (one of ``CAMERA_MODELS``).
+        mount: ``"flange"`` (eye-in-hand), ``"base"`` (fixed) or ``"free"`` (no robot).
+        skew: whether the skew coefficient is estimated.
+        fix: intrinsic names held fixed (e.g. ``("p1", "p2")`` or ``("aspect",)``).
+        K: optional (3, 3) initial camera matrix in OpenCV form, pixels.
+        dist: optional OpenCV distortion vector (initial values).
+        pose: optional (4, 4) known pose of the camera in its mount frame, metres.
+    """
+
+    name: str
+    model: str
+    mount: str
+    skew: bool = False
+    fix: tuple[str, ...] = ()
+    K: np.ndarray | None = None
+    dist: np.ndarray | None = None
+    pose: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """One calibration target: its type, geometry parameters (as in the spec) and mount."""
+
+    name: str
+    type: str
+    mount: str
+    params: dict[str, Any]
+    pose: np.ndarray | None = None
+
+    def geometry(self):
+        """The target's geometry object (:mod:`jcalib.geometry.targets`)."""
+        from jcalib.geometry.targets import target_from_spec
+
+        return target_from_spec({"type": self.type, **self.params})
+
+
+@dataclass(frozen=True)
+class ToolSpec:
+    """A tool whose TCP (``T_flange_<name>``) is unknown; ``observed_by`` lists camera ids."""
+
+    name: str
+    observed_by: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class PointSpec:
+    """A fixed cell point (e.g. a pivot divot), unknown unless ``position`` (base frame, m) is given."""
+
+    name: str
+    position: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Robot settings. ``pose_noise`` is None when flange poses are taken as exact."""
+
+    pose_noise_translation_m: np.ndarray | None = None  # (3,) per axis
+    pose_noise_rotation_deg: np.ndarray | None = None  # (3,) per axis
+
+
+@dataclass(frozen=True)
+class CellSpec:
+    """A parsed, validated cell spec."""
+
+    cameras: dict[str, CameraSpec]
+    targets: dict[str, TargetSpec]
+    tools: dict[str, ToolSpec] = field(default_factory=dict)
+    points: dict[str, PointSpec] = field(default_factory=dict)
+    robot: RobotSpec | None = None
+    fixed: tuple[str, ...] = ()
+    source: str = "<dict>"
+
+    def target(self, name: str | None = None) -> TargetSpec:
+        """The target called ``name``, or the only target when ``name`` is None."""
+        if name is None:
+            if len(self.targets) != 1:
+                raise BadInputError(
+                    f"{self.source}: the cell has {len(self.targets)} targets "
+                    f"({', '.join(self.targets) or 'none'}); name one with --target."
+                )
+            return next(iter(self.targets.values()))
+        if name not in self.targets:
+            raise BadInputError(
+                f"{self.source}: no target '{name}' in the cell; it has: {', '.join(self.targets)}."
+            )
+        return self.targets[name]
+
+    def camera(self, name: str) -> CameraSpec:
+        if name not in self.cameras:
+            raise BadInputError(
+                f"{self.source}: no camera '{name}' in the cell; it has: {', '.join(self.cameras)}."
+            )
+        return self.cameras[name]
+
+
+def _fail(where: str, msg: str) -> BadInputError:
+    return BadInputError(f"{where}: {msg}")
+
+
+def _matrix(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _fail(where, f"expected a numeric array of shape {shape}, got {value!r}") from None
+    if arr.shape != shape:
+        raise _fail(where, f"expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise _fail(where, "contains NaN or infinity")
+    return arr
+
+
+def _pose(value: Any, where: str) -> np.ndarray:
+    T = _matrix(value, (4, 4), where)
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise _fail(where, "the rotation part is not a proper rotation matrix")
+    if not np.allclose(T[3], [0, 0, 0, 1]):
+        raise _fail(where, "the last row of a pose must be [0, 0, 0, 1]")
+    return T
+
+
+def _check_keys(entry: dict, allowed: set[str], where: str) -> None:
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise _fail(where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
+    if not isinstance(entry, dict):
+        raise _fail(where, f"expected a mapping, got {entry!r}")
+    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose"}, where)
+    model = entry.get("model")
+    if model not in CAMERA_MODELS:
+        raise _fail(where, f"unknown camera model {model!r}; use one of {', '.join(CAMERA_MODELS)}")
+    mount = entry.get("mount", "free")
+    if mount not in CAMERA_MOUNTS:
+        raise _fail(where, f"unknown mount {mount!r}; use one of {', '.join(CAMERA_MOUNTS)}")
+    fix = entry.get("fix", []) or []
+    if not isinstance(fix, list) or not all(isinstance(f, str) for f in fix):
+        raise _fail(where + ".fix", f"expected a list of intrinsic names, got {fix!r}")
+    K = dist = None
+    if "intrinsics" in entry:
+        intr = entry["intrinsics"]
+        if not isinstance(intr, dict) or "K" not in intr:
+            raise _fail(where + ".intrinsics", "expected {K: [[3x3]], dist: [...]}")
+        K = _matrix(intr["K"], (3, 3), where + ".intrinsics.K")
+        dist = np.asarray(intr.get("dist", []), dtype=np.float64).ravel()
+        if not np.all(np.isfinite(dist)):
+            raise _fail(where + ".intrinsics.dist", "contains NaN or infinity")
+    pose = _pose(entry["pose"], where + ".pose") if "pose" in entry else None
+    return CameraSpec(
+        name=name,
+        model=model,
+        mount=mount,
+        skew=bool(entry.get("skew", False)),
+        fix=tuple(fix),
+        K=K,
+        dist=dist,
+        pose=pose,
+    )
+
+
+def _parse_target(name: str, entry: Any, where: str) -> TargetSpec:
+    if not isinstance(entry, dict):
+        raise _fail(where, f"expected a mapping, got {entry!r}")
+    ttype = entry.get("type")
+    if ttype not in TARGET_TYPES:
+        raise _fail(where, f"unknown target type {ttype!r}; use one of {', '.join(TARGET_TYPES)}")
+    mount = entry.get("mount", "free")
+    if mount not in TARGET_MOUNTS:
+        raise _fail(where, f"unknown mount {mount!r}; use one of {', '.join(TARGET_MOUNTS)}")
+    pose = _pose(entry["pose"], where + ".pose") if "pose" in entry else None
+    params = {k: v for k, v in entry.items() if k not in ("type", "mount", "pose")}
+    spec = TargetSpec(name=name, type=ttype, mount=mount, params=params, pose=pose)
+    try:
+        spec.geometry()  # validates the geometry fields (cols, rows, square, ...)
+    except BadInputError as e:
+        raise _fail(where, str(e)) from None
+    return spec
+
+
+def _positive_vector(value: Any, where: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full(3, float(arr))
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise _fail(where, f"expected a positive number or 3 positive numbers (x, y, z), got {value!r}")
+    return arr
+
+
+def _parse_robot(entry: Any, where: str) -> RobotSpec:
+    if entry is None:
+        return RobotSpec()
+    if not isinstance(entry, dict):
+        raise _fail(where, f"expected a mapping, got {entry!r}")
+    _check_keys(entry, {"pose_noise", "model"}, where)
+    noise = entry.get("pose_noise")
+    if noise is None:
+        return RobotSpec()
+    _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
+    if "translation_m" not in noise or "rotation_deg" not in noise:
+        raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
+    return RobotSpec(
+        pose_noise_translation_m=_positive_vector(noise["translation_m"], where + ".pose_noise.translation_m"),
+        pose_noise_rotation_deg=_positive_vector(noise["rotation_deg"], where + ".pose_noise.rotation_deg"),
+    )
+
+
+def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
+    """Validate a cell spec given as a dict (e.g. loaded YAML).
+
+    Raises:
+        BadInputError: naming ``source`` and the offending key.
+    """
+    if not isinstance(data, dict):
+        raise _fail(source, "a cell spec must be a mapping with 'schema: jcalib.cell/1'")
+    schema = data.get("schema")
+    if schema != SCHEMA:
+        raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
+    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "fixed"}, source)
+    cameras_in = data.get("cameras") or {}
+    if not isinstance(cameras_in, dict) or not cameras_in:
+        raise _fail(source, "'cameras' must map camera ids to entries (at least one camera)")
+    cameras = {str(n): _parse_camera(str(n), e, f"{source}: cameras.{n}") for n, e in cameras_in.items()}
+    targets_in = data.get("targets") or {}
+    if not isinstance(targets_in, dict):
+        raise _fail(source, "'targets' must map target ids to entries")
+    targets = {str(n): _parse_target(str(n), e, f"{source}: targets.{n}") for n, e in targets_in.items()}
+    tools = {}
+    for n, e in (data.get("tools") or {}).items():
+        e = e or {}
+        observed = tuple(e.get("observed_by", []) or [])
+        for c in observed:
+            if c not in cameras:
+                raise _fail(f"{source}: tools.{n}.observed_by", f"camera '{c}' is not in 'cameras'")
+        tools[str(n)] = ToolSpec(name=str(n), observed_by=observed)
+    points = {}
+    for n, e in (data.get("points") or {}).items():
+        e = e or {}
+        pos = _matrix(e["position"], (3,), f"{source}: points.{n}.position") if "position" in e else None
+        points[str(n)] = PointSpec(name=str(n), position=pos)
+    robot = _parse_robot(data["robot"], f"{source}: robot") if "robot" in data else None
+    fixed = data.get("fixed") or []
+    if not isinstance(fixed, list) or not all(isinstance(f, str) for f in fixed):
+        raise _fail(f"{source}: fixed", f"expected a list of parameter names, got {fixed!r}")
+    needs_robot = any(c.mount != "free" for c in cameras.values()) or any(
+        t.mount != "free" for t in targets.values()
+    )
+    if needs_robot and robot is None:
+        robot = RobotSpec()
+    return CellSpec(
+        cameras=cameras,
+        targets=targets,
+        tools=tools,
+        points=points,
+        robot=robot,
+        fixed=tuple(fixed),
+        source=source,
+    )
+
+
+def load_cell(cell: str | os.PathLike | dict | CellSpec) -> CellSpec:
+    """Load and validate a cell spec from a YAML/JSON file, a dict, or pass a CellSpec through."""
+    if isinstance(cell, CellSpec):
+        return cell
+    if isinstance(cell, dict):
+        return parse_cell(cell)
+    import yaml
+
+    path = Path(cell)
+    if not path.is_file():
+        raise BadInputError(f"cell spec '{path}' does not exist (expected a jcalib.cell/1 YAML file)")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = f" line {mark.line + 1}" if mark is not None else ""
+        raise BadInputError(f"{path}{line}: not valid YAML ({getattr(e, 'problem', e)})") from None
+    return parse_cell(data, source=str(path))
+
+
+def cell_to_dict(cell: CellSpec) -> dict:
+    """The cell spec as a plain dict that :func:`parse_cell` reads back."""
+    out: dict[str, Any] = {"schema": SCHEMA, "cameras": {}, "targets": {}}
+    for c in cell.cameras.values():
+        entry: dict[str, Any] = {"model": c.model, "mount": c.mount}
+        if c.skew:
+            entry["skew"] = True
+        if c.fix:
+            entry["fix"] = list(c.fix)
+        if c.K is not None:
+            entry["intrinsics"] = {"K": c.K.tolist(), "dist": [] if c.dist is None else c.dist.tolist()}
+        if c.pose is not None:
+            entry["pose"] = c.pose.tolist()
+        out["cameras"][c.name] = entry
+    for t in cell.targets.values():
+        entry = {"type": t.type, **t.params, "mount": t.mount}
+        if t.pose is not None:
+            entry["pose"] = t.pose.tolist()
+        out["targets"][t.name] = entry
+    if cell.tools:
+        out["tools"] = {t.name: {"observed_by": list(t.observed_by)} for t in cell.tools.values()}
+    if cell.points:
+        out["points"] = {
+            p.name: ({} if p.position is None else {"position": p.position.tolist()})
+            for p in cell.points.values()
+        }
+    if cell.robot is not None:
+        robot: dict[str, Any] = {}
+        if cell.robot.pose_noise_translation_m is not None:
+            robot["pose_noise"] = {
+                "translation_m": cell.robot.pose_noise_translation_m.tolist(),
+                "rotation_deg": cell.robot.pose_noise_rotation_deg.tolist(),
+            }
+        out["robot"] = robot
+    if cell.fixed:
+        out["fixed"] = list(cell.fixed)
+    return out
+

@@ -1,0 +1,243 @@
+"""Observations (``observations.json``, schema ``jcalib.observations/1``): what the vision layer produces.
+
+See DESIGN.md. Metres; pixels in the OpenCV convention (centre of the top-left pixel is (0, 0)).
+Loading validates shapes, finiteness and indices, and names the station and camera of any problem.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jcalib.errors import BadInputError
+from jcalib.io.atomic import write_json_atomic
+
+SCHEMA = "jcalib.observations/1"
+
+
+@dataclass(frozen=True)
+class Detection:
+    """What one camera saw at one station: target corners, or one tool-tip pixel.
+
+    Attributes:
+        camera: camera id.
+        target: target id (None for a tool-tip detection).
+        point_index: (n,) int, indices into the target's points.
+        pixels: (n, 2) float64, pixels (OpenCV convention).
+        tool: tool id for a tool-tip detection (then ``pixels`` is (1, 2), ``point_index`` empty).
+    """
+
+    camera: str
+    pixels: np.ndarray
+    target: str | None = None
+    point_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    tool: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"camera": self.camera}
+        if self.tool is not None:
+            out["tool"] = self.tool
+            out["pixel"] = self.pixels.reshape(2).tolist()
+        else:
+            out["target"] = self.target
+            out["point_index"] = self.point_index.astype(int).tolist()
+            out["pixels"] = self.pixels.tolist()
+        return out
+
+
+@dataclass(frozen=True)
+class Contact:
+    """At this station the tip of ``tool`` touches the cell point ``point``."""
+
+    tool: str
+    point: str
+
+
+@dataclass(frozen=True)
+class Station:
+    """One robot station (or one free view when there is no robot).
+
+    Attributes:
+        id: station id, unique in the file.
+        T_base_flange: (4, 4) measured flange pose in the robot base, metres; None without a robot.
+        detections: what the cameras saw.
+        contacts: tool-tip contacts with cell points.
+    """
+
+    id: str
+    detections: tuple[Detection, ...] = ()
+    T_base_flange: np.ndarray | None = None
+    contacts: tuple[Contact, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"id": self.id}
+        if self.T_base_flange is not None:
+            out["T_base_flange"] = self.T_base_flange.tolist()
+        out["detections"] = [d.to_dict() for d in self.detections]
+        if self.contacts:
+            out["contacts"] = [{"tool": c.tool, "point": c.point} for c in self.contacts]
+        return out
+
+
+@dataclass(frozen=True)
+class Observations:
+    """A parsed, validated observations file.
+
+    Attributes:
+        cameras: camera id -> image size ``(width, height)`` in pixels.
+        targets: target id -> (N, 3) target points, metres, target frame.
+        stations: the stations, in file order.
+    """
+
+    cameras: dict[str, tuple[int, int]]
+    targets: dict[str, np.ndarray]
+    stations: tuple[Station, ...]
+    source: str = "<dict>"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": SCHEMA,
+            "cameras": {c: {"image_size": list(s)} for c, s in self.cameras.items()},
+            "targets": {t: {"points": p.tolist()} for t, p in self.targets.items()},
+            "stations": [s.to_dict() for s in self.stations],
+        }
+
+    def num_detections(self) -> int:
+        return sum(len(s.detections) for s in self.stations)
+
+
+def _fail(where: str, msg: str) -> BadInputError:
+    return BadInputError(f"{where}: {msg}")
+
+
+def _array(value: Any, where: str, ndim: int, last: int | None = None, dtype=np.float64) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError):
+        raise _fail(where, f"expected numbers, got {str(value)[:80]}") from None
+    if arr.ndim != ndim or (last is not None and arr.shape[-1] != last):
+        want = "(n,)" if ndim == 1 else f"(n, {last})" if ndim == 2 and last else f"{ndim}-d"
+        raise _fail(where, f"expected shape {want}, got {arr.shape}")
+    if dtype == np.float64 and not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0].tolist()
+        raise _fail(where, f"contains NaN or infinity (first at index {bad}); remove or re-detect it")
+    return arr
+
+
+def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict) -> Detection:
+    if not isinstance(d, dict):
+        raise _fail(where, "a detection must be a mapping")
+    camera = d.get("camera")
+    if camera not in obs_cameras:
+        raise _fail(where, f"camera {camera!r} is not listed in 'cameras' ({', '.join(obs_cameras)})")
+    if "tool" in d:
+        raw = d.get("pixel", d.get("pixels"))
+        try:
+            pixel = np.asarray(raw, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            pixel = np.zeros(0)
+        if pixel.shape != (2,) or not np.all(np.isfinite(pixel)):
+            raise _fail(where + ".pixel", f"a tool-tip detection needs one finite pixel [u, v], got {raw!r}")
+        return Detection(camera=camera, tool=str(d["tool"]), pixels=pixel.reshape(1, 2))
+    target = d.get("target")
+    if target not in obs_targets:
+        raise _fail(where, f"target {target!r} is not listed in 'targets' ({', '.join(obs_targets)})")
+    pixels = _array(d.get("pixels"), where + ".pixels", ndim=2, last=2)
+    try:
+        index = np.asarray(d.get("point_index"), dtype=np.int64)
+    except (TypeError, ValueError):
+        raise _fail(where + ".point_index", "expected a list of integers") from None
+    if index.ndim != 1 or index.shape[0] != pixels.shape[0]:
+        raise _fail(
+            where,
+            f"point_index has {index.size} entries but pixels has {pixels.shape[0]} rows; "
+            "they must pair one to one",
+        )
+    n_points = obs_targets[target].shape[0]
+    if index.size and (index.min() < 0 or index.max() >= n_points):
+        raise _fail(
+            where + ".point_index",
+            f"index out of range (target '{target}' has {n_points} points, got "
+            f"{int(index.min())}..{int(index.max())}); the detections do not match this target",
+        )
+    if np.unique(index).size != index.size:
+        raise _fail(where + ".point_index", "a target point appears twice in one detection")
+    return Detection(camera=camera, target=target, point_index=index, pixels=pixels)
+
+
+def parse_observations(data: Any, source: str = "<dict>") -> Observations:
+    """Validate an observations document given as a dict.
+
+    Raises:
+        BadInputError: naming ``source``, the station id and the camera of the problem.
+    """
+    if not isinstance(data, dict):
+        raise _fail(source, f"expected a mapping with 'schema: {SCHEMA}'")
+    if data.get("schema") != SCHEMA:
+        raise _fail(source, f"schema is {data.get('schema')!r}; expected '{SCHEMA}'")
+    cameras: dict[str, tuple[int, int]] = {}
+    for name, entry in (data.get("cameras") or {}).items():
+        size = (entry or {}).get("image_size")
+        if (
+            not isinstance(size, (list, tuple))
+            or len(size) != 2
+            or not all(isinstance(v, int) and v > 0 for v in size)
+        ):
+            raise _fail(f"{source}: cameras.{name}.image_size", f"expected [width, height] > 0, got {size!r}")
+        cameras[str(name)] = (int(size[0]), int(size[1]))
+    targets: dict[str, np.ndarray] = {}
+    for name, entry in (data.get("targets") or {}).items():
+        targets[str(name)] = _array((entry or {}).get("points"), f"{source}: targets.{name}.points", 2, 3)
+    stations = []
+    seen: set[str] = set()
+    for i, s in enumerate(data.get("stations") or []):
+        if not isinstance(s, dict) or "id" not in s:
+            raise _fail(f"{source}: stations[{i}]", "each station needs an 'id'")
+        sid = str(s["id"])
+        where = f"{source}: station '{sid}'"
+        if sid in seen:
+            raise _fail(where, "duplicate station id")
+        seen.add(sid)
+        T = None
+        if s.get("T_base_flange") is not None:
+            T = _array(s["T_base_flange"], where + ".T_base_flange", 2, 4)
+            if T.shape != (4, 4):
+                raise _fail(where + ".T_base_flange", f"expected a 4x4 matrix, got {T.shape}")
+            R = T[:3, :3]
+            if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+                raise _fail(where + ".T_base_flange", "the rotation part is not a proper rotation")
+        dets = tuple(
+            _parse_detection(d, f"{where}.detections[{j}]", cameras, targets)
+            for j, d in enumerate(s.get("detections") or [])
+        )
+        contacts = tuple(
+            Contact(tool=str(c["tool"]), point=str(c["point"])) for c in (s.get("contacts") or [])
+        )
+        stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts))
+    return Observations(cameras=cameras, targets=targets, stations=tuple(stations), source=source)
+
+
+def load_observations(obs: str | os.PathLike | dict | Observations) -> Observations:
+    """Load and validate observations from a JSON file, a dict, or pass an Observations through."""
+    if isinstance(obs, Observations):
+        return obs
+    if isinstance(obs, dict):
+        return parse_observations(obs)
+    path = Path(obs)
+    if not path.is_file():
+        raise BadInputError(f"observations file '{path}' does not exist")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise BadInputError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
+    return parse_observations(data, source=str(path))
+
+
+def save_observations(path: str | os.PathLike, obs: Observations) -> Path:
+    """Write observations as JSON, atomically."""
+    return write_json_atomic(path, obs.to_dict())

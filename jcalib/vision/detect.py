@@ -1,0 +1,237 @@
+"""Target detection: images -> (point_index, pixels) observations, with diagnostics and failure reasons."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from jcalib.errors import BadInputError, DetectionError
+from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid
+from jcalib.vision.image import GrayImage, image_stats, load_image, to_gray
+
+__all__ = ["TargetDetection", "detect_target", "detect_many", "DETECTION_FAILURE_REASONS"]
+
+DETECTION_FAILURE_REASONS = ("not_found", "partially_visible", "too_blurred", "unreadable")
+
+
+@dataclass(frozen=True)
+class TargetDetection:
+    """The target points found in one image.
+
+    Attributes:
+        point_index: (n,) int64 rows of ``target.points`` that were found (ascending for ChArUco).
+        pixels: (n, 2) float64 their image positions, px, OpenCV convention (centre of the top-left
+            pixel is (0, 0)).
+        image_size: (width, height), px.
+        name: the image path or ``"<array>"``.
+        fraction_found: n / number of target points.
+        edge_width_px: sharpness, about 1-3 px for a focused image (see ``image_stats``).
+        contrast: grey-level spread, 0..1.
+        method: the OpenCV functions used.
+        warnings: ``"orientation_ambiguous"`` for a 180°-symmetric board (see
+            :mod:`jcalib.vision.orientation`), ``"blurred"`` when edges are wider than
+            ``max_edge_width_px``.
+    """
+
+    point_index: np.ndarray
+    pixels: np.ndarray
+    image_size: tuple[int, int]
+    name: str = "<array>"
+    fraction_found: float = 1.0
+    edge_width_px: float = float("nan")
+    contrast: float = float("nan")
+    method: str = ""
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def num_points(self) -> int:
+        return int(len(self.point_index))
+
+    def to_json(self) -> dict:
+        """``{"point_index": [...], "pixels": [[u, v], ...]}`` as in ``observations.json``."""
+        return {"point_index": self.point_index.tolist(), "pixels": self.pixels.tolist()}
+
+
+def detect_target(
+    image,
+    target,
+    *,
+    name: str | None = None,
+    min_points: int = 6,
+    max_edge_width_px: float = 8.0,
+    min_contrast: float = 0.1,
+) -> TargetDetection:
+    """Find a calibration target's points in one image.
+
+    Chessboard: ``cv2.findChessboardCorners`` (``findChessboardCornersSB`` when it fails), then
+    ``cornerSubPix`` on a lightly smoothed image (see :mod:`jcalib.vision.chessboard` for the
+    measured accuracy); the whole board must be visible. ChArUco: ``cv2.aruco.CharucoDetector``,
+    partial views allowed (at least ``min_points`` corners). Circle grids: ``cv2.findCirclesGrid``;
+    the whole grid must be visible. Point indices of chessboards and circle grids follow
+    :mod:`jcalib.vision.orientation` (180°-symmetric boards get the warning
+    ``"orientation_ambiguous"``).
+
+    Args:
+        image: a path, or an (H, W[, 3|4]) uint8 / uint16 array (colour in BGR order).
+        target: ``Checkerboard``, ``Charuco`` or ``CircleGrid``.
+        name: how messages refer to the image (default: the path, or ``"<array>"``).
+        min_points: fewest ChArUco corners accepted (>= 4).
+        max_edge_width_px: a failed image whose edges are wider than this is ``"too_blurred"``; a
+            found one gets the warning ``"blurred"``.
+        min_contrast: a failed image with less grey-level spread (0..1) is ``"not_found"``.
+
+    Returns:
+        :class:`TargetDetection`.
+
+    Raises:
+        DetectionError: reason ``"not_found"``, ``"partially_visible"``, ``"too_blurred"`` or
+            ``"unreadable"``; the message names the image.
+        BadInputError: an unknown target type, a bad array or option.
+    """
+    if isinstance(image, (str, os.PathLike)):
+        name = name or os.fspath(image)
+        image = load_image(image)
+    name = name or "<array>"
+    _check_arguments(target, min_points)
+    gray = to_gray(image, name)
+    contrast, edge_width = image_stats(gray)
+    common = dict(image_size=gray.size, name=name, edge_width_px=edge_width, contrast=contrast)
+    blurred = ("blurred",) if edge_width > max_edge_width_px else ()
+
+    def fail(partial_detail: str | None) -> DetectionError:
+        what = f"{target.type} {_describe(target)}"
+        if contrast < min_contrast:
+            return DetectionError(
+                f"{name}: {what} not found (the image is nearly uniform: contrast {contrast:.3f} < {min_contrast})",
+                "not_found",
+            )
+        if partial_detail is not None:
+            return DetectionError(f"{name}: {what} only partially visible ({partial_detail})", "partially_visible")
+        if edge_width > max_edge_width_px:
+            return DetectionError(
+                f"{name}: {what} not found and the image is too blurred (edge width {edge_width:.1f} px > "
+                f"{max_edge_width_px} px); refocus or reduce motion",
+                "too_blurred",
+            )
+        return DetectionError(f"{name}: {what} not found", "not_found")
+
+    if isinstance(target, Charuco):
+        from jcalib.vision.charuco import find_charuco
+
+        ids, pixels, num_markers = find_charuco(gray, target)
+        if len(ids) < min_points:
+            detail = None
+            if num_markers > 0 or len(ids) > 0:
+                detail = f"{num_markers} markers and {len(ids)} corners found, at least {min_points} corners needed"
+            raise fail(detail)
+        return TargetDetection(
+            point_index=ids,
+            pixels=pixels,
+            fraction_found=len(ids) / target.num_points,
+            method="CharucoDetector+cornerSubPix",
+            warnings=blurred,
+            **common,
+        )
+
+    from jcalib.vision.orientation import assign_grid_indices
+
+    if isinstance(target, Checkerboard):
+        from jcalib.vision.chessboard import find_chessboard, find_partial_chessboard
+
+        pixels, method = find_chessboard(gray, target.cols, target.rows)
+        if pixels is None:
+            size = find_partial_chessboard(gray)
+            detail = None
+            if size is not None:
+                detail = (
+                    f"a {size[0]}x{size[1]} corner chessboard is visible, {target.cols}x{target.rows} expected; "
+                    "check that the whole board is in view (and the cols/rows of the target)"
+                )
+            raise fail(detail)
+    else:
+        from jcalib.vision.circles import count_blobs, find_circles
+
+        pixels = find_circles(gray, target)
+        method = "findCirclesGrid"
+        if pixels is None:
+            n_blobs, n_border = count_blobs(gray)
+            detail = None
+            if n_blobs >= max(4, target.num_points // 4) and (n_border > 0 or n_blobs < target.num_points):
+                detail = (
+                    f"{n_blobs} of {target.num_points} circles found, {n_border} of them at the image border"
+                )
+            raise fail(detail)
+    point_index, ambiguous = assign_grid_indices(target, pixels, gray.f32)
+    order = np.argsort(point_index)
+    return TargetDetection(
+        point_index=point_index[order],
+        pixels=pixels[order],
+        fraction_found=1.0,
+        method=method,
+        warnings=(("orientation_ambiguous",) if ambiguous else ()) + blurred,
+        **common,
+    )
+
+
+def _check_arguments(target, min_points) -> None:
+    if not isinstance(target, (Checkerboard, Charuco, CircleGrid)):
+        raise BadInputError(
+            f"detect_target: argument 'target' got {type(target).__name__}, expected Checkerboard, Charuco or CircleGrid"
+        )
+    if isinstance(min_points, bool) or not isinstance(min_points, (int, np.integer)) or min_points < 4:
+        raise BadInputError(f"detect_target: option 'min_points' got {min_points!r}, expected an integer >= 4")
+
+
+def _describe(target) -> str:
+    if isinstance(target, Charuco):
+        return f"{target.squares_x}x{target.squares_y} squares ({target.dictionary})"
+    kind = " asymmetric" if isinstance(target, CircleGrid) and target.asymmetric else ""
+    return f"{target.cols}x{target.rows}{kind}"
+
+
+def detect_many(
+    images: Iterable | Sequence, target, progress: bool = True, **options
+) -> list[TargetDetection | DetectionError]:
+    """Detect a target in many images; never stops on a bad image.
+
+    Args:
+        images: paths and/or arrays.
+        target: the target to find.
+        progress: show a rich progress bar (on stderr).
+        **options: passed to :func:`detect_target`.
+
+    Returns:
+        one entry per image, in order: a :class:`TargetDetection`, or the :class:`DetectionError`
+        explaining the failure (reason ``"unreadable"`` for a file that cannot be read, or for an
+        array that is not an image).
+    """
+    items = list(images)
+    _check_arguments(target, options.get("min_points", 6))
+    results: list[TargetDetection | DetectionError] = []
+
+    def one(i, item):
+        label = os.fspath(item) if isinstance(item, (str, os.PathLike)) else f"<array {i}>"
+        try:
+            return detect_target(item, target, name=label, **options)
+        except DetectionError as e:
+            return e
+        except BadInputError as e:  # arguments were checked above: this is the image
+            return DetectionError(f"{label}: {e}", "unreadable")
+        except Exception as e:  # noqa: BLE001  (an OpenCV failure on one image must not stop a batch)
+            return DetectionError(f"{label}: detection failed ({type(e).__name__}: {e})", "not_found")
+
+    if not progress:
+        return [one(i, item) for i, item in enumerate(items)]
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = (TextColumn("detecting {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(f"{target.type}", total=len(items))
+        for i, item in enumerate(items):
+            results.append(one(i, item))
+            bar.advance(task)
+    return results
