@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "opencv_left_right_chessboard"
 JCALIB = [sys.executable, "-c", "from jcalib.cli import main; main()"]
 
 CELL = """schema: jcalib.cell/1
@@ -22,9 +21,9 @@ def run(*args, cwd):
     return subprocess.run([*JCALIB, *map(str, args)], capture_output=True, text=True, cwd=cwd)
 
 
-def test_detect_writes_observations_for_all_left_images(tmp_path):
+def test_detect_writes_observations_for_all_left_images(tmp_path, real_data):
     (tmp_path / "cell.yaml").write_text(CELL)
-    images = sorted((REAL / "images").glob("left*.jpg"))
+    images = sorted((real_data / "opencv_left_right_chessboard" / "images").glob("left*.jpg"))
     assert len(images) == 13
     proc = run("detect", "--cell", "cell.yaml", "--camera", "left", *images, "-o", "obs.json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -10,14 +10,12 @@ import pytest
 from jcalib.geometry.targets import Checkerboard
 from jcalib.vision import TargetDetection, detect_many
 
-DATA = "/work/shared/data/real/opencv_left_right_chessboard/images"
 BOARD = Checkerboard(9, 6, 0.030)
-
-pytestmark = pytest.mark.skipif(not os.path.isdir(DATA), reason="real data not present")
 
 
 @pytest.fixture(scope="module")
-def detections():
+def detections(real_data):
+    DATA = str(real_data / "opencv_left_right_chessboard" / "images")
     out = {}
     for side in ("left", "right"):
         files = sorted(glob.glob(os.path.join(DATA, f"{side}*.jpg")))
