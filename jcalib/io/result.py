@@ -1,0 +1,876 @@
+"""The result file (``result.json``, schema ``jcalib.result/1``): what a calibration found.
+
+A pure data layer (NumPy only, no JAX): the solver fills a :class:`ResultFile`, the report and the
+exports (:mod:`jcalib.io.export`) read one. See DESIGN.md, "File formats and entry points".
+
+Units and conventions (the file states them, readers rely on them):
+
+- cameras: OpenCV's ``K`` (pixels, ``K[0][1]`` = skew, or ``alpha * fx`` for the fisheye) and
+  ``dist`` in OpenCV's order, so ``cv2`` takes them unchanged; ``std`` maps intrinsic names
+  (``fx, fy, cx, cy, skew|alpha, k1, k2, p1, p2, k3, ...``) to one standard deviation (pixels for
+  ``fx..cy`` and ``skew``, unitless for ``alpha`` and distortion); the optional ``covariance`` is
+  over the model's intrinsic vector in the order of :attr:`CameraResult.param_names`.
+- transforms: ``T_a_b`` maps points of frame *b* into frame *a*; ``matrix`` is 4x4 in metres;
+  the optional ``covariance`` (6x6) is over the right-perturbation tangent
+  ``T_true = T . Exp(delta)``, ``delta = (rx, ry, rz, tx, ty, tz)`` in radians and metres,
+  expressed in frame *b* (:mod:`jcalib.geometry.lie`).
+- points: ``position`` (3,) in metres in the named ``frame``; ``covariance`` 3x3 in m².
+- stats: ``rms_px``, ``num_residuals``, ``sigma_px`` and any further finite JSON values.
+- provenance: ``input_hash``, ``jcalib_version``, ``options``, ``created`` (ISO 8601).
+
+Uncertainties are what the solver reports: sampling noise of the observations propagated to the
+estimate (scaled by the a-posteriori noise level when the solver says so), not model error.
+
+Every number in the file is finite (a NaN or infinity is a :class:`~jcalib.errors.BadInputError`,
+never written). Files are JSON, never pickle, written atomically. Keys this version does not know
+are kept (``extra``) and written back, so a newer file survives a round trip through older code.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jcalib.errors import BadInputError
+from jcalib.io.atomic import write_text_atomic
+
+__all__ = [
+    "CAMERA_MODEL_DIST_NAMES",
+    "SCHEMA",
+    "TRANSFORM_TANGENT_ORDER",
+    "CameraResult",
+    "PointResult",
+    "Provenance",
+    "ResultFile",
+    "TransformResult",
+    "hash_inputs",
+    "load_result",
+]
+
+SCHEMA = "jcalib.result/1"
+
+#: Order (and units: rad, m) of the tangent vector a transform covariance is expressed in.
+TRANSFORM_TANGENT_ORDER = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+_OPENCV_DIST = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+
+#: Distortion coefficient names of each camera model, in OpenCV's order (``len`` = ``len(dist)``).
+#: Mirrors :mod:`jcalib.geometry.cameras` (kept here so reading a result needs no JAX).
+CAMERA_MODEL_DIST_NAMES: dict[str, tuple[str, ...]] = {
+    "pinhole": (),
+    "opencv4": _OPENCV_DIST[:4],
+    "opencv5": _OPENCV_DIST[:5],
+    "opencv8": _OPENCV_DIST[:8],
+    "opencv12": _OPENCV_DIST[:12],
+    "opencv14": _OPENCV_DIST[:14],
+    "fisheye": ("k1", "k2", "k3", "k4"),
+}
+
+#: A rotation block is accepted when ``max |R^T R - I| <= _ORTHONORMAL_TOL`` (a float64 solver
+#: output is orthonormal to ~1e-15; a matrix printed to 7 decimals still passes).
+_ORTHONORMAL_TOL = 1e-6
+#: Covariances must be symmetric to this relative tolerance (of their largest diagonal entry) and
+#: have no eigenvalue below ``-_COV_TOL * largest eigenvalue`` (rounding of a float64 inverse).
+_COV_TOL = 1e-8
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation helpers: every error names the key, the value received and what was expected.
+# ----------------------------------------------------------------------------------------------
+
+
+class _FieldError(BadInputError):
+    """A validation error at key path ``key`` ("" = the value itself); prefixes compose."""
+
+    def __init__(self, key: str, msg: str):
+        super().__init__(f"{key}: {msg}" if key else msg)
+        self.key, self.msg = key, msg
+
+    def under(self, prefix: str) -> _FieldError:
+        return _FieldError(f"{prefix}.{self.key}" if self.key else prefix, self.msg)
+
+
+def _fail(where: str, msg: str) -> _FieldError:
+    return _FieldError(where, msg)
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _array(
+    value: Any, shape: tuple[int, ...] | None, where: str, ndim: int | None = None
+) -> np.ndarray:
+    """A read-only float64 copy of ``value`` with the given shape, all finite."""
+    if isinstance(value, (str, bytes, Mapping)) or isinstance(value, bool):
+        raise _fail(
+            where, f"expected a numeric array of shape {shape or ('n',)}, got {_short(value)}"
+        )
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _fail(
+            where, f"expected a numeric array of shape {shape or ('n',)}, got {_short(value)}"
+        ) from None
+    if arr.dtype == object:  # pragma: no cover - np.array(dtype=float64) never gives object
+        raise _fail(where, f"expected numbers, got {_short(value)}")
+    if shape is not None and arr.shape != shape:
+        raise _fail(where, f"expected shape {shape}, got shape {arr.shape}: {_short(value)}")
+    if ndim is not None and arr.ndim != ndim:
+        raise _fail(where, f"expected a {ndim}-d array, got shape {arr.shape}: {_short(value)}")
+    if not np.all(np.isfinite(arr)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise _fail(where, f"expected finite numbers, got {arr[bad]} at index {list(bad)}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _finite_float(value: Any, where: str, minimum: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise _fail(where, f"expected a number, got {_short(value)}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise _fail(where, f"expected a finite number, got {x}")
+    if minimum is not None and x < minimum:
+        raise _fail(where, f"expected a number >= {minimum:g}, got {x}")
+    return x
+
+
+def _count(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        if isinstance(value, (float, np.floating)) and float(value).is_integer() and value >= 0:
+            return int(value)
+        raise _fail(where, f"expected a non-negative integer, got {_short(value)}")
+    if value < 0:
+        raise _fail(where, f"expected a non-negative integer, got {value}")
+    return int(value)
+
+
+def _name(value: Any, where: str) -> str:
+    if not isinstance(value, str) or not value or value != value.strip():
+        raise _fail(
+            where, f"expected a non-empty name without surrounding spaces, got {_short(value)}"
+        )
+    return value
+
+
+def _json_value(value: Any, where: str) -> Any:
+    """A deep copy of a JSON value (dict with str keys, list, str, finite number, bool, None)."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return _finite_float(value, where)
+    if isinstance(value, np.ndarray):
+        return _json_value(value.tolist(), where)
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _fail(where, f"expected string keys, got {_short(k)}")
+            out[k] = _json_value(v, f"{where}.{k}")
+        return out
+    if isinstance(value, (list, tuple)):
+        return [_json_value(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise _fail(
+        where, f"expected a JSON value (number, string, bool, list, mapping), got {_short(value)}"
+    )
+
+
+def _covariance(value: Any, n: int, where: str) -> np.ndarray:
+    cov = _array(value, (n, n), where)
+    scale = float(np.max(np.abs(np.diag(cov)))) if n else 0.0
+    asym = float(np.max(np.abs(cov - cov.T))) if n else 0.0
+    if asym > _COV_TOL * scale:
+        raise _fail(where, f"expected a symmetric matrix, got max |C - C^T| = {asym:.3g}")
+    if n and np.min(np.diag(cov)) < 0.0:
+        raise _fail(
+            where, f"expected non-negative variances on the diagonal, got {np.diag(cov).tolist()}"
+        )
+    if n:
+        eig = np.linalg.eigvalsh(0.5 * (cov + cov.T))
+        if eig[0] < -_COV_TOL * max(float(eig[-1]), 0.0) or (eig[-1] <= 0.0 and eig[0] < 0.0):
+            raise _fail(
+                where,
+                f"expected a positive semi-definite matrix, got smallest eigenvalue {eig[0]:.3g} "
+                f"(largest {eig[-1]:.3g})",
+            )
+    return cov
+
+
+def _transform_matrix(value: Any, where: str) -> np.ndarray:
+    T = _array(value, (4, 4), where)
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise _fail(where, f"expected the last row [0, 0, 0, 1], got {T[3].tolist()}")
+    R = T[:3, :3]
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if err > _ORTHONORMAL_TOL or det <= 0.0:
+        raise _fail(
+            where,
+            f"expected a proper rotation in the 3x3 block (orthonormal, det +1), got "
+            f"max|R^T R - I| = {err:.3g} (tolerance {_ORTHONORMAL_TOL:g}) and det = {det:.6g}",
+        )
+    return T
+
+
+def _check_keys(entry: Any, required: tuple[str, ...]) -> None:
+    if not isinstance(entry, Mapping):
+        raise _fail("", f"expected a mapping, got {_short(entry)}")
+    for key in required:
+        if key not in entry:
+            raise _fail(key, f"missing (the entry has: {', '.join(map(str, entry)) or 'no keys'})")
+
+
+def _extra(entry: Mapping, known: tuple[str, ...]) -> dict[str, Any]:
+    return {k: _json_value(v, k) for k, v in entry.items() if k not in known}
+
+
+def _float_list(arr: np.ndarray) -> Any:
+    return np.asarray(arr, dtype=np.float64).tolist()
+
+
+# ----------------------------------------------------------------------------------------------
+# Entries
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class CameraResult:
+    """One calibrated camera, in OpenCV's form.
+
+    Attributes:
+        model: lens model name (a key of :data:`CAMERA_MODEL_DIST_NAMES`).
+        image_size: ``(width, height)``, pixels.
+        K: ``(3, 3)`` camera matrix, pixels: ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``.
+        dist: ``(n,)`` distortion coefficients in OpenCV's order (``n`` fixed by ``model``;
+            the 4 ``D`` of ``cv2.fisheye`` for ``fisheye``).
+        std: intrinsic name -> one standard deviation (names from :attr:`param_names`; any subset).
+        covariance: optional ``(p, p)`` covariance of the intrinsic vector, order
+            :attr:`param_names` (pixels² for ``fx..cy``, ``skew``).
+        skew: whether the model has a skew parameter (``K[0][1]``); None = ``K[0][1] != 0``.
+        extra: further JSON keys, kept as they are.
+    """
+
+    model: str
+    image_size: tuple[int, int]
+    K: np.ndarray  # noqa: N815 (OpenCV's name)
+    dist: np.ndarray
+    std: Mapping[str, float] = field(default_factory=dict)
+    covariance: np.ndarray | None = None
+    skew: bool | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        if self.model not in CAMERA_MODEL_DIST_NAMES:
+            raise _fail(
+                "model",
+                f"unknown camera model {self.model!r}; expected one of "
+                f"{', '.join(CAMERA_MODEL_DIST_NAMES)}",
+            )
+        size = self.image_size
+        if (
+            not isinstance(size, (list, tuple, np.ndarray))
+            or len(size) != 2
+            or any(
+                isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s <= 0 for s in size
+            )
+        ):
+            raise _fail(
+                "image_size",
+                f"expected [width, height] as two positive integers, got {_short(size)}",
+            )
+        set_(self, "image_size", (int(size[0]), int(size[1])))
+        K = _array(self.K, (3, 3), "K")
+        if (
+            K[1, 0] != 0.0
+            or K[2, 0] != 0.0
+            or K[2, 1] != 0.0
+            or K[2, 2] != 1.0
+            or K[0, 0] <= 0
+            or K[1, 1] <= 0
+        ):
+            raise _fail(
+                "K",
+                f"expected [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}",
+            )
+        set_(self, "K", K)
+        n_dist = len(CAMERA_MODEL_DIST_NAMES[self.model])
+        set_(self, "dist", _array(self.dist, (n_dist,), f"dist (model {self.model!r})"))
+        if self.skew is None:
+            set_(self, "skew", bool(K[0, 1] != 0.0))
+        elif not isinstance(self.skew, bool):
+            raise _fail("skew", f"expected true or false, got {_short(self.skew)}")
+        elif not self.skew and K[0, 1] != 0.0:
+            raise _fail("skew", f"is false but K[0][1] = {K[0, 1]} (the skew) is not 0")
+        names = self.param_names
+        if not isinstance(self.std, Mapping):
+            raise _fail(
+                "std",
+                f"expected a mapping of intrinsic name -> standard deviation, got {_short(self.std)}",
+            )
+        std = {}
+        for key, value in self.std.items():
+            if key not in names:
+                raise _fail(
+                    "std",
+                    f"unknown intrinsic {key!r} for model {self.model!r}; expected names from {list(names)}",
+                )
+            std[key] = _finite_float(value, f"std.{key}", minimum=0.0)
+        set_(self, "std", std)
+        if self.covariance is not None:
+            set_(
+                self,
+                "covariance",
+                _covariance(self.covariance, len(names), f"covariance (order {list(names)})"),
+            )
+        set_(self, "extra", _json_value(dict(self.extra), "extra"))
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """Intrinsic names in the order of the intrinsic vector (and of :attr:`covariance`)."""
+        skew_name = ("alpha",) if self.model == "fisheye" else ("skew",)
+        return (
+            ("fx", "fy", "cx", "cy")
+            + (skew_name if self.skew else ())
+            + CAMERA_MODEL_DIST_NAMES[self.model]
+        )
+
+    @property
+    def params(self) -> np.ndarray:
+        """The intrinsic vector ``(p,)`` in the order of :attr:`param_names`."""
+        K = self.K
+        s = (K[0, 1] / K[0, 0] if self.model == "fisheye" else K[0, 1],) if self.skew else ()
+        return np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], s, self.dist])
+
+    @classmethod
+    def from_model(
+        cls, model: Any, covariance: Any = None, std: Mapping[str, float] | None = None
+    ) -> CameraResult:
+        """The entry of a :mod:`jcalib.geometry.cameras` model (duck-typed: ``name``, ``image_size``,
+        ``has_skew``, ``to_opencv()``); ``std`` defaults to the square roots of ``covariance``'s
+        diagonal (order ``model.param_names``)."""
+        K, dist = model.to_opencv()
+        entry_std = dict(std or {})
+        if covariance is not None and std is None:
+            cov = np.asarray(covariance, dtype=np.float64)
+            names = tuple(model.param_names)
+            if cov.shape != (len(names), len(names)):
+                raise _fail(
+                    "covariance", f"expected shape {(len(names), len(names))}, got {cov.shape}"
+                )
+            entry_std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
+        return cls(
+            model.name,
+            tuple(model.image_size),
+            K,
+            dist,
+            entry_std,
+            covariance,
+            bool(model.has_skew),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "model": self.model,
+            "image_size": list(self.image_size),
+            "K": _float_list(self.K),
+            "dist": _float_list(self.dist),
+        }
+        if self.skew:
+            out["skew"] = True
+        if self.std:
+            out["std"] = {k: self.std[k] for k in self.param_names if k in self.std}
+        if self.covariance is not None:
+            out["covariance"] = _float_list(self.covariance)
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> CameraResult:
+        _check_keys(data, ("model", "image_size", "K", "dist"))
+        known = ("model", "image_size", "K", "dist", "std", "covariance", "skew")
+        return cls(
+            model=data["model"],
+            image_size=data["image_size"],
+            K=data["K"],
+            dist=data["dist"],
+            std=data.get("std", {}),
+            covariance=data.get("covariance"),
+            skew=data.get("skew"),
+            extra=_extra(data, known),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class TransformResult:
+    """One rigid transform ``T_a_b`` (maps points of *b* into *a*).
+
+    Attributes:
+        matrix: ``(4, 4)``, metres.
+        covariance: optional ``(6, 6)`` over the right-perturbation tangent ``(rx, ry, rz, tx, ty,
+            tz)`` (rad, m) in frame *b*: ``T_true = T . Exp(delta)``.
+        extra: further JSON keys, kept as they are.
+    """
+
+    matrix: np.ndarray
+    covariance: np.ndarray | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "matrix", _transform_matrix(self.matrix, "matrix"))
+        if self.covariance is not None:
+            object.__setattr__(
+                self,
+                "covariance",
+                _covariance(self.covariance, 6, "covariance (rx, ry, rz, tx, ty, tz)"),
+            )
+        object.__setattr__(self, "extra", _json_value(dict(self.extra), "extra"))
+
+    @property
+    def std(self) -> np.ndarray | None:
+        """Standard deviations ``(6,)`` in tangent order (rad, rad, rad, m, m, m), or None."""
+        return None if self.covariance is None else np.sqrt(np.diag(self.covariance))
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"matrix": _float_list(self.matrix)}
+        if self.covariance is not None:
+            out["covariance"] = _float_list(self.covariance)
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> TransformResult:
+        _check_keys(data, ("matrix",))
+        return cls(
+            matrix=data["matrix"],
+            covariance=data.get("covariance"),
+            extra=_extra(data, ("matrix", "covariance")),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PointResult:
+    """One estimated point.
+
+    Attributes:
+        position: ``(3,)``, metres, in ``frame``.
+        frame: the frame name, e.g. ``"base"``.
+        covariance: optional ``(3, 3)``, m².
+        extra: further JSON keys, kept as they are.
+    """
+
+    position: np.ndarray
+    frame: str = "base"
+    covariance: np.ndarray | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", _array(self.position, (3,), "position"))
+        _name(self.frame, "frame")
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", _covariance(self.covariance, 3, "covariance"))
+        object.__setattr__(self, "extra", _json_value(dict(self.extra), "extra"))
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"position": _float_list(self.position), "frame": self.frame}
+        if self.covariance is not None:
+            out["covariance"] = _float_list(self.covariance)
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> PointResult:
+        _check_keys(data, ("position", "frame"))
+        return cls(
+            position=data["position"],
+            frame=data["frame"],
+            covariance=data.get("covariance"),
+            extra=_extra(data, ("position", "frame", "covariance")),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Provenance:
+    """Where a result came from.
+
+    Attributes:
+        input_hash: e.g. ``"sha256:<hex>"`` of the inputs (:func:`hash_inputs`), or None.
+        jcalib_version: the version that computed the result, or None.
+        options: the solve options (JSON values).
+        created: creation time, ISO 8601 (e.g. ``"2026-11-21T10:00:00Z"``), or None.
+        extra: further JSON keys, kept as they are.
+    """
+
+    input_hash: str | None = None
+    jcalib_version: str | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)
+    created: str | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for key in ("input_hash", "jcalib_version", "created"):
+            value = getattr(self, key)
+            if value is not None and (not isinstance(value, str) or not value):
+                raise _fail(key, f"expected a non-empty string or null, got {_short(value)}")
+        if self.created is not None:
+            try:
+                _dt.datetime.fromisoformat(self.created)
+            except ValueError:
+                raise _fail(
+                    "created",
+                    f"expected an ISO 8601 time like '2026-11-21T10:00:00Z', got {self.created!r}",
+                ) from None
+        if not isinstance(self.options, Mapping):
+            raise _fail("options", f"expected a mapping, got {_short(self.options)}")
+        object.__setattr__(self, "options", _json_value(dict(self.options), "options"))
+        object.__setattr__(self, "extra", _json_value(dict(self.extra), "extra"))
+
+    @classmethod
+    def now(
+        cls, input_hash: str | None = None, options: Mapping[str, Any] | None = None
+    ) -> Provenance:
+        """Provenance stamped with this jcalib's version and the current UTC time (seconds)."""
+        from jcalib import __version__
+
+        created = (
+            _dt.datetime.now(_dt.timezone.utc)
+            .replace(microsecond=0)
+            .isoformat()
+            .replace("+00:00", "Z")
+        )
+        return cls(
+            input_hash=input_hash,
+            jcalib_version=__version__,
+            options=dict(options or {}),
+            created=created,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "input_hash": self.input_hash,
+            "jcalib_version": self.jcalib_version,
+            "options": dict(self.options),
+            "created": self.created,
+        }
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Provenance:
+        _check_keys(data, ())
+        known = ("input_hash", "jcalib_version", "options", "created")
+        return cls(
+            input_hash=data.get("input_hash"),
+            jcalib_version=data.get("jcalib_version"),
+            options=data.get("options", {}),
+            created=data.get("created"),
+            extra=_extra(data, known),
+        )
+
+
+def hash_inputs(*inputs: str | os.PathLike | bytes) -> str:
+    """``"sha256:<hex>"`` over the given files' bytes (paths) or byte strings, in order.
+
+    Each input is length-prefixed, so ``("ab", "c")`` and ``("a", "bc")`` hash differently.
+    """
+    h = hashlib.sha256()
+    for item in inputs:
+        if isinstance(item, bytes):
+            data = item
+        else:
+            path = Path(item)
+            if not path.is_file():
+                raise BadInputError(f"hash_inputs: '{path}' is not a file")
+            data = path.read_bytes()
+        h.update(len(data).to_bytes(8, "little"))
+        h.update(data)
+    return "sha256:" + h.hexdigest()
+
+
+# ----------------------------------------------------------------------------------------------
+# The file
+# ----------------------------------------------------------------------------------------------
+
+_STAT_CHECKS = {
+    "rms_px": lambda v, w: _finite_float(v, w, minimum=0.0),
+    "sigma_px": lambda v, w: _finite_float(v, w, minimum=0.0),
+    "num_residuals": _count,
+}
+
+_TOP_KEYS = ("schema", "cameras", "transforms", "points", "stats", "provenance")
+
+
+def _entries(value: Any, cls: type, where: str) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise _fail(where, f"expected a mapping of name -> {cls.__name__}, got {_short(value)}")
+    out = {}
+    for key, entry in value.items():
+        _name(key, f"{where} (a key)")
+        if not isinstance(entry, cls):
+            raise _fail(f"{where}.{key}", f"expected a {cls.__name__}, got {type(entry).__name__}")
+        out[key] = entry
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class ResultFile:
+    """The contents of a ``jcalib.result/1`` file.
+
+    Attributes:
+        cameras: camera id -> :class:`CameraResult`.
+        transforms: ``T_a_b`` name -> :class:`TransformResult` (a TCP is ``T_flange_<tool>``, a
+            fixed camera ``T_base_<camera>``, a fixed target ``T_base_<target>``).
+        points: point name -> :class:`PointResult`.
+        stats: ``rms_px`` (pixels), ``num_residuals``, ``sigma_px`` (a-posteriori noise, pixels),
+            and any further JSON values (all finite).
+        provenance: :class:`Provenance`, or None when unknown.
+        extra: further top-level JSON keys, kept as they are.
+    """
+
+    cameras: Mapping[str, CameraResult] = field(default_factory=dict)
+    transforms: Mapping[str, TransformResult] = field(default_factory=dict)
+    points: Mapping[str, PointResult] = field(default_factory=dict)
+    stats: Mapping[str, Any] = field(default_factory=dict)
+    provenance: Provenance | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "cameras", _entries(self.cameras, CameraResult, "cameras"))
+        set_(self, "transforms", _entries(self.transforms, TransformResult, "transforms"))
+        set_(self, "points", _entries(self.points, PointResult, "points"))
+        if not isinstance(self.stats, Mapping):
+            raise _fail("stats", f"expected a mapping, got {_short(self.stats)}")
+        stats = {}
+        for key, value in self.stats.items():
+            check = _STAT_CHECKS.get(key)
+            stats[key] = (
+                check(value, f"stats.{key}") if check else _json_value(value, f"stats.{key}")
+            )
+        set_(self, "stats", stats)
+        if self.provenance is not None and not isinstance(self.provenance, Provenance):
+            raise _fail(
+                "provenance", f"expected a Provenance or None, got {type(self.provenance).__name__}"
+            )
+        extra = _json_value(dict(self.extra), "extra")
+        clash = sorted(set(extra) & set(_TOP_KEYS))
+        if clash:
+            raise _fail("extra", f"keys {clash} are fields of the result, not extra keys")
+        set_(self, "extra", extra)
+
+    # ------------------------------------------------------------------ queries
+
+    def camera(self, name: str) -> CameraResult:
+        """The camera ``name``; :class:`BadInputError` listing the cameras if absent."""
+        if name not in self.cameras:
+            raise BadInputError(
+                f"camera: no camera {name!r} in the result; it has: {', '.join(self.cameras) or 'none'}"
+            )
+        return self.cameras[name]
+
+    def transform(self, name: str) -> TransformResult:
+        """The transform ``name`` (e.g. ``"T_flange_needle"``); :class:`BadInputError` if absent."""
+        if name not in self.transforms:
+            raise BadInputError(
+                f"transform: no transform {name!r} in the result; it has: "
+                f"{', '.join(self.transforms) or 'none'}"
+            )
+        return self.transforms[name]
+
+    def frames_under(self, parent: str) -> list[str]:
+        """Names ``x`` with a transform ``T_<parent>_x``, sorted (e.g. ``frames_under("flange")``
+        lists the tools and eye-in-hand cameras)."""
+        prefix = f"T_{parent}_"
+        return sorted(
+            n[len(prefix) :]
+            for n in self.transforms
+            if n.startswith(prefix) and len(n) > len(prefix)
+        )
+
+    def transform_between(self, a: str, b: str) -> np.ndarray:
+        """``T_a_b`` (4x4, m) from ``T_a_b``, the inverse of ``T_b_a``, or ``T_x_a^-1 T_x_b`` for
+        a frame ``x`` holding both (the first such ``x`` in sorted order).
+
+        Raises:
+            BadInputError: no such transform can be formed from the result.
+        """
+        direct, inverse = f"T_{a}_{b}", f"T_{b}_{a}"
+        if direct in self.transforms:
+            return np.array(self.transforms[direct].matrix)
+        if inverse in self.transforms:
+            return _invert(self.transforms[inverse].matrix)
+        suffix_a, suffix_b = f"_{a}", f"_{b}"
+        parents_a = {
+            n[2 : -len(suffix_a)]
+            for n in self.transforms
+            if n.startswith("T_") and n.endswith(suffix_a)
+        }
+        parents_b = {
+            n[2 : -len(suffix_b)]
+            for n in self.transforms
+            if n.startswith("T_") and n.endswith(suffix_b)
+        }
+        common = sorted(p for p in parents_a & parents_b if p)
+        if not common:
+            raise BadInputError(
+                f"transform_between: cannot form T_{a}_{b}: the result has neither {direct}, {inverse} "
+                f"nor two transforms T_x_{a} and T_x_{b} from one frame x; it has: "
+                f"{', '.join(self.transforms) or 'none'}"
+            )
+        x = common[0]
+        return _invert(self.transforms[f"T_{x}_{a}"].matrix) @ self.transforms[f"T_{x}_{b}"].matrix
+
+    # ------------------------------------------------------------------ (de)serialisation
+
+    def to_dict(self) -> dict[str, Any]:
+        """A plain JSON-ready dict (``schema`` first) that :meth:`from_dict` reads back exactly."""
+        out: dict[str, Any] = {
+            "schema": SCHEMA,
+            "cameras": {n: c.to_dict() for n, c in self.cameras.items()},
+            "transforms": {n: t.to_dict() for n, t in self.transforms.items()},
+            "points": {n: p.to_dict() for n, p in self.points.items()},
+            "stats": dict(self.stats),
+        }
+        if self.provenance is not None:
+            out["provenance"] = self.provenance.to_dict()
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "<dict>") -> ResultFile:
+        """Validate a result given as a dict (e.g. parsed JSON).
+
+        Raises:
+            BadInputError: naming ``source`` and the key path, e.g.
+                ``"result.json: cameras.cam0.K: expected shape (3, 3), got shape (2, 3)"``.
+        """
+        try:
+            return cls._from_dict(data)
+        except _FieldError as err:
+            raise BadInputError(f"{source}: {err}") from None
+
+    @classmethod
+    def _from_dict(cls, data: Any) -> ResultFile:
+        if not isinstance(data, Mapping):
+            raise _fail(
+                "", f'a result must be a JSON object with "schema": "{SCHEMA}", got {_short(data)}'
+            )
+        schema = data.get("schema")
+        if schema != SCHEMA:
+            raise _fail("schema", f"expected {SCHEMA!r}, got {schema!r}")
+
+        def section(key: str, entry_cls: type) -> dict[str, Any]:
+            value = data.get(key, {})
+            if not isinstance(value, Mapping):
+                raise _fail(key, f"expected a mapping of name -> entry, got {_short(value)}")
+            out = {}
+            for name, entry in value.items():
+                _name(name, f"{key} (a key)")
+                try:
+                    out[name] = entry_cls.from_dict(entry)
+                except _FieldError as err:
+                    raise err.under(f"{key}.{name}") from None
+            return out
+
+        cameras = section("cameras", CameraResult)
+        transforms = section("transforms", TransformResult)
+        points = section("points", PointResult)
+        provenance = None
+        if data.get("provenance") is not None:
+            try:
+                provenance = Provenance.from_dict(data["provenance"])
+            except _FieldError as err:
+                raise err.under("provenance") from None
+        return cls(
+            cameras=cameras,
+            transforms=transforms,
+            points=points,
+            stats=data.get("stats", {}),
+            provenance=provenance,
+            extra={k: v for k, v in data.items() if k not in _TOP_KEYS},
+        )
+
+    def to_json(self) -> str:
+        """The file's text: indented JSON, number arrays one row per line, exact float round trip."""
+        return _dump(self.to_dict(), 0) + "\n"
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the result to ``path`` atomically (temporary file, fsync, rename)."""
+        return write_text_atomic(path, self.to_json())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> ResultFile:
+        """Read and validate a result file.
+
+        Raises:
+            BadInputError: missing file, invalid JSON (with line and column), NaN/Infinity, or any
+                key that fails validation (named with its path).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise BadInputError(
+                f"result file '{path}' does not exist (expected a {SCHEMA} JSON file)"
+            )
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            raise BadInputError(f"{path}: cannot read the result file ({err})") from None
+        try:
+            data = json.loads(text, parse_constant=_reject_constant)
+        except json.JSONDecodeError as err:
+            raise BadInputError(
+                f"{path} line {err.lineno} column {err.colno}: not valid JSON ({err.msg})"
+            ) from None
+        except ValueError as err:
+            raise BadInputError(f"{path}: {err}") from None
+        return cls.from_dict(data, source=str(path))
+
+
+def load_result(path: str | os.PathLike | ResultFile) -> ResultFile:
+    """A :class:`ResultFile` from a path, or the one given."""
+    return path if isinstance(path, ResultFile) else ResultFile.load(path)
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"expected finite numbers, got {name} (results never hold NaN or infinity)")
+
+
+def _invert(T: np.ndarray) -> np.ndarray:
+    R, t = T[:3, :3], T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ t
+    return out
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _dump(value: Any, indent: int) -> str:
+    """JSON like ``json.dumps(indent=2)`` but with lists of numbers on one line."""
+    pad, inner = " " * indent, " " * (indent + 2)
+    if isinstance(value, dict):
+        if not value:
+            return "{}"
+        items = [f"{inner}{json.dumps(k)}: {_dump(v, indent + 2)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    if isinstance(value, list):
+        if all(_is_number(v) for v in value):
+            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
+        items = [f"{inner}{_dump(v, indent + 2)}" for v in value]
+        return "[\n" + ",\n".join(items) + "\n" + pad + "]"
+    return json.dumps(value, allow_nan=False)
