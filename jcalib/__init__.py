@@ -26,7 +26,30 @@ from jcalib.errors import (  # noqa: E402
     NotObservableError,
 )
 
+#: Public names imported on first use (keeps ``import jcalib`` and ``jcalib --help`` fast).
+_LAZY = {
+    "calibrate": "jcalib.calibration",
+    "Result": "jcalib.calibration",
+    "calibrate_cameras": "jcalib.problems.camera",
+    "CameraCalibrationOptions": "jcalib.problems.camera",
+    "load_cell": "jcalib.io.cell",
+    "load_observations": "jcalib.io.observations",
+    "load_result": "jcalib.io.result",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'jcalib' has no attribute {name!r}")
+
+
 __all__ = [
+    *_LAZY,
     "BadInputError",
     "DetectionError",
     "DeviceError",

@@ -76,6 +76,35 @@ def detect(
     )
 
 
+@app.command()
+def calibrate(
+    cell: Annotated[Path, typer.Argument(help="Cell spec (jcalib.cell/1 YAML).")],
+    observations: Annotated[Path, typer.Argument(help="Observations (jcalib.observations/1 JSON).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Result JSON to write.")],
+    loss: Annotated[str, typer.Option(help="Robust loss: none, huber or cauchy.")] = "none",
+    sigma_px: Annotated[float, typer.Option(help="Stated corner noise σ in pixels.")] = 0.25,
+    noise: Annotated[
+        str, typer.Option(help="Covariance scale: a_posteriori (from residuals) or stated.")
+    ] = "a_posteriori",
+    outlier_threshold: Annotated[
+        Optional[float], typer.Option(help="Reject corners beyond this many σ (omit: keep all).")
+    ] = 5.0,
+) -> None:
+    """Calibrate a cell from observations and write result.json."""
+    enable_compilation_cache()
+    from jcalib.calibration import calibrate as run
+    from jcalib.problems.camera import CameraCalibrationOptions
+    from jcalib.report.console import print_result
+
+    options = CameraCalibrationOptions(
+        loss=loss, sigma_px=sigma_px, noise=noise, outlier_threshold=outlier_threshold
+    )
+    result = run(cell, observations, options)
+    result.to_json(out)
+    print_result(result.file)
+    typer.echo(f"wrote {out}")
+
+
 def main() -> None:
     """Console-script entry point: maps jcalib errors to exit statuses without tracebacks."""
     try:
@@ -83,7 +112,7 @@ def main() -> None:
     except JcalibError as e:
         from rich.console import Console
 
-        Console(stderr=True).print(f"[bold red]jcalib error:[/] {e}", highlight=False)
+        Console(stderr=True, soft_wrap=True).print(f"[bold red]jcalib error:[/] {e}", highlight=False)
         sys.exit(e.exit_code)
     except typer.Abort:
         sys.exit(130)

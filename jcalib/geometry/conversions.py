@@ -41,7 +41,6 @@ from jcalib.errors import BadInputError
 from jcalib.geometry.lie import (
     _matrix_to_quat,
     _quat_normalize,
-    _quat_normalize_sign,
     _quat_to_matrix,
     _so3_exp,
     _so3_log,

@@ -1,17 +1,53 @@
 """Closed-form initialisers: they only start the joint solve, never finish it."""
 
+from jcalib.init.frames import FrameResult, frame_from_points, frame_from_three_points
+from jcalib.init.handeye import (
+    HAND_EYE_METHODS,
+    HandEyeInit,
+    MotionDiagnostics,
+    analyse_motion,
+    check_observable,
+    solve_hand_eye,
+)
 from jcalib.init.homography import estimate_homographies, estimate_homography
+from jcalib.init.pivot import PivotResult, SphereFitResult, pivot_calibration, pivot_sphere_fit
 from jcalib.init.pnp import PlanarPnPResult, PnPResult, planar_pnp, planar_pnp_views, solve_pnp
+from jcalib.init.robot_world import ROBOT_WORLD_METHODS, RobotWorldInit, solve_robot_world_hand_eye
+from jcalib.init.tcp_analytic import AnalyticTCPResult, tcp_from_camera_ray, tcp_three_pose, viewing_ray_base
+from jcalib.init.triangulation import TriangulatedPoint, point_distance, triangulate_dlt, triangulate_point
 from jcalib.init.zhang import ZhangInit, zhang_init
 
 __all__ = [
+    "HAND_EYE_METHODS",
+    "ROBOT_WORLD_METHODS",
+    "AnalyticTCPResult",
+    "FrameResult",
+    "HandEyeInit",
+    "MotionDiagnostics",
+    "PivotResult",
     "PlanarPnPResult",
     "PnPResult",
+    "RobotWorldInit",
+    "SphereFitResult",
+    "TriangulatedPoint",
     "ZhangInit",
+    "analyse_motion",
+    "check_observable",
     "estimate_homographies",
     "estimate_homography",
+    "frame_from_points",
+    "frame_from_three_points",
+    "pivot_calibration",
+    "pivot_sphere_fit",
     "planar_pnp",
     "planar_pnp_views",
+    "solve_hand_eye",
     "solve_pnp",
+    "solve_robot_world_hand_eye",
+    "tcp_from_camera_ray",
+    "tcp_three_pose",
+    "triangulate_dlt",
+    "triangulate_point",
+    "viewing_ray_base",
     "zhang_init",
 ]

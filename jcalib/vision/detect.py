@@ -10,7 +10,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
 from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid
-from jcalib.vision.image import GrayImage, image_stats, load_image, to_gray
+from jcalib.vision.image import image_stats, load_image, to_gray
 
 __all__ = ["TargetDetection", "detect_target", "detect_many", "DETECTION_FAILURE_REASONS"]
 

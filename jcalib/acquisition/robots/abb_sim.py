@@ -1,0 +1,120 @@
+"""A simulated ABB controller running the jcalib line protocol (``robot/abb/PROTOCOL.md``).
+
+It answers exactly like ``robot/abb/JcalibServer.mod``: one client at a time is served (RAPID has one
+socket server task), every reply is one line of at most 80 bytes, unreachable targets are refused with
+``ERR 2 UNREACHABLE`` before the robot moves. Start it in-process with ``AbbSimServer(...).start()`` or
+as a subprocess with ``python -m jcalib.acquisition.robots.serve --protocol abb``.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import numpy as np
+
+from jcalib.acquisition.robots._server import ThreadedTcpServer
+from jcalib.acquisition.robots.abb import MAX_LINE, PROTOCOL_VERSION, LineSocket, encode_line, format_pose_args, parse_pose_args
+from jcalib.acquisition.robots.simulated import SimulatedController, UnreachableError
+from jcalib.errors import BadInputError
+
+
+class AbbSimServer(ThreadedTcpServer):
+    """The RAPID server's behaviour on loopback, backed by a simulated controller.
+
+    Args:
+        controller: the simulated arm (a default :class:`SimulatedController` when None).
+        host, port: listening address (loopback only unless ``allow_non_loopback``); 0 = any free port.
+    """
+
+    name = "abb-sim"
+
+    def __init__(
+        self,
+        controller: SimulatedController | None = None,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        allow_non_loopback: bool = False,
+    ):
+        super().__init__(host, port, allow_non_loopback=allow_non_loopback)
+        self.controller = controller if controller is not None else SimulatedController()
+        self.settle_s = 0.0
+        self._one_client = threading.Lock()  # RAPID serves one connection at a time
+        self.num_requests = 0
+
+    def handle(self, line: str) -> tuple[str, bool]:
+        """One request line -> (reply line, keep the connection open)."""
+        tok = line.split()
+        if not tok:
+            return "ERR 1 SYNTAX", True
+        cmd, args = tok[0].upper(), tok[1:]
+        c = self.controller
+        try:
+            if cmd == "PING" and not args:
+                return f"OK JCALIB {PROTOCOL_VERSION}", True
+            if cmd == "BYE":
+                return "OK", False
+            if cmd == "GETP" and not args:
+                return "POSE " + format_pose_args(c.T_base_tool()), True
+            if cmd == "GETJ" and not args:
+                return "JNT " + " ".join(f"{v:.3f}" for v in np.degrees(c.joints_rad())), True
+            if cmd in ("MOVJ", "MOVL"):
+                try:
+                    T = parse_pose_args(args)
+                except (ValueError, BadInputError):
+                    return "ERR 1 SYNTAX", True
+                try:
+                    c.move(T, "joint" if cmd == "MOVJ" else "linear")
+                except UnreachableError as e:
+                    return ("ERR 4 MOTION" if e.on_path else "ERR 2 UNREACHABLE"), True
+                if self.settle_s > 0:
+                    time.sleep(self.settle_s * c.time_scale)
+                return "OK", True
+            if cmd in ("TOOL", "WOBJ", "SPEED", "SETTLE"):
+                if len(args) != 1:
+                    return "ERR 1 SYNTAX", True
+                try:
+                    v = float(args[0])
+                except ValueError:
+                    return "ERR 1 SYNTAX", True
+                if cmd in ("TOOL", "WOBJ"):
+                    if v != int(v) or not 0 <= v <= 4:
+                        return "ERR 3 RANGE", True
+                    try:
+                        (c.select_tool if cmd == "TOOL" else c.select_base)(int(v))
+                    except BadInputError:
+                        return "ERR 3 RANGE", True
+                elif cmd == "SPEED":
+                    if not 1.0 <= v <= 2000.0:
+                        return "ERR 3 RANGE", True
+                    c.linear_speed_m_s = v / 1000.0
+                else:
+                    if not 0.0 <= v <= 10.0:
+                        return "ERR 3 RANGE", True
+                    self.settle_s = v
+                return "OK", True
+            if cmd in ("PING", "GETP", "GETJ"):
+                return "ERR 1 SYNTAX", True
+            return "ERR 5 UNKNOWN", True
+        finally:
+            self.num_requests += 1
+
+    def serve_connection(self, conn: socket.socket) -> None:
+        with self._one_client:
+            lines = LineSocket(conn)
+            while not self._stop.is_set():
+                try:
+                    line = lines.readline()
+                except ValueError:  # longer than a RAPID string: what RAPID would see is garbage
+                    conn.sendall(encode_line("ERR 1 SYNTAX"))
+                    return
+                except ConnectionError:
+                    return
+                reply, keep = self.handle(line)
+                data = encode_line(reply)
+                assert len(data) <= MAX_LINE
+                conn.sendall(data)
+                if not keep:
+                    return

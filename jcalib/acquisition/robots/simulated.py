@@ -1,0 +1,264 @@
+"""A simulated robot controller: reach and joint limits, motion time, repeatability, settling.
+
+The protocol servers (:mod:`~jcalib.acquisition.robots.kuka_sim`, :mod:`~jcalib.acquisition.robots.abb_sim`)
+wrap one :class:`SimulatedController`; a frame source renders images at :meth:`SimulatedController.true_T_base_flange`.
+:class:`SimulatedRobot` drives a controller in-process through the :class:`~jcalib.acquisition.robots.base.Robot`
+interface (no sockets), for benchmarks and notebooks.
+
+Model of a motion: the target is checked like a controller does (inverse kinematics within the joint
+limits; for a linear move, every point of the straight path), then the joints travel for
+``max_j |dq_j| / v_j`` (joint move) or ``max(length / speed, angle / rot_speed)`` (linear move), scaled
+by ``time_scale``. The reached pose is the target times a random error of the size of the robot's
+repeatability; after arrival the joints ring down (a decaying oscillation of ``settle_amplitude_rad``
+over ``settle_time_s``), so a client that grabs before the robot settled sees a moving arm.
+Reported poses come from the joints through the same kinematics, so they equal the true pose:
+the robot's kinematic error is not modelled (add it in the frame source's ground truth if needed).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.robots.model import ControllerModel, default_model
+from jcalib.acquisition.robots.poses import (
+    check_pose,
+    exp_so3,
+    interpolate_pose,
+    invert,
+    make_pose,
+    pose_distance,
+)
+from jcalib.errors import BadInputError, DeviceError
+
+
+class UnreachableError(MotionRefusedError):
+    """The controller refused a target: outside reach, joint limit, or a linear path that leaves the workspace."""
+
+    def __init__(self, message: str, reason: str, on_path: bool = False):
+        super().__init__(message)
+        self.reason = reason
+        #: True when the target itself is reachable but the straight path to it is not.
+        self.on_path = on_path
+
+
+@dataclass
+class _Trajectory:
+    t0: float
+    duration: float
+    path: np.ndarray  # (k, n) joint waypoints, evenly spaced in time
+
+
+class SimulatedController:
+    """Thread-safe simulated controller state shared by the protocol servers.
+
+    Args:
+        model: reach / joint limits / kinematics (:func:`~jcalib.acquisition.robots.model.default_model`).
+        repeatability_m: 1-sigma position error of a reached pose per axis, m (ISO 9283 repeatability
+            of a 16 kg robot is about 0.04 mm, i.e. sigma ~0.013 mm).
+        repeatability_rad: 1-sigma orientation error per axis, rad.
+        linear_speed_m_s: TCP speed of linear moves, m/s.
+        rotation_speed_rad_s: orientation speed of linear moves, rad/s.
+        speed_fraction: fraction of the maximum joint speeds used by joint moves.
+        settle_time_s: duration of the ring-down after arrival, s (before ``time_scale``).
+        settle_amplitude_rad: initial joint oscillation amplitude, rad.
+        time_scale: multiplies every motion and settle time (0 = instantaneous, for tests).
+        tools: tool index -> ``T_flange_tool`` (4, 4) m; index 0 is the flange itself.
+        bases: base index -> ``T_robroot_base`` (4, 4) m; index 0 is the robot base.
+        seed: random seed of the repeatability noise.
+    """
+
+    def __init__(
+        self,
+        model: ControllerModel | None = None,
+        *,
+        repeatability_m: float = 1.3e-5,
+        repeatability_rad: float = 2e-5,
+        linear_speed_m_s: float = 0.5,
+        rotation_speed_rad_s: float = 1.5,
+        speed_fraction: float = 0.5,
+        settle_time_s: float = 0.15,
+        settle_amplitude_rad: float = 2e-4,
+        time_scale: float = 1.0,
+        tools: dict[int, np.ndarray] | None = None,
+        bases: dict[int, np.ndarray] | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.model = model if model is not None else default_model()
+        self.repeatability_m = float(repeatability_m)
+        self.repeatability_rad = float(repeatability_rad)
+        self.linear_speed_m_s = float(linear_speed_m_s)
+        self.rotation_speed_rad_s = float(rotation_speed_rad_s)
+        self.speed_fraction = float(speed_fraction)
+        self.settle_time_s = float(settle_time_s)
+        self.settle_amplitude_rad = float(settle_amplitude_rad)
+        self.time_scale = float(time_scale)
+        self.tools = {0: np.eye(4), **{int(k): check_pose(v, f"tools[{k}]") for k, v in (tools or {}).items()}}
+        self.bases = {0: np.eye(4), **{int(k): check_pose(v, f"bases[{k}]") for k, v in (bases or {}).items()}}
+        self.tool = 0
+        self.base = 0
+        self._rng = np.random.default_rng(seed)
+        self._lock = threading.RLock()
+        q = np.asarray(self.model.home_rad, dtype=np.float64)
+        self._traj = _Trajectory(time.monotonic() - 1e9, 0.0, q[None, :])
+        self._ring_dir = np.zeros_like(q)
+        self.num_moves = 0
+
+    # --- state ---------------------------------------------------------------------------------
+    def _joints_at(self, t: float) -> tuple[np.ndarray, bool]:
+        tr = self._traj
+        s = (t - tr.t0) / tr.duration if tr.duration > 0 else 1.0
+        if s < 1.0:
+            k = tr.path.shape[0] - 1
+            x = max(s, 0.0) * k
+            i = min(int(x), k - 1)
+            return tr.path[i] + (x - i) * (tr.path[i + 1] - tr.path[i]), True
+        q = tr.path[-1]
+        dt = t - tr.t0 - tr.duration
+        settle = self.settle_time_s * self.time_scale
+        if settle > 0 and dt < settle:
+            decay = np.exp(-5.0 * dt / settle) * np.cos(2 * np.pi * 4.0 * dt / settle)
+            return q + self.settle_amplitude_rad * decay * self._ring_dir, True
+        return q, False
+
+    def joints_rad(self) -> np.ndarray:
+        """(n,) current joints, rad (moving or ringing down included)."""
+        with self._lock:
+            return self._joints_at(time.monotonic())[0].copy()
+
+    def is_moving(self) -> bool:
+        """True while travelling or ringing down."""
+        with self._lock:
+            return self._joints_at(time.monotonic())[1]
+
+    def true_T_base_flange(self) -> np.ndarray:
+        """(4, 4) true flange pose in the robot base (m): what a frame source renders."""
+        return self.model.forward(self.joints_rad())
+
+    def T_base_tool(self) -> np.ndarray:
+        """(4, 4) pose of the active tool in the active base, m (flange in robot base for 0/0)."""
+        with self._lock:
+            T = self.model.forward(self._joints_at(time.monotonic())[0])
+            return invert(self.bases[self.base]) @ T @ self.tools[self.tool]
+
+    def select_tool(self, index: int) -> None:
+        with self._lock:
+            if index not in self.tools:
+                raise BadInputError(f"tool: no tool {index} defined (have {sorted(self.tools)})")
+            self.tool = index
+
+    def select_base(self, index: int) -> None:
+        with self._lock:
+            if index not in self.bases:
+                raise BadInputError(f"base: no base {index} defined (have {sorted(self.bases)})")
+            self.base = index
+
+    # --- motion --------------------------------------------------------------------------------
+    def start_move(self, T_base_tool: np.ndarray, kind: str = "joint") -> float:
+        """Check the target like a controller, then start the motion; returns its duration in s.
+
+        Args:
+            T_base_tool: (4, 4) target of the active tool in the active base, m.
+            kind: "joint" (PTP / MoveJ) or "linear" (LIN / MoveL).
+
+        Raises:
+            UnreachableError: outside reach, joint limits, or (linear) a path point unreachable;
+                the robot does not move.
+        """
+        T_base_tool = check_pose(T_base_tool, "target")
+        if kind not in ("joint", "linear"):
+            raise BadInputError(f"kind: expected 'joint' or 'linear', got {kind!r}")
+        with self._lock:
+            now = time.monotonic()
+            q0, _ = self._joints_at(now)
+            T_flange_target = self.bases[self.base] @ T_base_tool @ invert(self.tools[self.tool])
+            noise = make_pose(
+                exp_so3(self._rng.normal(0.0, self.repeatability_rad, 3)),
+                self._rng.normal(0.0, self.repeatability_m, 3),
+            )
+            T_reached = T_flange_target @ noise
+            ik = self.model.inverse(T_flange_target, q0)
+            if not ik.ok:
+                raise UnreachableError(f"target unreachable: {ik.reason}", ik.reason)
+            if kind == "joint":
+                ik_reached = self.model.inverse(T_reached, ik.joints_rad)
+                q1 = ik_reached.joints_rad if ik_reached.ok else ik.joints_rad
+                path = np.stack([q0, q1])
+                dq = np.abs(q1 - q0)
+                duration = float(np.max(dq / (self.speed_fraction * self.model.joint_speed_rad_s)))
+            else:
+                T0 = self.model.forward(q0)
+                dist, ang = pose_distance(T0, T_flange_target)
+                n = int(np.clip(np.ceil(max(dist / 0.01, ang / 0.05)), 1, 200))
+                path = [q0]
+                for i in range(1, n + 1):
+                    Ti = interpolate_pose(T0, T_reached if i == n else T_flange_target, i / n)
+                    ik = self.model.inverse(Ti, path[-1])
+                    if not ik.ok:
+                        raise UnreachableError(
+                            f"linear path unreachable at {100.0 * i / n:.0f}% of the way: {ik.reason}",
+                            ik.reason,
+                            on_path=True,
+                        )
+                    if np.max(np.abs(ik.joints_rad - path[-1])) > 0.5:
+                        raise UnreachableError(
+                            f"linear path crosses a singularity at {100.0 * i / n:.0f}% of the way",
+                            "singularity",
+                            on_path=True,
+                        )
+                    path.append(ik.joints_rad)
+                path = np.stack(path)
+                duration = max(dist / self.linear_speed_m_s, ang / self.rotation_speed_rad_s)
+            duration *= self.time_scale
+            ring = self._rng.normal(size=path.shape[1])
+            self._ring_dir = ring / np.linalg.norm(ring)
+            self._traj = _Trajectory(now, duration, path)
+            self.num_moves += 1
+            return duration
+
+    def wait_motion(self, timeout_s: float = 60.0) -> None:
+        """Block until the motion (not the ring-down) is over."""
+        with self._lock:
+            end = self._traj.t0 + self._traj.duration
+        remaining = end - time.monotonic()
+        if remaining > timeout_s:
+            raise DeviceError(f"simulated motion needs {remaining:.1f} s, more than {timeout_s} s")
+        if remaining > 0:
+            time.sleep(remaining)
+
+    def move(self, T_base_tool: np.ndarray, kind: str = "joint") -> None:
+        """Start a move and block until the robot arrives (fine point; the ring-down continues)."""
+        self.start_move(T_base_tool, kind)
+        self.wait_motion()
+
+
+class SimulatedRobot(Robot):
+    """A :class:`Robot` driving a :class:`SimulatedController` in-process (no network)."""
+
+    def __init__(self, controller: SimulatedController | None = None, *, settle_poll_s: float = 0.01):
+        self.controller = controller if controller is not None else SimulatedController()
+        self.address = "sim://in-process"
+        self.settle_poll_s = settle_poll_s
+
+    def state(self) -> RobotState:
+        c = self.controller
+        with c._lock:  # one consistent snapshot
+            q = c.joints_rad()
+            T = invert(c.bases[c.base]) @ c.model.forward(q) @ c.tools[c.tool]
+        return RobotState(T, np.degrees(q))
+
+    def _move(self, T_base_flange: np.ndarray, kind: str) -> None:
+        self.controller.move(T_base_flange, kind)
+
+    def select_tool(self, index: int) -> None:
+        self.controller.select_tool(index)
+
+    def select_base(self, index: int) -> None:
+        self.controller.select_base(index)
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,122 @@
+"""``jcalib.calibrate(cell, observations) -> Result``: the one entry point from data to a result file."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jcalib.errors import BadInputError
+from jcalib.io.cell import CellSpec, cell_to_dict, load_cell
+from jcalib.io.observations import Observations, load_observations
+from jcalib.io.result import CameraResult, Provenance, ResultFile, TransformResult, hash_inputs
+
+
+class Result:
+    """A calibration result: the ``jcalib.result/1`` contents plus the solver's details.
+
+    Attributes:
+        file: the :class:`~jcalib.io.result.ResultFile` (what ``to_json`` writes).
+        details: the problem-specific outcome (e.g. :class:`~jcalib.problems.camera.CameraCalibration`),
+            with per-view residuals and the solver's solution.
+    """
+
+    def __init__(self, file: ResultFile, details: Any = None):
+        self.file = file
+        self.details = details
+
+    def to_json(self, path: str | os.PathLike) -> Path:
+        """Write the result file atomically (JSON, never pickle)."""
+        return self.file.save(path)
+
+    def covariance(self, name: str) -> np.ndarray:
+        """Covariance of a named unknown.
+
+        ``name`` is a camera id (covariance of its intrinsic vector, order of the camera's
+        ``param_names``) or a transform name such as ``T_cam0_cam1`` (6x6, tangent order
+        rx, ry, rz, tx, ty, tz, right perturbation; rad and m).
+        """
+        if name in self.file.cameras and self.file.cameras[name].covariance is not None:
+            return np.asarray(self.file.cameras[name].covariance)
+        if name in self.file.transforms and self.file.transforms[name].covariance is not None:
+            return np.asarray(self.file.transforms[name].covariance)
+        known = list(self.file.cameras) + list(self.file.transforms)
+        raise BadInputError(f"no covariance for {name!r}; the result has: {', '.join(known)}")
+
+    def __repr__(self) -> str:
+        return f"Result(cameras={list(self.file.cameras)}, transforms={list(self.file.transforms)})"
+
+
+def _input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
+    import json
+
+    parts = []
+    for arg, obj in ((cell_arg, cell_to_dict(cell)), (obs_arg, obs.to_dict())):
+        if isinstance(arg, (str, os.PathLike)):
+            parts.append(Path(arg))
+        else:
+            parts.append(json.dumps(obj, sort_keys=True).encode())
+    return hash_inputs(*parts)
+
+
+def calibrate(cell, observations, options=None) -> Result:
+    """Calibrate a cell from observations.
+
+    Args:
+        cell: a ``jcalib.cell/1`` spec: path, dict or :class:`~jcalib.io.cell.CellSpec`.
+        observations: a ``jcalib.observations/1`` document: path, dict or
+            :class:`~jcalib.io.observations.Observations`.
+        options: problem options (for camera-only cells a
+            :class:`~jcalib.problems.camera.CameraCalibrationOptions`).
+
+    Returns:
+        :class:`Result`. Uncertainties are sampling noise (pixel noise propagated to the
+        unknowns, scaled by the a-posteriori σ by default), not model error.
+
+    Raises:
+        BadInputError: malformed input, naming the file, station and camera.
+        NotObservableError: the data cannot determine some unknowns, naming them.
+    """
+    cell_spec = load_cell(cell)
+    obs = load_observations(observations)
+    has_robot = any(c.mount != "free" for c in cell_spec.cameras.values()) or any(
+        t.mount != "free" for t in cell_spec.targets.values()
+    )
+    if has_robot or cell_spec.tools or cell_spec.points:
+        raise BadInputError(
+            f"{cell_spec.source}: this version calibrates cameras with free-moving targets "
+            "(mount: free); robot-mounted cameras, targets, tools and points come with the "
+            "hand-eye and TCP problems"
+        )
+    from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
+
+    options = options or CameraCalibrationOptions()
+    cal = calibrate_cameras(cell_spec, obs, options)
+    cameras = {
+        name: CameraResult.from_model(model, covariance=cal.intrinsics_covariance[name])
+        for name, model in cal.cameras.items()
+    }
+    transforms = {
+        f"T_{cal.reference_camera}_{name}": TransformResult(T, cal.T_ref_cam_covariance[name])
+        for name, T in cal.T_ref_cam.items()
+        if name != cal.reference_camera
+    }
+    stats = {
+        "rms_px": cal.rms_px,
+        "num_residuals": cal.num_residuals,
+        "sigma_px": cal.sigma_px,
+        "iterations": cal.iterations,
+        "status": cal.status,
+        "num_outliers": len(cal.outliers),
+        "view_rms_px": {f"{c}/{s}": v for (c, s), v in cal.view_rms_px.items()},
+    }
+    if cal.reseeded_views:
+        stats["reseeded_views"] = cal.reseeded_views
+    provenance = Provenance.now(
+        input_hash=_input_hash(cell, observations, cell_spec, obs), options=asdict(options)
+    )
+    file = ResultFile(cameras=cameras, transforms=transforms, stats=stats, provenance=provenance)
+    return Result(file, cal)

@@ -1,0 +1,1 @@
+"""Human-readable output of results: console tables (and, later, HTML reports)."""

@@ -1,0 +1,75 @@
+"""Rich console tables of a result: every unknown with its value, σ and unit."""
+
+from __future__ import annotations
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from jcalib.io.result import ResultFile
+
+_PIXEL_PARAMS = {"fx", "fy", "cx", "cy", "skew"}
+
+
+def intrinsics_table(result: ResultFile, truth: dict[str, dict[str, float]] | None = None) -> Table:
+    """One row per intrinsic of every camera: value, σ (and truth, error/σ when ``truth`` is given)."""
+    table = Table(title="Camera intrinsics", show_lines=False)
+    for col in ("camera", "parameter", "estimate", "σ", "unit"):
+        table.add_column(col, justify="right" if col in ("estimate", "σ") else "left")
+    if truth is not None:
+        table.add_column("truth", justify="right")
+        table.add_column("error / σ", justify="right")
+    for name, cam in result.cameras.items():
+        for pname, value in zip(cam.param_names, cam.params):
+            std = cam.std.get(pname)
+            unit = "px" if pname in _PIXEL_PARAMS else ""
+            fixed = std is not None and std == 0.0
+            row = [name, pname, f"{value:.6g}", "fixed" if fixed else (f"{std:.2g}" if std is not None else "–"), unit]
+            if truth is not None:
+                t = truth.get(name, {}).get(pname)
+                if t is None:
+                    row += ["", ""]
+                else:
+                    z = (value - t) / std if std else float("nan")
+                    row += [f"{t:.6g}", "" if fixed or not np.isfinite(z) else f"{z:+.2f}"]
+            table.add_row(*row)
+    return table
+
+
+def transforms_table(result: ResultFile) -> Table | None:
+    """One row per transform: translation (mm) and rotation vector (deg) with their σ."""
+    if not result.transforms:
+        return None
+    from jcalib.geometry.conversions import matrix_to_rvec
+
+    table = Table(title="Transforms (T_a_b: pose of b in a)")
+    for col in ("transform", "t [mm]", "σ t [mm]", "rvec [deg]", "σ r [deg]"):
+        table.add_column(col)
+    for name, tr in result.transforms.items():
+        T = np.asarray(tr.matrix)
+        rvec = np.degrees(matrix_to_rvec(T[:3, :3]))
+        std = tr.std
+        table.add_row(
+            name,
+            " ".join(f"{v:.3f}" for v in T[:3, 3] * 1e3),
+            "–" if std is None else " ".join(f"{v:.3f}" for v in std[3:] * 1e3),
+            " ".join(f"{v:.4f}" for v in rvec),
+            "–" if std is None else " ".join(f"{v:.4f}" for v in np.degrees(std[:3])),
+        )
+    return table
+
+
+def print_result(result: ResultFile, console: Console | None = None, truth=None) -> None:
+    """Print the result's tables and fit statistics."""
+    console = console or Console()
+    console.print(intrinsics_table(result, truth))
+    t = transforms_table(result)
+    if t is not None:
+        console.print(t)
+    s = result.stats
+    console.print(
+        f"RMS {s.get('rms_px', float('nan')):.4f} px · a-posteriori σ {s.get('sigma_px', float('nan')):.4f} px · "
+        f"{s.get('num_residuals', 0)} residuals · {s.get('iterations', '?')} iterations · "
+        f"status {s.get('status', '?')} · {s.get('num_outliers', 0)} outliers rejected",
+        highlight=False,
+    )

@@ -1,0 +1,361 @@
+"""Block-structured normal equations: linearisation, assembly, Schur-complement solves.
+
+Unknowns split into **shared** coordinates (all non-eliminated variable kinds, concatenated into one
+vector of length ``n_s``; entry-major, tangent order) and **eliminated** kinds (``num`` blocks of
+``d`` coordinates each). The Hessian is held as
+
+- ``H_ss (n_s, n_s)``: dense shared block;
+- per eliminated kind ``V (num, d, d)`` (block-diagonal) and ``W (num, n_s, d)`` (shared × block);
+
+and never as one dense matrix of the whole problem. Jacobians come from ``vmap(jacfwd)`` per
+factor group with respect to each argument's tangent (retraction at zero), scattered into the
+blocks with ``.at[].add``. Fixed tangent coordinates get zero Jacobian columns and an identity
+diagonal (so every solve returns exactly 0 for them and the matrices stay invertible).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+import numpy as np
+
+from jcalib.solve.problem import Problem
+
+
+class Layout(NamedTuple):
+    """Static bookkeeping of where each variable kind lives (all Python ints)."""
+
+    names: tuple[str, ...]
+    nums: tuple[int, ...]
+    dims: tuple[int, ...]
+    eliminate: tuple[bool, ...]
+    offsets: tuple[int, ...]  # into the shared vector; -1 for eliminated kinds
+    elim_slot: tuple[int, ...]  # position among eliminated kinds; -1 for shared kinds
+    n_shared: int
+
+    @property
+    def num_elim(self) -> int:
+        return sum(self.eliminate)
+
+    def kind(self, name: str) -> int:
+        return self.names.index(name)
+
+
+def make_layout(problem: Problem) -> Layout:
+    offsets, slots = [], []
+    off = 0
+    slot = 0
+    for v in problem.variables:
+        if v.eliminate:
+            offsets.append(-1)
+            slots.append(slot)
+            slot += 1
+        else:
+            offsets.append(off)
+            slots.append(-1)
+            off += v.num * v.tangent_dim
+    return Layout(
+        names=tuple(v.name for v in problem.variables),
+        nums=tuple(v.num for v in problem.variables),
+        dims=tuple(v.tangent_dim for v in problem.variables),
+        eliminate=tuple(v.eliminate for v in problem.variables),
+        offsets=tuple(offsets),
+        elim_slot=tuple(slots),
+        n_shared=off,
+    )
+
+
+class System(eqx.Module):
+    """Block normal equations ``H δ = -g`` (``H ≈ JᵀJ`` or the exact Hessian; whitened units).
+
+    Attributes:
+        H_ss: ``(n_s, n_s)`` shared block.
+        g_s: ``(n_s,)`` shared gradient.
+        V: per eliminated kind, ``(num, d, d)`` diagonal blocks.
+        W: per eliminated kind, ``(num, n_s, d)`` coupling blocks (rows: shared).
+        g_e: per eliminated kind, ``(num, d)`` gradient.
+    """
+
+    H_ss: jax.Array
+    g_s: jax.Array
+    V: tuple[jax.Array, ...]
+    W: tuple[jax.Array, ...]
+    g_e: tuple[jax.Array, ...]
+
+
+def free_masks(problem: Problem) -> dict[str, jax.Array]:
+    """``{name: (num, d) float}``: 1 for free tangent coordinates, 0 for fixed ones."""
+    return {v.name: jnp.where(v.fixed, 0.0, 1.0) for v in problem.variables}
+
+
+def retract_all(problem: Problem, values: dict, deltas: dict) -> dict:
+    """Apply ``x ⊞ δ`` entry-wise to every kind; entries with a free coordinate are re-normalised."""
+    out = {}
+    for v in problem.variables:
+        x = values[v.name]
+        new = jax.vmap(v.manifold.retract)(x, deltas[v.name])
+        normed = jax.vmap(v.manifold.normalize)(new)
+        any_free = jnp.any(~v.fixed, axis=-1)
+        out[v.name] = jnp.where(any_free[:, None], normed, new)
+    return out
+
+
+def _obs_residual(f, manifolds):
+    """Whitened residual of one observation as a function of the argument tangents."""
+
+    def r_obs(rows, deltas, obs, w):
+        params = [m.retract(x, d) for m, x, d in zip(manifolds, rows, deltas)]
+        r = jnp.asarray(f.fn(*params, obs))
+        # weight 0 (padding, masked outliers): exact zero, finite derivatives even if r is not.
+        return jnp.where(w > 0.0, r * (w / f.sigma), jnp.zeros_like(r))
+
+    return r_obs
+
+
+def _factor_parts(problem: Problem, f):
+    by_name = {v.name: v for v in problem.variables}
+    manifolds = [by_name[a].manifold for a in f.args]
+    dims = [m.tangent_dim for m in manifolds]
+    return by_name, manifolds, dims
+
+
+def factor_linearization(problem: Problem, values: dict, f, free: dict):
+    """Per-observation Gauss–Newton blocks of one factor group (IRLS-reweighted).
+
+    Returns:
+        cost: scalar ``½ Σ ρ(s_k)``; H_obs ``(K, D, D)``; g_obs ``(K, D)``;
+        r_w ``(K, m)`` whitened, reweighted residuals; J ``(K, m, D)`` reweighted Jacobian;
+        m_eff: number of residual components with nonzero weight. ``D`` = sum of argument dims.
+    """
+    by_name, manifolds, dims = _factor_parts(problem, f)
+    r_obs = _obs_residual(f, manifolds)
+    rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
+    zeros = tuple(jnp.zeros((f.num_obs, d), jnp.float64) for d in dims)
+
+    def value_and_jac(rows_k, deltas_k, obs_k, w_k):
+        def g(*ds):
+            r = r_obs(rows_k, ds, obs_k, w_k)
+            return r, r
+
+        jac, r = jax.jacfwd(g, argnums=tuple(range(len(dims))), has_aux=True)(*deltas_k)
+        return r, jnp.concatenate(jac, axis=-1)
+
+    r, J = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
+    s = jnp.sum(r * r, axis=-1)
+    rho, rho1 = f.loss.rho(s)
+    sw = jnp.sqrt(rho1)
+    r = r * sw[:, None]
+    mask = jnp.concatenate([free[a][i] for a, i in zip(f.args, f.indices)], axis=-1)
+    J = J * (sw[:, None] * mask)[:, None, :]
+    H_obs = jnp.einsum("kmi,kmj->kij", J, J)
+    g_obs = jnp.einsum("kmi,km->ki", J, r)
+    m_eff = jnp.sum(jnp.where(f.sqrt_weight > 0.0, 1, 0)) * r.shape[-1]
+    return 0.5 * jnp.sum(rho), H_obs, g_obs, r, J, m_eff
+
+
+def factor_exact_hessian(problem: Problem, values: dict, f, free: dict):
+    """Per-observation exact Hessian and gradient of ``½ ρ(‖r_w‖²)`` w.r.t. the argument tangents.
+
+    Used by implicit differentiation (the optimality condition needs the full second derivative,
+    not Gauss–Newton). Returns ``H_obs (K, D, D)``, ``g_obs (K, D)``, masked by the free mask.
+    """
+    by_name, manifolds, dims = _factor_parts(problem, f)
+    r_obs = _obs_residual(f, manifolds)
+    rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
+    splits = np.cumsum(dims)[:-1].tolist()
+
+    def c_obs(delta, rows_k, obs_k, w_k):
+        r = r_obs(rows_k, tuple(jnp.split(delta, splits)), obs_k, w_k)
+        return 0.5 * f.loss.rho(jnp.sum(r * r))[0]
+
+    zero = jnp.zeros((f.num_obs, sum(dims)), jnp.float64)
+    H_obs = jax.vmap(jax.hessian(c_obs))(zero, rows, f.observations, f.sqrt_weight)
+    g_obs = jax.vmap(jax.grad(c_obs))(zero, rows, f.observations, f.sqrt_weight)
+    mask = jnp.concatenate([free[a][i] for a, i in zip(f.args, f.indices)], axis=-1)
+    return H_obs * mask[:, :, None] * mask[:, None, :], g_obs * mask
+
+
+def empty_system(layout: Layout) -> System:
+    n = layout.n_shared
+    V, W, g_e = [], [], []
+    for k in range(len(layout.names)):
+        if layout.eliminate[k]:
+            N, d = layout.nums[k], layout.dims[k]
+            V.append(jnp.zeros((N, d, d), jnp.float64))
+            W.append(jnp.zeros((N, n, d), jnp.float64))
+            g_e.append(jnp.zeros((N, d), jnp.float64))
+    return System(jnp.zeros((n, n), jnp.float64), jnp.zeros((n,), jnp.float64), tuple(V), tuple(W), tuple(g_e))
+
+
+def scatter_factor(system: System, layout: Layout, f, H_obs, g_obs) -> System:
+    """Scatter-add one factor group's per-observation blocks into the block system."""
+    shared_pos, shared_gidx = [], []
+    elim = None
+    pos = 0
+    for a, idx in zip(f.args, f.indices):
+        k = layout.kind(a)
+        d = layout.dims[k]
+        if layout.eliminate[k]:
+            elim = (layout.elim_slot[k], idx, np.arange(pos, pos + d))
+        else:
+            shared_pos.append(np.arange(pos, pos + d))
+            shared_gidx.append(layout.offsets[k] + idx[:, None] * d + jnp.arange(d, dtype=idx.dtype)[None, :])
+        pos += d
+    H_ss, g_s = system.H_ss, system.g_s
+    V, W, g_e = list(system.V), list(system.W), list(system.g_e)
+    if shared_pos:
+        sp = np.concatenate(shared_pos)
+        gi = jnp.concatenate(shared_gidx, axis=-1)  # (K, D_s)
+        H_ss = H_ss.at[gi[:, :, None], gi[:, None, :]].add(H_obs[:, sp][:, :, sp])
+        g_s = g_s.at[gi].add(g_obs[:, sp])
+    if elim is not None:
+        slot, idx, ep = elim
+        V[slot] = V[slot].at[idx].add(H_obs[:, ep][:, :, ep])
+        g_e[slot] = g_e[slot].at[idx].add(g_obs[:, ep])
+        if shared_pos:
+            W[slot] = W[slot].at[idx[:, None], gi].add(H_obs[:, sp][:, :, ep])
+    return System(H_ss, g_s, tuple(V), tuple(W), tuple(g_e))
+
+
+def add_fixed_identity(system: System, layout: Layout, free: dict) -> System:
+    """Put 1 on the diagonal of every fixed coordinate (its rows/columns are zero already)."""
+    fixed_s = [1.0 - free[n].reshape(-1) for n, e in zip(layout.names, layout.eliminate) if not e]
+    H_ss = system.H_ss
+    if fixed_s:
+        H_ss = H_ss + jnp.diag(jnp.concatenate(fixed_s))
+    V = []
+    for slot, n in enumerate([n for n, e in zip(layout.names, layout.eliminate) if e]):
+        fx = 1.0 - free[n]
+        V.append(system.V[slot] + jax.vmap(jnp.diag)(fx))
+    return System(H_ss, system.g_s, tuple(V), system.W, system.g_e)
+
+
+def linearize(problem: Problem, layout: Layout, values: dict, free: dict):
+    """Gauss–Newton system at ``values``: returns ``(cost, System, m_eff)``."""
+    system = empty_system(layout)
+    cost = jnp.zeros((), jnp.float64)
+    m_eff = jnp.zeros((), jnp.int32)
+    for f in problem.factors:
+        c, H_obs, g_obs, _, _, m = factor_linearization(problem, values, f, free)
+        system = scatter_factor(system, layout, f, H_obs, g_obs)
+        cost = cost + c
+        m_eff = m_eff + m.astype(jnp.int32)
+    return cost, add_fixed_identity(system, layout, free), m_eff
+
+
+def exact_system(problem: Problem, layout: Layout, values: dict, free: dict) -> System:
+    """Exact-Hessian system at ``values`` (for implicit differentiation)."""
+    system = empty_system(layout)
+    for f in problem.factors:
+        H_obs, g_obs = factor_exact_hessian(problem, values, f, free)
+        system = scatter_factor(system, layout, f, H_obs, g_obs)
+    return add_fixed_identity(system, layout, free)
+
+
+def diagonal(system: System) -> tuple[jax.Array, tuple[jax.Array, ...]]:
+    """``(diag H_ss (n_s,), per eliminated kind diag V (num, d))``."""
+    return jnp.diagonal(system.H_ss), tuple(jnp.diagonal(V, axis1=-2, axis2=-1) for V in system.V)
+
+
+def matvec(system: System, x_s, x_e):
+    """``H x`` in block form for ``x_s (n_s,)``, ``x_e`` per eliminated kind ``(num, d)``."""
+    y_s = system.H_ss @ x_s
+    y_e = []
+    for V, W, xe in zip(system.V, system.W, x_e):
+        y_s = y_s + jnp.einsum("nsd,nd->s", W, xe)
+        y_e.append(jnp.einsum("nde,ne->nd", V, xe) + jnp.einsum("nsd,s->nd", W, x_s))
+    return y_s, tuple(y_e)
+
+
+def _block_inverse(V):
+    """Inverse of SPD blocks ``(num, d, d)`` via Cholesky (symmetric result)."""
+    d = V.shape[-1]
+    L = jnp.linalg.cholesky(V)
+    eye = jnp.broadcast_to(jnp.eye(d, dtype=V.dtype), V.shape)
+    Linv = jax.vmap(lambda l, e: jsl.solve_triangular(l, e, lower=True))(L, eye)
+    return jnp.einsum("nji,njk->nik", Linv, Linv)
+
+
+def reduced_system(system: System, damp_s, damp_e):
+    """Schur complement ``S = H_ss + D_s − Σ W V⁻¹ Wᵀ`` and the block inverses ``V⁻¹`` (damped)."""
+    S = system.H_ss + jnp.diag(damp_s) if damp_s is not None else system.H_ss
+    Vinvs = []
+    for i, (V, W) in enumerate(zip(system.V, system.W)):
+        if damp_e is not None:
+            V = V + jax.vmap(jnp.diag)(damp_e[i])
+        Vinv = _block_inverse(V)
+        Vinvs.append(Vinv)
+        Y = jnp.einsum("nsd,nde->nse", W, Vinv)
+        S = S - jnp.einsum("nse,nte->st", Y, W)
+    return S, tuple(Vinvs)
+
+
+def _block_jacobi(S, layout: Layout):
+    """Block-Jacobi preconditioner of ``S``: one ``d × d`` block per shared entry."""
+    idxs = []
+    for k in range(len(layout.names)):
+        if not layout.eliminate[k]:
+            N, d = layout.nums[k], layout.dims[k]
+            idxs.append(layout.offsets[k] + np.arange(N * d).reshape(N, d))
+    invs = [jnp.linalg.inv(S[i[:, :, None], i[:, None, :]]) for i in idxs]
+
+    def apply(x):
+        out = jnp.zeros_like(x)
+        for i, inv in zip(idxs, invs):
+            out = out.at[i].set(jnp.einsum("nde,ne->nd", inv, x[i]))
+        return out
+
+    return apply
+
+
+def schur_solve(system: System, layout: Layout, rhs_s, rhs_e, damp_s=None, damp_e=None,
+                cg_threshold: int = 1 << 30, cg_max_iterations: int = 500, cg_tol: float = 1e-12):
+    """Solve ``(H + diag(damp)) x = rhs`` by eliminating the block-diagonal kinds.
+
+    Args:
+        rhs_s: ``(n_s, R)``; rhs_e: per eliminated kind ``(num, d, R)``.
+        damp_s, damp_e: optional diagonal additions ``(n_s,)`` / ``(num, d)``.
+        cg_threshold: reduced systems larger than this are solved by block-Jacobi preconditioned
+            conjugate gradients instead of Cholesky.
+    Returns:
+        ``(x_s (n_s, R), x_e tuple of (num, d, R))``.
+    """
+    S, Vinvs = reduced_system(system, damp_s, damp_e)
+    b = rhs_s
+    for W, Vinv, re in zip(system.W, Vinvs, rhs_e):
+        b = b - jnp.einsum("nsd,nde,ner->sr", W, Vinv, re)
+    n = layout.n_shared
+    if n == 0:
+        x_s = b
+    elif n > cg_threshold:
+        precond = _block_jacobi(S, layout)
+
+        def cg_one(bcol):
+            x, _ = jax.scipy.sparse.linalg.cg(lambda v: S @ v, bcol, M=precond, tol=cg_tol,
+                                               maxiter=cg_max_iterations)
+            return x
+
+        x_s = jax.vmap(cg_one, in_axes=1, out_axes=1)(b)
+    else:
+        x_s = jsl.cho_solve(jsl.cho_factor(S, lower=True), b)
+    x_e = []
+    for W, Vinv, re in zip(system.W, Vinvs, rhs_e):
+        x_e.append(jnp.einsum("nde,ner->ndr", Vinv, re - jnp.einsum("nsd,sr->ndr", W, x_s)))
+    return x_s, tuple(x_e)
+
+
+def total_cost(problem: Problem, values: dict):
+    """``½ Σ_groups Σ_k ρ(‖r_w,k‖²)`` at ``values`` (whitened units); differentiable in everything."""
+    cost = jnp.zeros((), jnp.float64)
+    for f in problem.factors:
+        by_name, manifolds, dims = _factor_parts(problem, f)
+        r_obs = _obs_residual(f, manifolds)
+        rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
+        zeros = tuple(jnp.zeros((f.num_obs, d), jnp.float64) for d in dims)
+        r = jax.vmap(r_obs)(rows, zeros, f.observations, f.sqrt_weight)
+        cost = cost + 0.5 * jnp.sum(f.loss.rho(jnp.sum(r * r, axis=-1))[0])
+    return cost

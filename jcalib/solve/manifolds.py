@@ -1,0 +1,156 @@
+"""Manifolds of the engine's variable kinds: Euclidean, SO(3), SE(3).
+
+Every manifold maps one parameter row (``param_dim``) and one tangent vector (``tangent_dim``):
+
+- ``retract(x, delta) -> x'`` is the update the solver applies (right perturbation ``x · Exp(δ)``
+  for the groups, ``x + δ`` for Euclidean);
+- ``local(x, y) -> delta`` is its inverse, ``Log(x⁻¹ y)``, so ``retract(x, local(x, y)) == y``.
+
+Layouts (DESIGN.md): SO(3) parameters are a ``wxyz`` unit quaternion, tangent ``(rx, ry, rz)`` in
+radians. SE(3) parameters are ``wxyz_xyz`` (quaternion, then translation in metres), tangent
+``(rx, ry, rz, tx, ty, tz)`` — rotation first, unlike jaxlie's ``(tx, ty, tz, rx, ry, rz)``; the
+reordering happens here and nowhere else.
+
+A partial fixed mask on a group element constrains each *step* ``δ`` in the element's local frame;
+only Euclidean coordinates and whole fixed group elements keep their values bit-for-bit.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import jaxlie
+
+# jaxlie 1.5's multiply / inverse / apply mix int and float arrays and raise under JAX's strict
+# dtype promotion (tests/conftest.py); its exp / log do not. Compositions are therefore written
+# here with explicit quaternion algebra and jaxlie is used for exp / log only.
+
+
+def quat_multiply(a, b):
+    """Hamilton product of ``wxyz`` quaternions ``a (4,)``, ``b (4,)``."""
+    aw, ax, ay, az = a[0], a[1], a[2], a[3]
+    bw, bx, by, bz = b[0], b[1], b[2], b[3]
+    return jnp.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
+
+
+def quat_conjugate(q):
+    """Inverse of a unit ``wxyz`` quaternion."""
+    return q * jnp.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_rotate(q, v):
+    """Rotate ``v (3,)`` by the unit ``wxyz`` quaternion ``q``: ``R(q) v``."""
+    w, u = q[0], q[1:]
+    t = 2.0 * jnp.cross(u, v)
+    return v + w * t + jnp.cross(u, t)
+
+
+class Euclidean(eqx.Module):
+    """``R^dim``: parameters and tangent coincide; ``retract(x, δ) = x + δ``."""
+
+    dim: int = eqx.field(static=True)
+
+    @property
+    def param_dim(self) -> int:
+        return self.dim
+
+    @property
+    def tangent_dim(self) -> int:
+        return self.dim
+
+    @property
+    def coord_labels(self) -> tuple[str, ...]:
+        return tuple(f"x{i}" for i in range(self.dim))
+
+    def retract(self, x, delta):
+        """``x (dim,)``, ``delta (dim,)`` -> ``x + delta (dim,)``."""
+        return x + delta
+
+    def local(self, x, y):
+        """``y - x (dim,)``."""
+        return y - x
+
+    def normalize(self, x):
+        return x
+
+
+class SO3(eqx.Module):
+    """Rotations; parameters ``wxyz`` (4,), tangent ``(rx, ry, rz)`` rad, ``R · Exp(ω)``."""
+
+    @property
+    def param_dim(self) -> int:
+        return 4
+
+    @property
+    def tangent_dim(self) -> int:
+        return 3
+
+    @property
+    def coord_labels(self) -> tuple[str, ...]:
+        return ("rx", "ry", "rz")
+
+    def retract(self, x, delta):
+        """``x (4,) wxyz``, ``delta (3,) rad`` -> ``x · Exp(delta) (4,)``."""
+        return quat_multiply(x, jaxlie.SO3.exp(delta).wxyz)
+
+    def local(self, x, y):
+        """``Log(x⁻¹ y) (3,) rad``."""
+        return jaxlie.SO3(quat_multiply(quat_conjugate(x), y)).log()
+
+    def normalize(self, x):
+        """Unit norm and ``w >= 0`` (the sign convention of DESIGN.md)."""
+        q = x / jnp.linalg.norm(x)
+        return jnp.where(q[0] < 0.0, -q, q)
+
+
+def _to_jaxlie_twist(delta):
+    return jnp.concatenate([delta[3:], delta[:3]])
+
+
+def _from_jaxlie_twist(twist):
+    return jnp.concatenate([twist[3:], twist[:3]])
+
+
+class SE3(eqx.Module):
+    """Rigid transforms; parameters ``wxyz_xyz`` (7,), tangent ``(rx, ry, rz, tx, ty, tz)``.
+
+    ``retract(T, δ) = T · Exp(δ)`` with the SE(3) exponential (rad, m).
+    """
+
+    @property
+    def param_dim(self) -> int:
+        return 7
+
+    @property
+    def tangent_dim(self) -> int:
+        return 6
+
+    @property
+    def coord_labels(self) -> tuple[str, ...]:
+        return ("rx", "ry", "rz", "tx", "ty", "tz")
+
+    def retract(self, x, delta):
+        """``x (7,) wxyz_xyz``, ``delta (6,)`` -> ``x · Exp(delta) (7,)``."""
+        e = jaxlie.SE3.exp(_to_jaxlie_twist(delta)).wxyz_xyz
+        q, t = x[:4], x[4:]
+        return jnp.concatenate([quat_multiply(q, e[:4]), t + quat_rotate(q, e[4:])])
+
+    def local(self, x, y):
+        """``Log(x⁻¹ y) (6,)`` in the order ``(rx, ry, rz, tx, ty, tz)``."""
+        qi = quat_conjugate(x[:4])
+        rel = jnp.concatenate([quat_multiply(qi, y[:4]), quat_rotate(qi, y[4:] - x[4:])])
+        return _from_jaxlie_twist(jaxlie.SE3(rel).log())
+
+    def normalize(self, x):
+        """Unit quaternion with ``w >= 0``; translation unchanged."""
+        q = x[:4] / jnp.linalg.norm(x[:4])
+        q = jnp.where(q[0] < 0.0, -q, q)
+        return jnp.concatenate([q, x[4:]])
+
+
+Manifold = Euclidean | SO3 | SE3
