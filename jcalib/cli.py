@@ -60,15 +60,28 @@ def demo(
 
 @app.command()
 def detect(
-    images: Annotated[list[Path], typer.Argument(help="Image files, one station per image.")],
-    cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
-    camera: Annotated[str, typer.Option("--camera", help="Camera id in the cell spec.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Observations JSON to write.")],
+    images: Annotated[Optional[list[Path]], typer.Argument(help="Image files, one station per image.")] = None,
+    cell: Annotated[Optional[Path], typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")] = None,
+    camera: Annotated[Optional[str], typer.Option("--camera", help="Camera id in the cell spec.")] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Observations JSON to write.")] = None,
     target: Annotated[
         Optional[str], typer.Option("--target", help="Target id (default: the cell's only target).")
     ] = None,
+    session: Annotated[
+        Optional[Path],
+        typer.Option("--session", help="Capture session: detect in all its images (cell, -o optional)."),
+    ] = None,
 ) -> None:
-    """Detect the cell's calibration target in images and write observations.json."""
+    """Detect the cell's calibration target in images (or a capture session) and write observations.json."""
+    if session is not None:
+        from jcalib.session_detect import detect_session_to_file
+
+        detect_session_to_file(session, cell, out, target=target)
+        return
+    if not images or cell is None or camera is None or out is None:
+        from jcalib.errors import BadInputError
+
+        raise BadInputError("detect: give IMAGES with --cell, --camera and -o, or --session SESSION")
     from jcalib.detect import detect_images_to_file
 
     detect_images_to_file(
@@ -103,6 +116,104 @@ def calibrate(
     result.to_json(out)
     print_result(result.file)
     typer.echo(f"wrote {out}")
+
+
+@app.command()
+def export(
+    result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
+    format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid or krl.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="File to write.")],
+    camera: Annotated[Optional[str], typer.Option(help="Camera id (ros).")] = None,
+    module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
+) -> None:
+    """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID or KUKA KRL."""
+    from jcalib.io.export import export_result
+
+    options = {"ros": {"camera": camera}, "rapid": {"module": module}}.get(format, {})
+    path = export_result(result, format, out, **options)
+    typer.echo(f"wrote {path}")
+
+
+# --- acquisition commands (simulate, plan, capture) live below this line ---
+
+
+@app.command()
+def plan(
+    cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
+    kind: Annotated[str, typer.Option("--kind", help="viewsets, handeye or tcp.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Plan JSON (jcalib.plan/1) to write.")],
+    robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
+    stations: Annotated[Optional[int], typer.Option(help="Candidate stations (unreachable ones are dropped).")] = None,
+    camera: Annotated[Optional[str], typer.Option(help="Camera to plan for (viewsets, handeye).")] = None,
+    target: Annotated[Optional[str], typer.Option(help="Target to plan for (viewsets, handeye).")] = None,
+    tool: Annotated[Optional[str], typer.Option(help="Tool to plan for (tcp).")] = None,
+    amplitude_deg: Annotated[Optional[float], typer.Option(help="Largest tilt / rotation, degrees.")] = None,
+    image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
+) -> None:
+    """Plan robot stations (flange poses) for camera, hand-eye or TCP calibration."""
+    enable_compilation_cache()
+    from jcalib.acquisition.commands import parse_image_size, run_plan
+
+    planned = run_plan(cell, kind, out, robot=robot, num_stations=stations, camera=camera, target=target,
+                       tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size))  # fmt: skip
+    for what, why in planned.dropped.items():
+        typer.echo(f"dropped {what}: {why}", err=True)
+    typer.echo(f"wrote {out}: {len(planned.plan)} stations ({kind})")
+
+
+@app.command()
+def simulate(
+    cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
+    robot_protocol: Annotated[str, typer.Option("--robot-protocol", help="kuka or abb.")],
+    robot_port: Annotated[int, typer.Option("--robot-port", help="TCP port on 127.0.0.1 (0: any free).")],
+    camera: Annotated[list[str], typer.Option("--camera", help="NAME=127.0.0.x, one per camera.")],
+    truth: Annotated[Optional[Path], typer.Option("--truth", help="Write the ground truth here (JSON).")] = None,
+    robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
+    image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
+    time_scale: Annotated[float, typer.Option(help="Motion-time scale (0: instantaneous moves).")] = 1.0,
+    seed: Annotated[int, typer.Option(help="Noise seed.")] = 0,
+) -> None:
+    """Run a simulated cell (robot server + fake GigE cameras) on loopback until interrupted."""
+    enable_compilation_cache()
+    import signal
+    import threading
+
+    from jcalib.acquisition.commands import parse_image_size, parse_named, run_simulate
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+
+    def ready(info: dict) -> None:
+        cams = " ".join(f"--camera {n}={u}" for n, u in info["cameras"].items())
+        typer.echo(f"READY --robot {info['robot']} {cams}")
+        sys.stdout.flush()
+
+    run_simulate(cell, robot_protocol=robot_protocol, robot_port=robot_port, camera_addresses=parse_named(camera),
+                 truth=truth, robot=robot, image_size=parse_image_size(image_size), time_scale=time_scale,
+                 seed=seed, stop=stop, on_ready=ready)  # fmt: skip
+
+
+@app.command()
+def capture(
+    robot: Annotated[str, typer.Option("--robot", help="kuka://HOST[:PORT] or abb://HOST[:PORT].")],
+    camera: Annotated[list[str], typer.Option("--camera", help="NAME=gige://IPV4 (or replay://DIR), one per camera.")],
+    plan: Annotated[Path, typer.Option("--plan", help="Station plan (jcalib.plan/1).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Session folder to write.")],
+    cell: Annotated[Optional[Path], typer.Option("--cell", help="Cell spec, stored in the session.")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue the session in --out.")] = False,
+    packet_size: Annotated[Optional[int], typer.Option(help="GigE packet size, bytes (jumbo: 8000+).")] = None,
+) -> None:
+    """Drive the robot through a plan, grab every camera at every station, write a session."""
+    from jcalib.acquisition.commands import parse_named, run_capture
+
+    res = run_capture(robot_url=robot, camera_urls=parse_named(camera), plan_path=plan, out=out, cell=cell,
+                      resume=resume, packet_size=packet_size)  # fmt: skip
+    for sid, why in res.skipped.items():
+        typer.echo(f"skipped {sid}: {why}", err=True)
+    typer.echo(
+        f"wrote {out}: {len(res.captured)} stations captured, {len(res.skipped)} skipped, "
+        f"{res.already_done} already there ({res.elapsed_s:.1f} s)"
+    )
 
 
 def main() -> None:

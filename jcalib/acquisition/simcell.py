@@ -121,3 +121,59 @@ def scene_frame_source(
         return render_view(live, 0, camera, opts, rng=seed + req.index)
 
     return source
+
+
+def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> Any:
+    """The :class:`jcalib.sim.scene.Scene` of a nominal cell layout (the simulated cell's ground truth).
+
+    Args:
+        layout: a :class:`jcalib.acquisition.layout.CellLayout`.
+        texture_px_per_square: resolution of the printed targets, texels per grid spacing.
+    """
+    from jcalib.geometry.cameras.factory import camera_from_opencv
+    from jcalib.sim.scene import Scene, SceneCamera
+    from jcalib.sim.scene import SceneTarget as SimTarget
+    from jcalib.sim.textures import target_texture
+
+    cameras = {
+        name: SceneCamera(camera_from_opencv(c.K, c.dist, c.image_size, fisheye=c.model == "fisheye"), c.mount, c.pose)
+        for name, c in layout.cameras.items()
+    }
+    targets = {}
+    for name, t in layout.targets.items():
+        pts = np.asarray(t.geometry.points, dtype=np.float64)
+        d = np.linalg.norm(pts[1:] - pts[:-1], axis=1)
+        spacing = float(np.min(d[d > 1e-9])) if np.any(d > 1e-9) else 0.01
+        tex = target_texture(t.geometry, spacing / texture_px_per_square)
+        targets[name] = SimTarget(t.geometry, tex, t.mount, t.pose)
+    return Scene(cameras=cameras, targets=targets, views=[])
+
+
+def layout_truth(layout: Any, **controller: Any) -> dict:
+    """Ground truth of a simulated cell as a JSON-ready mapping (``jcalib.sim.cell/1``).
+
+    Holds the robot preset, every camera's OpenCV ``K``, ``dist``, image size and pose
+    (``T_flange_<cam>`` or ``T_base_<cam>``), every target's points and pose, the tools' TCPs
+    (``T_flange_<tool>``), and ``controller`` (e.g. repeatability, seed). Metres, pixels.
+    """
+    cams = {}
+    for name, c in layout.cameras.items():
+        cams[name] = {
+            "model": c.model, "image_size": list(c.image_size), "K": c.K.tolist(), "dist": c.dist.tolist(),
+            "mount": c.mount, f"T_{c.mount}_{name}": c.pose.tolist(),
+        }  # fmt: skip
+    tgts = {}
+    for name, t in layout.targets.items():
+        tgts[name] = {
+            "spec": t.geometry.to_spec() if hasattr(t.geometry, "to_spec") else {},
+            "points": np.asarray(t.geometry.points, dtype=np.float64).tolist(),
+            "mount": t.mount, f"T_{t.mount}_{name}": t.pose.tolist(),
+        }  # fmt: skip
+    return {
+        "schema": "jcalib.sim.cell/1",
+        "units": "metres, pixels (centre of the top-left pixel is (0, 0))",
+        "robot": {"preset": layout.robot, "home_deg": np.degrees(layout.home_rad).tolist(), **controller},
+        "cameras": cams,
+        "targets": tgts,
+        "tools": {name: {f"T_flange_{name}": T.tolist()} for name, T in layout.tools.items()},
+    }

@@ -55,7 +55,11 @@ def _pad(x: np.ndarray) -> np.ndarray:
 def _pixels(rng, n=NUM_POINTS):
     """Pixels uniform over the image (OpenCV convention: centres from 0 to size - 1)."""
     return np.stack(
-        [rng.uniform(-0.5, IMAGE_SIZE[0] - 0.5, n), rng.uniform(-0.5, IMAGE_SIZE[1] - 0.5, n)], axis=1
+        [
+            rng.uniform(-0.5, IMAGE_SIZE[0] - 0.5, n),
+            rng.uniform(-0.5, IMAGE_SIZE[1] - 0.5, n),
+        ],
+        axis=1,
     )
 
 
@@ -63,6 +67,7 @@ def _pixels(rng, n=NUM_POINTS):
 
 
 @pytest.mark.parametrize(("name", "skew"), VARIANTS, ids=IDS)
+@settings(max_examples=30)  # x 14 variants x 64 points and pixels each
 @given(seed=seeds)
 def test_unproject_inverts_project(name, skew, seed):
     rng = np.random.default_rng(seed)
@@ -129,11 +134,15 @@ def _central_differences(fn, x: np.ndarray, batch_shape) -> np.ndarray:
 
 # Every model, skew on every other one (the skew enters linearly; compiling both variants of all
 # seven models would double this test's compile time).
-JACOBIAN_VARIANTS = [(name, i % 2 == 0) for i, name in enumerate(MODELS)] + [("fisheye", False)]
+JACOBIAN_VARIANTS = [(name, i % 2 == 0) for i, name in enumerate(MODELS)] + [
+    ("fisheye", False)
+]
 
 
 @pytest.mark.parametrize(
-    ("name", "skew"), JACOBIAN_VARIANTS, ids=[f"{n}{'-skew' if s else ''}" for n, s in JACOBIAN_VARIANTS]
+    ("name", "skew"),
+    JACOBIAN_VARIANTS,
+    ids=[f"{n}{'-skew' if s else ''}" for n, s in JACOBIAN_VARIANTS],
 )
 def test_jacobians_forward_reverse_finite_differences(name, skew):
     rng = np.random.default_rng(7)
@@ -148,15 +157,24 @@ def test_jacobians_forward_reverse_finite_differences(name, skew):
     )
 
     # Forward and reverse mode differentiate the same program: equal to float64 round-off.
-    for fwd, rev in ((fwd_pp, rev_pp), (fwd_pt, rev_pt), (fwd_xp, rev_xp), (fwd_xt, rev_xt)):
+    for fwd, rev in (
+        (fwd_pp, rev_pp),
+        (fwd_pt, rev_pt),
+        (fwd_xp, rev_xp),
+        (fwd_xt, rev_xt),
+    ):
         np.testing.assert_allclose(fwd, rev, rtol=1e-9, atol=1e-12)
 
     # Central differences, h = 1e-7 relative: truncation h²/6 f''' (~1e-15 f''', and f''' reaches
     # ~1e8 for k4 at wide angles), round-off ~ eps |f| / h ~ 1e-6 for |f| ~ 1e3 px, 1e-9 for rays.
     fd_pp = _central_differences(lambda q: _project(model, q)[0], p, len(p))
-    fd_pt = _central_differences(lambda t: _project(model.with_params(t), p)[0], theta, len(p))
+    fd_pt = _central_differences(
+        lambda t: _project(model.with_params(t), p)[0], theta, len(p)
+    )
     fd_xp = _central_differences(lambda x: _unproject(model, x)[0], px, len(px))
-    fd_xt = _central_differences(lambda t: _unproject(model.with_params(t), px)[0], theta, len(px))
+    fd_xt = _central_differences(
+        lambda t: _unproject(model.with_params(t), px)[0], theta, len(px)
+    )
     np.testing.assert_allclose(fwd_pp, fd_pp, rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(fwd_pt, fd_pt, rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(fwd_xp, fd_xp, rtol=1e-6, atol=1e-8)
@@ -204,11 +222,13 @@ def test_invalid_points_are_flagged_and_finite(name):
     ]
     if name == "fisheye":
         bad += [[0.0, 0.0, -2.0], [1e-10, 0.0, -2.0]]  # straight behind: θ = π
-        bad += [[np.tan(1.5), 0.0, 1.0]]  # θ = 1.5 rad beyond θ_max = √2 (slope 1 - 0.25 θ⁴)
+        # θ = 1.5 rad, beyond θ_max = √2 (slope 1 - 0.25 θ⁴).
+        bad += [[np.tan(1.5), 0.0, 1.0]]
     else:
         bad += [[0.1, 0.2, -1.0], [0.0, 0.0, -1e-12]]  # behind the camera
     if name != "pinhole" and name != "fisheye":
-        bad += [[1.3, 0.0, 1.0]]  # r² = 1.69 beyond the fold at r² ≈ 0.88 (k1 = -0.4, k2 = 0.02)
+        # r² = 1.69, beyond the fold at r² ≈ 0.90 (k1 = -0.4, k2 = 0.02).
+        bad += [[1.3, 0.0, 1.0]]
     p = _pad(np.array(bad))
     pixels, valid = _project(model, p)
     assert not np.any(np.asarray(valid))
@@ -240,7 +260,9 @@ def test_fisheye_beyond_90_degrees_is_valid():
     pixels, valid = _project(model, p)
     assert bool(valid[0])
     # Equidistant: u = cx + fx θ (closed form, k = 0).
-    np.testing.assert_allclose(np.asarray(pixels)[0], [639.5 + 400.0 * theta, 479.5], atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(pixels)[0], [639.5 + 400.0 * theta, 479.5], atol=1e-9
+    )
     rays, ok = _unproject(model, pixels)
     assert bool(ok[0])
     np.testing.assert_allclose(np.asarray(rays)[0], p[0], atol=1e-12)
@@ -251,7 +273,9 @@ def test_fisheye_beyond_90_degrees_is_valid():
 
 def _first_positive_root(coeffs_low_to_high) -> float:
     """Smallest positive real root of a polynomial (NumPy, ascending coefficients), or inf."""
-    coeffs = np.polynomial.polynomial.polytrim(np.asarray(coeffs_low_to_high, dtype=np.float64))
+    coeffs = np.polynomial.polynomial.polytrim(
+        np.asarray(coeffs_low_to_high, dtype=np.float64)
+    )
     roots = np.polynomial.polynomial.polyroots(coeffs)
     real = roots[(np.abs(roots.imag) < 1e-12) & (roots.real > 0.0)].real
     return float(real.min()) if real.size else np.inf
@@ -263,7 +287,13 @@ def _fold_u_reference(k) -> float:
     k1, k2, k3, k4, k5, k6 = k
     P = np.polynomial.polynomial
     N, D = np.array([1.0, k1, k2, k3]), np.array([1.0, k4, k5, k6])
-    slope = P.polyadd(P.polymul(N, D), P.polymul([0.0, 2.0], P.polysub(P.polymul(P.polyder(N), D), P.polymul(N, P.polyder(D)))))
+    slope = P.polyadd(
+        P.polymul(N, D),
+        P.polymul(
+            [0.0, 2.0],
+            P.polysub(P.polymul(P.polyder(N), D), P.polymul(N, P.polyder(D))),
+        ),
+    )
     return min(_first_positive_root(slope), _first_positive_root(D))
 
 
@@ -284,9 +314,22 @@ def test_fold_radius_matches_polynomial_roots(k):
     if not np.isfinite(u_max) or u_max > np.tan(np.radians(89.0)) ** 2:
         return  # no fold in the searched range of view angles
     # A dip narrower than the sampling (two roots very close) is documented as missable.
-    model = OpenCV8(IMAGE_SIZE, (600.0, 600.0), (639.5, 479.5), distortion=np.r_[k[:2], 0.0, 0.0, k[2:]])
+    model = OpenCV8(
+        IMAGE_SIZE,
+        (600.0, 600.0),
+        (639.5, 479.5),
+        distortion=np.r_[k[:2], 0.0, 0.0, k[2:]],
+    )
     r_max = np.sqrt(u_max)
-    p = _pad(np.array([[0.999 * r_max, 0.0, 1.0], [1.001 * r_max, 0.0, 1.0], [0.0, 0.5 * r_max, 1.0]]))
+    p = _pad(
+        np.array(
+            [
+                [0.999 * r_max, 0.0, 1.0],
+                [1.001 * r_max, 0.0, 1.0],
+                [0.0, 0.5 * r_max, 1.0],
+            ]
+        )
+    )
     _, valid = _project(model, p)
     assert list(np.asarray(valid)[:3]) == [True, False, True]
 
@@ -306,7 +349,9 @@ def test_fold_is_a_real_fold():
 def test_fisheye_max_theta_matches_polynomial_roots():
     k = np.array([0.02, -0.03, 0.004, -0.002])
     # dθd/dθ = 1 + 3k1 v + 5k2 v² + 7k3 v³ + 9k4 v⁴, v = θ².
-    theta_max = np.sqrt(_first_positive_root([1.0, 3 * k[0], 5 * k[1], 7 * k[2], 9 * k[3]]))
+    theta_max = np.sqrt(
+        _first_positive_root([1.0, 3 * k[0], 5 * k[1], 7 * k[2], 9 * k[3]])
+    )
     K = np.array([[300.0, 0.0, 639.5], [0.0, 300.0, 479.5], [0.0, 0.0, 1.0]])
     model = camera_from_opencv(K, k, IMAGE_SIZE, fisheye=True)
     th = theta_max * np.array([0.999, 1.001])
@@ -323,16 +368,24 @@ def test_opencv_round_trip(name, skew):
     model = random_camera(name, 3, IMAGE_SIZE, skew=skew)
     K, dist = model.to_opencv()
     assert K.dtype == np.float64 and K.shape == (3, 3) and dist.dtype == np.float64
-    assert dist.shape == ((4,) if name == "fisheye" else (CAMERA_MODELS[name].num_coeffs,))
+    assert dist.shape == (
+        (4,) if name == "fisheye" else (CAMERA_MODELS[name].num_coeffs,)
+    )
     assert (K[0, 1] != 0.0) == skew
     again = camera_from_opencv(K, dist, model.image_size, fisheye=name == "fisheye")
     assert type(again) is type(model) and again.name == name and again.has_skew == skew
     assert again.image_size == IMAGE_SIZE
     # Exact copy except alpha = (alpha fx) / fx: one rounding.
-    np.testing.assert_allclose(np.asarray(again.params), np.asarray(model.params), rtol=1e-15, atol=0)
+    np.testing.assert_allclose(
+        np.asarray(again.params), np.asarray(model.params), rtol=1e-15, atol=0
+    )
     # OpenCV's (1, n) row vectors are accepted too.
-    again = camera_from_opencv(K, dist[None, :], model.image_size, fisheye=name == "fisheye")
-    np.testing.assert_allclose(np.asarray(again.params), np.asarray(model.params), rtol=1e-15, atol=0)
+    again = camera_from_opencv(
+        K, dist[None, :], model.image_size, fisheye=name == "fisheye"
+    )
+    np.testing.assert_allclose(
+        np.asarray(again.params), np.asarray(model.params), rtol=1e-15, atol=0
+    )
 
 
 @pytest.mark.parametrize(("name", "skew"), VARIANTS, ids=IDS)
@@ -343,7 +396,12 @@ def test_params_round_trip_and_names(name, skew):
     assert theta.dtype == jnp.float64 and theta.shape == (len(names),)
     K, dist = model.to_opencv()
     by_name = dict(zip(names, np.asarray(theta), strict=True))
-    assert (by_name["fx"], by_name["fy"], by_name["cx"], by_name["cy"]) == (K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    assert (by_name["fx"], by_name["fy"], by_name["cx"], by_name["cy"]) == (
+        K[0, 0],
+        K[1, 1],
+        K[0, 2],
+        K[1, 2],
+    )
     dist_names = names[5:] if skew else names[4:]
     assert [by_name[n] for n in dist_names] == list(dist)
     expected = ("k1", "k2", "k3", "k4") if name == "fisheye" else (
@@ -355,15 +413,22 @@ def test_params_round_trip_and_names(name, skew):
     rebuilt = camera_model_from_name(name, IMAGE_SIZE, theta, skew=skew)
     assert type(rebuilt) is type(model)
     assert np.array_equal(np.asarray(rebuilt.params), np.asarray(theta))
-    assert np.array_equal(np.asarray(model.with_params(theta).params), np.asarray(theta))
+    assert np.array_equal(
+        np.asarray(model.with_params(theta).params), np.asarray(theta)
+    )
 
 
 def test_default_model_from_name():
     model = camera_model_from_name("opencv5", (1600, 1200))
     K, dist = model.to_opencv()
-    np.testing.assert_array_equal(K, [[1600.0, 0.0, 799.5], [0.0, 1600.0, 599.5], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(
+        K, [[1600.0, 0.0, 799.5], [0.0, 1600.0, 599.5], [0.0, 0.0, 1.0]]
+    )
     np.testing.assert_array_equal(dist, np.zeros(5))
-    assert camera_model_from_name("fisheye", (640, 480), skew=True).param_names[4] == "alpha"
+    assert (
+        camera_model_from_name("fisheye", (640, 480), skew=True).param_names[4]
+        == "alpha"
+    )
 
 
 def test_skew_convention():
@@ -381,17 +446,23 @@ def test_vmap_over_parameter_vectors():
     model = random_camera("opencv14", 5, IMAGE_SIZE)
     thetas = jnp.stack([model.params, model.params.at[4].set(0.0)])
     p = _pad(np.array([[0.1, 0.2, 1.0], [0.3, -0.1, 2.0]]))
-    out = eqx.filter_jit(lambda m, t, p: jax.vmap(lambda t: m.with_params(t).project(p))(t))(model, thetas, p)
+    out = eqx.filter_jit(
+        lambda m, t, p: jax.vmap(lambda t: m.with_params(t).project(p))(t)
+    )(model, thetas, p)
     assert out.shape == (2, NUM_POINTS, 2) and out.dtype == jnp.float64
     # Batched and unbatched XLA kernels may round differently: 1e-12 relative.
-    np.testing.assert_allclose(np.asarray(out[0]), np.asarray(_project(model, p)[0]), rtol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(out[0]), np.asarray(_project(model, p)[0]), rtol=1e-12
+    )
 
 
 def test_batch_shapes():
     model = random_camera("fisheye", 6, IMAGE_SIZE)
     p = jnp.ones((2, 3, 3))
     pixels, valid = _project(model, p)
-    assert pixels.shape == (2, 3, 2) and valid.shape == (2, 3) and valid.dtype == jnp.bool_
+    assert (
+        pixels.shape == (2, 3, 2) and valid.shape == (2, 3) and valid.dtype == jnp.bool_
+    )
     rays, valid = _unproject(model, pixels)
     assert rays.shape == (2, 3, 3) and valid.shape == (2, 3)
     pixels, valid = _project(model, jnp.array([0.0, 0.0, 1.0]))
@@ -437,7 +508,12 @@ def test_bad_input_raises(call, words):
 def test_opencv14_tilt_is_used():
     """The tilt terms change the projection (guards against silently ignoring tx, ty)."""
     model = random_camera("opencv14", 8, IMAGE_SIZE)
-    flat = OpenCV14(IMAGE_SIZE, model.focal, model.principal_point, model.distortion.at[12:].set(0.0))
+    flat = OpenCV14(
+        IMAGE_SIZE,
+        model.focal,
+        model.principal_point,
+        model.distortion.at[12:].set(0.0),
+    )
     p = _pad(np.array([[0.2, 0.1, 1.0]]))
     assert float(jnp.max(jnp.abs(_project(model, p)[0] - _project(flat, p)[0]))) > 1e-3
 
@@ -448,15 +524,23 @@ def test_valid_region_excludes_tangential_folds():
     differences, independent of jcalib)."""
     import cv2
 
-    dist = np.array([-0.212, 0.0145, 4.8e-4, 1.7e-3])  # radial slope 1 - 0.636 u + 0.0725 u²
-    model = camera_from_opencv(np.diag([1000.0, 1000.0, 1.0]) + np.array([[0, 0, 639.5], [0, 0, 479.5], [0, 0, 0]]), dist, IMAGE_SIZE)
+    # Radial slope 1 - 0.636 u + 0.0725 u² (fold at u ≈ 2.05), plus tangential terms.
+    dist = np.array([-0.212, 0.0145, 4.8e-4, 1.7e-3])
+    model = camera_from_opencv(
+        np.diag([1000.0, 1000.0, 1.0])
+        + np.array([[0, 0, 639.5], [0, 0, 479.5], [0, 0, 0]]),
+        dist,
+        IMAGE_SIZE,
+    )
     rng = np.random.default_rng(11)
     n = 64 * NUM_POINTS
     r = np.sqrt(rng.uniform(0.0, 2.3, n))
     phi = rng.uniform(0.0, 2.0 * np.pi, n)
     xy = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
     p = np.concatenate([xy, np.ones((n, 1))], axis=1)
-    valid = np.concatenate([np.asarray(_project(model, chunk)[1]) for chunk in np.split(p, 64)])
+    valid = np.concatenate(
+        [np.asarray(_project(model, chunk)[1]) for chunk in np.split(p, 64)]
+    )
 
     def distort(q):
         p = np.concatenate([q, np.ones((len(q), 1))], axis=1)

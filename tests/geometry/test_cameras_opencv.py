@@ -37,13 +37,18 @@ def _unproject(model: AbstractCameraModel, px):
     return model.unproject_valid(px)
 
 
-def _points(model: AbstractCameraModel, rng: np.random.Generator, in_front_only: bool) -> np.ndarray:
+def _points(
+    model: AbstractCameraModel, rng: np.random.Generator, in_front_only: bool
+) -> np.ndarray:
     """Points (NUM_POINTS, 3) in metres spread over and beyond the field of view."""
     if model.name == "fisheye":
         # cv2.fisheye is defined for Z > 0 only (it mirrors Z < 0): angles up to 89°.
         theta = np.radians(rng.uniform(0.0, 89.0, NUM_POINTS))
         phi = rng.uniform(0.0, 2.0 * np.pi, NUM_POINTS)
-        dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+        dirs = np.stack(
+            [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)],
+            -1,
+        )
         return dirs * rng.uniform(0.2, 10.0, (NUM_POINTS, 1))
     fx = float(model.params[0])
     half = 1.2 * IMAGE_SIZE[0] / 2.0 / fx
@@ -120,7 +125,10 @@ def test_unproject_matches_opencv(name, skew, seed):
     rng = np.random.default_rng(seed)
     model = random_camera(name, rng, IMAGE_SIZE, skew=skew)
     px = np.stack(
-        [rng.uniform(-0.5, IMAGE_SIZE[0] - 0.5, NUM_POINTS), rng.uniform(-0.5, IMAGE_SIZE[1] - 0.5, NUM_POINTS)],
+        [
+            rng.uniform(-0.5, IMAGE_SIZE[0] - 0.5, NUM_POINTS),
+            rng.uniform(-0.5, IMAGE_SIZE[1] - 0.5, NUM_POINTS),
+        ],
         axis=1,
     )
     rays, valid = (np.asarray(a) for a in _unproject(model, px))

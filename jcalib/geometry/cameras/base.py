@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 import numbers
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -108,7 +109,7 @@ class AbstractCameraModel(eqx.Module):
 
     @property
     @abc.abstractmethod
-    def K(self) -> jax.Array:  # noqa: N802  (OpenCV's name)
+    def K(self) -> jax.Array:
         """The 3x3 camera matrix (pixels), OpenCV layout; ``K[0][1]`` holds the skew."""
 
     @abc.abstractmethod
@@ -166,11 +167,15 @@ class AbstractCameraModel(eqx.Module):
 def as_float64(x, what: str, last: int | None) -> jax.Array:
     """Convert an array-like to float64 and check its trailing dimension (static shapes only)."""
     x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating) and not jnp.issubdtype(x.dtype, jnp.integer):
+    if not jnp.issubdtype(x.dtype, jnp.floating) and not jnp.issubdtype(
+        x.dtype, jnp.integer
+    ):
         raise BadInputError(f"{what} must be a real array, got dtype {x.dtype}")
     x = x.astype(jnp.float64)
     if last is not None and (x.ndim == 0 or x.shape[-1] != last):
-        raise BadInputError(f"{what} must have shape (..., {last}), got shape {x.shape}")
+        raise BadInputError(
+            f"{what} must have shape (..., {last}), got shape {x.shape}"
+        )
     return x
 
 
@@ -183,7 +188,9 @@ def check_image_size(image_size) -> tuple[int, int]:
     if (
         items is None
         or len(items) != 2
-        or any(isinstance(v, bool) or not isinstance(v, numbers.Integral) for v in items)
+        or any(
+            isinstance(v, bool) or not isinstance(v, numbers.Integral) for v in items
+        )
         or any(int(v) <= 0 for v in items)
     ):
         raise BadInputError(
@@ -208,7 +215,10 @@ def check_vector(value, shape: tuple[int, ...], what: str) -> jax.Array:
     arr = jnp.asarray(value)
     if arr.shape != shape:
         raise BadInputError(f"{what} must have shape {shape}, got shape {arr.shape}")
-    if not (jnp.issubdtype(arr.dtype, jnp.floating) or jnp.issubdtype(arr.dtype, jnp.integer)):
+    if not (
+        jnp.issubdtype(arr.dtype, jnp.floating)
+        or jnp.issubdtype(arr.dtype, jnp.integer)
+    ):
         raise BadInputError(f"{what} must be real numbers, got dtype {arr.dtype}")
     return arr.astype(jnp.float64)
 
@@ -218,40 +228,50 @@ def is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def edge_of_valid_range(margin, upper: float, num: int = VALID_RANGE_SAMPLES) -> jax.Array:
-    """Largest ``R`` in ``(0, upper]`` with ``h(t) > tau(R)`` for all ``t <= R`` (``inf`` if ``upper``).
+def edge_of_valid_range(
+    margin, upper: float, num: int = VALID_RANGE_SAMPLES
+) -> jax.Array:
+    """Largest ``R`` in ``(0, upper]`` with ``h(t) > tau(R)`` for all ``t <= R`` (``inf`` if all).
 
     ``margin(t)`` returns ``(h(t), tau(t))``, with ``h(0) > tau(0) = 0`` and ``tau`` increasing.
     ``h`` is sampled at ``num`` equally spaced points of ``(0, upper]`` (its running minimum stands
     for the minimum over ``[0, R]``); the sample interval where the condition first fails is
     sampled again at ``num`` points, ``VALID_RANGE_LEVELS`` times (resolution
     ``upper / num**VALID_RANGE_LEVELS``). A dip of ``h`` narrower than one sample spacing can be
-    missed. Loop-free (cheap to compile). Not differentiated (``stop_gradient``): the result is a
-    region boundary.
+    missed. Not differentiated (``stop_gradient``): the result is a region boundary.
 
     Args:
         margin: elementwise function of a float64 array returning two arrays of its shape.
         upper: end of the search interval.
     """
     fraction = jnp.arange(1, num + 1, dtype=jnp.float64) / num
-    lo, width = jnp.zeros(()), jnp.asarray(float(upper))
-    h_before = jnp.asarray(jnp.inf)
-    any_bad = None
-    for _ in range(VALID_RANGE_LEVELS):
+
+    def level(i, state):
+        lo, width, h_before, any_bad = state
         t = lo + width * fraction
         h, tau = margin(t)
         h_min = jnp.minimum(jax.lax.cummin(h), h_before)
         bad = h_min <= tau
         first = jnp.argmax(bad)
         found = jnp.any(bad)
-        any_bad = found if any_bad is None else any_bad
         previous = jnp.maximum(first - 1, 0)
         # Zoom into the sample interval (t[first - 1], t[first]] (if nothing failed, stay put).
-        lo = jnp.where(found & (first > 0), t[previous], lo)
-        h_before = jnp.where(found & (first > 0), h_min[previous], h_before)
-        width = jnp.where(found, width / num, width)
-    edge = lo + width
-    return jax.lax.stop_gradient(jnp.where(any_bad, edge, jnp.inf))
+        zoom = found & (first > 0)
+        return (
+            jnp.where(zoom, t[previous], lo),
+            jnp.where(found, width / num, width),
+            jnp.where(zoom, h_min[previous], h_before),
+            jnp.where(i == 0, found, any_bad),
+        )
+
+    init = (
+        jnp.zeros(()),
+        jnp.asarray(float(upper)),
+        jnp.asarray(jnp.inf),
+        jnp.asarray(False),
+    )
+    lo, width, _, any_bad = jax.lax.fori_loop(0, VALID_RANGE_LEVELS, level, init)
+    return jax.lax.stop_gradient(jnp.where(any_bad, lo + width, jnp.inf))
 
 
 def bracketed_newton(fn, target: jax.Array, upper: jax.Array) -> jax.Array:

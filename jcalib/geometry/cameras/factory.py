@@ -5,25 +5,39 @@ from __future__ import annotations
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.geometry.cameras.base import AbstractCameraModel, check_image_size, is_concrete
+from jcalib.geometry.cameras.base import (
+    AbstractCameraModel,
+    check_image_size,
+    is_concrete,
+)
 from jcalib.geometry.cameras.fisheye import Fisheye
 from jcalib.geometry.cameras.opencv import OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14
 from jcalib.geometry.cameras.pinhole import Pinhole
 
 #: Model classes by name (the ``model`` key of the cell spec and result files).
 CAMERA_MODELS: dict[str, type[AbstractCameraModel]] = {
-    cls.name: cls for cls in (Pinhole, OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14, Fisheye)
+    cls.name: cls
+    for cls in (Pinhole, OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14, Fisheye)
 }
 
 #: OpenCV ``dist`` lengths and the perspective model each one selects.
-_BY_DIST_LENGTH = {0: Pinhole, 4: OpenCV4, 5: OpenCV5, 8: OpenCV8, 12: OpenCV12, 14: OpenCV14}
+_BY_DIST_LENGTH = {
+    0: Pinhole,
+    4: OpenCV4,
+    5: OpenCV5,
+    8: OpenCV8,
+    12: OpenCV12,
+    14: OpenCV14,
+}
 
 
-def _check_K(K) -> np.ndarray:  # noqa: N802
+def _check_K(K) -> np.ndarray:
     try:
         K = np.asarray(K, dtype=np.float64)
     except (TypeError, ValueError) as err:
-        raise BadInputError(f"K must be a 3x3 array of numbers; got {K!r} ({err})") from None
+        raise BadInputError(
+            f"K must be a 3x3 array of numbers; got {K!r} ({err})"
+        ) from None
     if K.shape != (3, 3):
         raise BadInputError(f"K must have shape (3, 3), got shape {K.shape}")
     if not np.all(np.isfinite(K)):
@@ -47,17 +61,23 @@ def _check_dist(dist) -> np.ndarray:
     try:
         d = np.asarray(dist, dtype=np.float64)
     except (TypeError, ValueError) as err:
-        raise BadInputError(f"dist must be a vector of numbers; got {dist!r} ({err})") from None
+        raise BadInputError(
+            f"dist must be a vector of numbers; got {dist!r} ({err})"
+        ) from None
     # OpenCV hands out (1, n) and (n, 1) arrays as often as (n,).
     if d.ndim > 2 or (d.ndim == 2 and 1 not in d.shape):
-        raise BadInputError(f"dist must be a vector (n,), (1, n) or (n, 1); got shape {d.shape}")
+        raise BadInputError(
+            f"dist must be a vector (n,), (1, n) or (n, 1); got shape {d.shape}"
+        )
     d = d.reshape(-1)
     if not np.all(np.isfinite(d)):
         raise BadInputError(f"dist must be finite, got {d.tolist()}")
     return d
 
 
-def camera_from_opencv(K, dist, image_size, fisheye: bool = False) -> AbstractCameraModel:
+def camera_from_opencv(
+    K, dist, image_size, fisheye: bool = False
+) -> AbstractCameraModel:
     """The camera model that reproduces OpenCV's ``(K, dist)`` exactly.
 
     The model is picked by the length of ``dist``: 0 (or None) → ``pinhole``, 4, 5, 8, 12, 14 →
@@ -93,7 +113,13 @@ def camera_from_opencv(K, dist, image_size, fisheye: bool = False) -> AbstractCa
             f"dist has {d.size} coefficients; OpenCV's models have 0, 4, 5, 8, 12 or 14 "
             f"(for a fisheye pass fisheye=True with 4)"
         )
-    return cls(size, focal, pp, distortion=d if d.size else None, skew=K[0, 1] if has_skew else None)
+    return cls(
+        size,
+        focal,
+        pp,
+        distortion=d if d.size else None,
+        skew=K[0, 1] if has_skew else None,
+    )
 
 
 def camera_model_from_name(name: str, image_size, params=None, skew: bool = False):
@@ -124,13 +150,19 @@ def camera_model_from_name(name: str, image_size, params=None, skew: bool = Fals
         n_dist = 4 if cls is Fisheye else cls.num_coeffs
         f = float(max(size))
         params = np.concatenate(
-            [[f, f, (size[0] - 1) / 2.0, (size[1] - 1) / 2.0], [0.0] * int(skew), [0.0] * n_dist]
+            [
+                [f, f, (size[0] - 1) / 2.0, (size[1] - 1) / 2.0],
+                [0.0] * int(skew),
+                [0.0] * n_dist,
+            ]
         )
     model = cls.from_params(size, params, skew=bool(skew))
     if is_concrete(params):
         values = np.asarray(model.params)
         if not np.all(np.isfinite(values)):
-            raise BadInputError(f"params for model {name!r} must be finite, got {values.tolist()}")
+            raise BadInputError(
+                f"params for model {name!r} must be finite, got {values.tolist()}"
+            )
         if values[0] <= 0.0 or values[1] <= 0.0:
             raise BadInputError(
                 f"params for model {name!r} must have positive fx, fy; got fx = {values[0]}, "

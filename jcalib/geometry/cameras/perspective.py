@@ -27,8 +27,8 @@ here the skew enters after distortion and tilt, as ``K`` multiplies it (``u = fx
    ``|T(a) - T(b)| <= τ |a - b|``: ``R + T`` cannot map two points of the disc to one. Without
    tangential terms ``r_max`` is exactly where ``dρ/dr`` first reaches zero (beyond it the image
    folds back: points farther from the axis land closer to the centre). The search covers view
-   angles up to 89.9° (``r ≤ tan 89.9°``) at 512 samples refined by bisection; where nothing
-   fails up to there, ``r_max = ∞``;
+   angles up to 89.9° (``r ≤ tan 89.9°``) at 512 samples, refined by two more levels of 512
+   samples (to ~1e-8 rad); where nothing fails up to there, ``r_max = ∞``;
 3. the tilt homography keeps the point in front (its third coordinate is positive).
 
 Outside the valid region the projection is still computed (finite, with finite derivatives) but
@@ -95,11 +95,15 @@ def _radial(c: dict[str, jax.Array], r2: jax.Array) -> jax.Array:
     else:
         radial = 1.0 + r2 * (c["k1"] + r2 * c["k2"])
     if "k4" in c:
-        radial = safe_divide(radial, 1.0 + r2 * (c["k4"] + r2 * (c["k5"] + r2 * c["k6"])))
+        radial = safe_divide(
+            radial, 1.0 + r2 * (c["k4"] + r2 * (c["k5"] + r2 * c["k6"]))
+        )
     return radial
 
 
-def _distort(c: dict[str, jax.Array], x: jax.Array, y: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _distort(
+    c: dict[str, jax.Array], x: jax.Array, y: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """OpenCV's radial, tangential and thin-prism distortion (not the tilt), normalised coordinates."""
     if not c:
         return x, y
@@ -126,7 +130,17 @@ def tilt_matrix(tx: jax.Array, ty: jax.Array) -> jax.Array:
     rot_y = jnp.stack([cty, zero, -sty, zero, one, zero, sty, zero, cty]).reshape(3, 3)
     rot_xy = rot_y @ rot_x
     proj_z = jnp.stack(
-        [rot_xy[2, 2], zero, -rot_xy[0, 2], zero, rot_xy[2, 2], -rot_xy[1, 2], zero, zero, one]
+        [
+            rot_xy[2, 2],
+            zero,
+            -rot_xy[0, 2],
+            zero,
+            rot_xy[2, 2],
+            -rot_xy[1, 2],
+            zero,
+            zero,
+            one,
+        ]
     ).reshape(3, 3)
     return proj_z @ rot_xy
 
@@ -166,7 +180,9 @@ def fold_radius2(c: dict[str, jax.Array]) -> jax.Array:
         slope_num = num * den + 2.0 * u * (dnum * den - num * dden)
         den_ok = den > 0.0
         den_safe = jnp.where(den_ok, den, 1.0)
-        h = jnp.where(den_ok, jnp.minimum(slope_num / (den_safe * den_safe), num / den_safe), -1.0)
+        h = jnp.where(
+            den_ok, jnp.minimum(slope_num / (den_safe * den_safe), num / den_safe), -1.0
+        )
         # Entry-wise bounds of the Jacobian of the tangential + thin-prism terms (|x|, |y| <= r).
         a = 2.0 * p1 + 6.0 * p2 + 2.0 * s1 + 4.0 * s2 * u
         b = 2.0 * p1 + 2.0 * p2 + 2.0 * s1 + 4.0 * s2 * u
@@ -211,11 +227,18 @@ def _undistort(
 
     def newton_step(c, x, y, xt, yt):
         ones, zeros = jnp.ones_like(x), jnp.zeros_like(x)
-        (fx, fy), (a, cc) = jax.jvp(lambda x, y: _distort(c, x, y), (x, y), (ones, zeros))
+        (fx, fy), (a, cc) = jax.jvp(
+            lambda x, y: _distort(c, x, y), (x, y), (ones, zeros)
+        )
         _, (b, d) = jax.jvp(lambda x, y: _distort(c, x, y), (x, y), (zeros, ones))
         ex, ey = fx - xt, fy - yt
         det = a * d - b * cc
-        return x - safe_divide(d * ex - b * ey, det), y - safe_divide(a * ey - cc * ex, det), ex, ey
+        return (
+            x - safe_divide(d * ex - b * ey, det),
+            y - safe_divide(a * ey - cc * ex, det),
+            ex,
+            ey,
+        )
 
     def body(_, xy):
         x, y = xy
@@ -226,8 +249,12 @@ def _undistort(
     xs, ys = jax.lax.stop_gradient(xs), jax.lax.stop_gradient(ys)
     # One differentiable Newton step from the solution gives the implicit derivatives.
     x, y, ex, ey = newton_step(c, xs, ys, xt, yt)
-    tol = UNPROJECT_TOLERANCE * jnp.maximum(1.0, jnp.maximum(jnp.abs(xt_ng), jnp.abs(yt_ng)))
-    residual = jnp.maximum(jnp.abs(jax.lax.stop_gradient(ex)), jnp.abs(jax.lax.stop_gradient(ey)))
+    tol = UNPROJECT_TOLERANCE * jnp.maximum(
+        1.0, jnp.maximum(jnp.abs(xt_ng), jnp.abs(yt_ng))
+    )
+    residual = jnp.maximum(
+        jnp.abs(jax.lax.stop_gradient(ex)), jnp.abs(jax.lax.stop_gradient(ey))
+    )
     converged = (residual <= tol) & (xs * xs + ys * ys < r2_max)
     return x, y, converged
 
@@ -264,7 +291,9 @@ class AbstractPerspectiveModel(AbstractCameraModel):
         """
         self.image_size = check_image_size(image_size)
         self.focal = check_vector(focal, (2,), "focal (fx, fy)")
-        self.principal_point = check_vector(principal_point, (2,), "principal_point (cx, cy)")
+        self.principal_point = check_vector(
+            principal_point, (2,), "principal_point (cx, cy)"
+        )
         self.skew = None if skew is None else check_vector(skew, (), "skew")
         n = self.num_coeffs
         if n == 0:
@@ -275,7 +304,9 @@ class AbstractPerspectiveModel(AbstractCameraModel):
                 )
             self.distortion = None
         else:
-            self.distortion = check_vector(distortion, (n,), f"distortion of model {self.name!r}")
+            self.distortion = check_vector(
+                distortion, (n,), f"distortion of model {self.name!r}"
+            )
 
     # ---------------------------------------------------------------- parameters
 
@@ -303,9 +334,11 @@ class AbstractPerspectiveModel(AbstractCameraModel):
     @classmethod
     def from_params(cls, image_size, params, skew: bool = False):
         n_k = 5 if skew else 4
-        names = ("fx", "fy", "cx", "cy") + (("skew",) if skew else ()) + OPENCV_DIST_NAMES[
-            : cls.num_coeffs
-        ]
+        names = (
+            ("fx", "fy", "cx", "cy")
+            + (("skew",) if skew else ())
+            + OPENCV_DIST_NAMES[: cls.num_coeffs]
+        )
         params = check_param_vector(params, n_k + cls.num_coeffs, cls.name, names)
         return cls(
             image_size,
@@ -316,7 +349,7 @@ class AbstractPerspectiveModel(AbstractCameraModel):
         )
 
     @property
-    def K(self) -> jax.Array:  # noqa: N802
+    def K(self) -> jax.Array:
         zero, one = jnp.zeros(()), jnp.ones(())
         s = self.skew if self.skew is not None else zero
         fx, fy = self.focal[0], self.focal[1]
@@ -364,7 +397,9 @@ class AbstractPerspectiveModel(AbstractCameraModel):
         valid = jnp.ones(xd.shape, dtype=bool)
         if "tx" in c:
             # (x'', y'', 1) ∝ tilt⁻¹ (x', y', 1); tilt = P_z R, so tilt⁻¹ = Rᵀ P_z⁻¹.
-            a, b, w = _apply_homography(jnp.linalg.inv(tilt_matrix(c["tx"], c["ty"])), xd, yd)
+            a, b, w = _apply_homography(
+                jnp.linalg.inv(tilt_matrix(c["tx"], c["ty"])), xd, yd
+            )
             valid = valid & (w > MIN_TILT_W)
             w_safe = jnp.where(jnp.abs(w) > MIN_TILT_W, w, MIN_TILT_W)
             xd, yd = a / w_safe, b / w_safe
@@ -376,4 +411,3 @@ class AbstractPerspectiveModel(AbstractCameraModel):
         norm = jnp.sqrt(x * x + y * y + 1.0)
         rays = jnp.stack([x / norm, y / norm, 1.0 / norm], axis=-1)
         return rays, valid
-

@@ -66,5 +66,7 @@ def random_camera(
     fy = fx * rng.uniform(0.97, 1.03)
     cx = (width - 1) / 2.0 + rng.uniform(-0.03, 0.03) * width
     cy = (height - 1) / 2.0 + rng.uniform(-0.03, 0.03) * height
-    params = np.array([fx, fy, cx, cy] + ([skew_value] if skew else []) + dist, dtype=np.float64)
+    params = np.array(
+        [fx, fy, cx, cy] + ([skew_value] if skew else []) + dist, dtype=np.float64
+    )
     return camera_model_from_name(name, size, params, skew=skew)

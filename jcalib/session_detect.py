@@ -1,0 +1,190 @@
+"""Capture session → observations: the glue behind ``jcalib detect --session``.
+
+Reads a ``jcalib.session/1`` folder (``session.json`` + ``stations.jsonl`` + images), detects the cell's
+target(s) in every image of every finished station, and writes ``observations.json`` in the
+``jcalib.observations/1`` format: per station its measured ``T_base_flange`` and one detection per
+(camera, target) found. Nothing stops the batch: skipped stations, missing or unreadable images and
+images without the target are reported as :class:`SessionFailure` records.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jcalib.errors import BadInputError, DetectionError
+
+
+@dataclass(frozen=True)
+class SessionFailure:
+    """Why a station, or one camera's image of it, gave no detection.
+
+    Attributes:
+        station: station id.  camera: camera id (None: the whole station).  target: target id or None.
+        reason: short keyword ("skipped", "missing_image", "not_found", "partially_visible",
+            "too_blurred", "unreadable").
+        message: the full explanation.
+    """
+
+    station: str
+    camera: str | None
+    target: str | None
+    reason: str
+    message: str
+
+    def __str__(self) -> str:
+        where = self.station + (f" {self.camera}" if self.camera else "") + (f" {self.target}" if self.target else "")
+        return f"{where}: {self.reason}: {self.message}"
+
+
+def detect_session(
+    session_dir: str | os.PathLike,
+    cell: Any = None,
+    *,
+    target: str | None = None,
+    progress: bool = True,
+):
+    """Detect the cell's targets in every station image of a capture session.
+
+    Args:
+        session_dir: the session folder.
+        cell: cell spec (path, mapping or :class:`jcalib.io.cell.CellSpec`); default: the one stored
+            in ``session.json`` by the capture.
+        target: detect only this target (default: every target of the cell).
+        progress: show a progress bar on stderr.
+
+    Returns:
+        ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
+        per station that has at least one detection (ids and ``T_base_flange`` in m from the session,
+        pixels in the OpenCV convention) and the list of :class:`SessionFailure`.
+
+    Raises:
+        BadInputError: not a session, no cell spec, an unknown target, a station image naming a
+            camera the cell lacks, or images of one camera with different sizes.
+    """
+    from jcalib.acquisition.session import read_session
+    from jcalib.io.cell import load_cell
+    from jcalib.io.observations import Detection, Observations, Station
+    from jcalib.vision import detect_many
+
+    d = Path(session_dir)
+    if not (d / "session.json").is_file():
+        raise BadInputError(f"--session: {d} has no session.json; it is not a jcalib capture session")
+    meta, records = read_session(d)
+    if cell is None:
+        cell = meta.get("cell")
+        if not cell:
+            raise BadInputError(
+                f"--session {d}: session.json holds no cell spec (captured without --cell); pass --cell CELL"
+            )
+    spec = load_cell(cell)
+    targets = [spec.target(target)] if target is not None else list(spec.targets.values())
+    if not targets:
+        raise BadInputError(f"{spec.source}: the cell has no target to detect")
+    geometries = {t.name: t.geometry() for t in targets}
+
+    failures: list[SessionFailure] = []
+    jobs: list[tuple[str, str, Path]] = []  # (station, camera, image path)
+    for rec in records:
+        sid = str(rec["id"])
+        status = str(rec.get("status", "ok"))
+        if status != "ok":
+            failures.append(SessionFailure(sid, None, None, "skipped", status))
+            continue
+        for cam, rel in (rec.get("images") or {}).items():
+            if cam not in spec.cameras:
+                raise BadInputError(
+                    f"session {d}: station {sid} has an image of camera {cam!r}, which the cell spec "
+                    f"{spec.source} lacks (it has {', '.join(spec.cameras)}); pass the cell used for the capture"
+                )
+            path = d / rel
+            if not path.is_file():
+                failures.append(SessionFailure(sid, cam, None, "missing_image", f"{path} does not exist"))
+                continue
+            jobs.append((sid, cam, path))
+
+    found: dict[tuple[str, str, str], Any] = {}
+    sizes: dict[str, tuple[int, int]] = {}
+    for tname, geom in geometries.items():
+        results = detect_many([p for _, _, p in jobs], geom, progress=progress)
+        for (sid, cam, path), res in zip(jobs, results):
+            if isinstance(res, DetectionError):
+                failures.append(SessionFailure(sid, cam, tname, res.reason, str(res)))
+                continue
+            size = (int(res.image_size[0]), int(res.image_size[1]))
+            if sizes.setdefault(cam, size) != size:
+                raise BadInputError(
+                    f"session {d}: {path} is {size[0]}x{size[1]} px but other images of camera {cam!r} "
+                    f"are {sizes[cam][0]}x{sizes[cam][1]}; one camera must keep one image size"
+                )
+            found[(sid, cam, tname)] = res
+
+    stations = []
+    for rec in records:
+        sid = str(rec["id"])
+        dets = [
+            Detection(camera=cam, target=tname, point_index=np.asarray(r.point_index, dtype=np.int64),
+                      pixels=np.asarray(r.pixels, dtype=np.float64))
+            for (s, cam, tname), r in found.items() if s == sid
+        ]  # fmt: skip
+        if not dets:
+            continue
+        T = rec.get("T_base_flange")
+        stations.append(
+            Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64))
+        )
+    for cam in {c for _, c, _ in jobs} - set(sizes):  # cameras that never saw a target: size from an image
+        import cv2
+
+        img = cv2.imread(str(next(p for _, c, p in jobs if c == cam)), cv2.IMREAD_UNCHANGED)
+        if img is not None:
+            sizes[cam] = (int(img.shape[1]), int(img.shape[0]))
+    obs = Observations(
+        cameras=dict(sorted(sizes.items())),
+        targets={name: np.asarray(g.points, dtype=np.float64) for name, g in geometries.items()},
+        stations=tuple(stations),
+        source=str(d),
+    )
+    return obs, failures
+
+
+def detect_session_to_file(
+    session_dir: str | os.PathLike,
+    cell: Any = None,
+    out_path: str | os.PathLike | None = None,
+    *,
+    target: str | None = None,
+    progress: bool = True,
+):
+    """``jcalib detect --session``: detect, write ``observations.json`` (default: in the session), report failures.
+
+    Returns:
+        ``(observations, failures)`` as :func:`detect_session`.
+
+    Raises:
+        BadInputError: as :func:`detect_session`, or the target was found in no image at all.
+    """
+    from rich.console import Console
+
+    from jcalib.io.observations import save_observations
+
+    obs, failures = detect_session(session_dir, cell, target=target, progress=progress)
+    console = Console(stderr=True, soft_wrap=True)
+    for f in failures:
+        console.print(f"[yellow]skipped[/] {f}", highlight=False)
+    if not obs.stations:
+        raise BadInputError(
+            f"session {session_dir}: the target was found in no image ({len(failures)} failures); check the "
+            "cell's target geometry (cols/rows are INNER corners for a checkerboard) and the images"
+        )
+    out = Path(out_path) if out_path is not None else Path(session_dir) / "observations.json"
+    save_observations(out, obs)
+    console.print(
+        f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
+        f"{len(failures)} failures", highlight=False,
+    )  # fmt: skip
+    return obs, failures
