@@ -111,7 +111,7 @@ def detect_session(
     sizes: dict[str, tuple[int, int]] = {}
     for tname, geom in geometries.items():
         results = detect_many([p for _, _, p in jobs], geom, progress=progress)
-        for (sid, cam, path), res in zip(jobs, results):
+        for (sid, cam, path), res in zip(jobs, results, strict=True):
             if isinstance(res, DetectionError):
                 failures.append(SessionFailure(sid, cam, tname, res.reason, str(res)))
                 continue

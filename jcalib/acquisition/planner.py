@@ -116,7 +116,7 @@ def _view_candidates(kind: str, n: int, c: np.ndarray, D: float, amplitude: floa
     else:
         m = max(0, n - 1)
         groups = [m - 2 * (m // 3), m // 3, m // 3]  # Z gets the rest
-        for (axis, name, amp), count in zip(((ez, "Z", np.radians(90.0)), (ey, "Y", amplitude), (ex, "X", amplitude)), groups):
+        for (axis, name, amp), count in zip(((ez, "Z", np.radians(90.0)), (ey, "Y", amplitude), (ex, "X", amplitude)), groups, strict=True):
             for ang in _spread(count, amp):
                 out.append((f"camera about its {name} by {np.degrees(ang):+.0f} deg", _about(axis, ang, c) @ frontal))
     return out
@@ -200,10 +200,10 @@ def plan_cell(
         cam_name, tgt_name = _pick_pair(layout, camera, target)
         tgt = layout.targets[tgt_name]
         D = layout.viewing_distance(cam_name, tgt_name)
+        view_check = []
         for desc, T_target_cam in _view_candidates(kind, n, tgt.centre, D, amp)[:n]:
-            T_cam_target = invert(T_target_cam)
-            cands.append((desc, presentation_pose(layout, cam_name, tgt_name, T_cam_target)))
-        view_check = [invert(T) for _, T in _view_candidates(kind, n, tgt.centre, D, amp)[:n]]
+            view_check.append(invert(T_target_cam))
+            cands.append((desc, presentation_pose(layout, cam_name, tgt_name, view_check[-1])))
     else:
         if not layout.tools:
             raise BadInputError("--kind tcp: the cell has no tool (add one under 'tools:')")
@@ -233,7 +233,7 @@ def plan_cell(
     ok, _ = reachable(layout, [T for _, T in cands])
     dropped: dict[str, str] = {}
     keep = []
-    for i, ((desc, T), good) in enumerate(zip(cands, ok)):
+    for i, ((desc, T), good) in enumerate(zip(cands, ok, strict=True)):
         if not good:
             dropped[desc] = f"outside reach or joint limits of {layout.dh_robot().name}"
         elif view_check is not None and not _in_view(layout, cam_name, tgt_name, view_check[i]):

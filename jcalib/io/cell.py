@@ -82,8 +82,10 @@ class PointSpec:
 
 @dataclass(frozen=True)
 class RobotSpec:
-    """Robot settings. ``pose_noise`` is None when flange poses are taken as exact."""
+    """Robot settings. ``pose_noise`` is None when flange poses are taken as exact; ``model`` names a
+    kinematics preset (:data:`jcalib.geometry.ROBOT_PRESETS`) for planning and simulation."""
 
+    model: str | None = None
     pose_noise_translation_m: np.ndarray | None = None  # (3,) per axis
     pose_noise_rotation_deg: np.ndarray | None = None  # (3,) per axis
 
@@ -224,13 +226,17 @@ def _parse_robot(entry: Any, where: str) -> RobotSpec:
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
     _check_keys(entry, {"pose_noise", "model"}, where)
+    model = entry.get("model")
+    if model is not None and not isinstance(model, str):
+        raise _fail(where + ".model", f"expected a robot preset name, got {model!r}")
     noise = entry.get("pose_noise")
     if noise is None:
-        return RobotSpec()
+        return RobotSpec(model=model)
     _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
     if "translation_m" not in noise or "rotation_deg" not in noise:
         raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
     return RobotSpec(
+        model=model,
         pose_noise_translation_m=_positive_vector(noise["translation_m"], where + ".pose_noise.translation_m"),
         pose_noise_rotation_deg=_positive_vector(noise["rotation_deg"], where + ".pose_noise.rotation_deg"),
     )
@@ -337,6 +343,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
         }
     if cell.robot is not None:
         robot: dict[str, Any] = {}
+        if cell.robot.model is not None:
+            robot["model"] = cell.robot.model
         if cell.robot.pose_noise_translation_m is not None:
             robot["pose_noise"] = {
                 "translation_m": cell.robot.pose_noise_translation_m.tolist(),

@@ -93,14 +93,14 @@ def free_masks(problem: Problem) -> dict[str, jax.Array]:
 
 
 def retract_all(problem: Problem, values: dict, deltas: dict) -> dict:
-    """Apply ``x ⊞ δ`` entry-wise to every kind; entries with a free coordinate are re-normalised."""
+    """Apply ``x ⊞ δ`` entry-wise to every kind (re-normalised); fully fixed entries keep ``x`` bit for bit."""
     out = {}
     for v in problem.variables:
         x = values[v.name]
         new = jax.vmap(v.manifold.retract)(x, deltas[v.name])
         normed = jax.vmap(v.manifold.normalize)(new)
         any_free = jnp.any(~v.fixed, axis=-1)
-        out[v.name] = jnp.where(any_free[:, None], normed, new)
+        out[v.name] = jnp.where(any_free[:, None], normed, x)
     return out
 
 

@@ -106,7 +106,7 @@ def _check_run(out: Path, cameras: list[str], num_stations: int) -> dict:
     assert len(obs["targets"]["board"]["points"]) == 40
     assert [s["id"] for s in obs["stations"]] == [s["id"] for s in plan["stations"]]
     worst = 0.0
-    for st, planned in zip(obs["stations"], plan["stations"]):
+    for st, planned in zip(obs["stations"], plan["stations"], strict=True):
         T = np.array(st["T_base_flange"])
         T_cmd = np.array(planned["T_base_flange"])
         # reached pose = commanded pose up to the simulated repeatability (sigma 0.013 mm, 2e-5 rad)

@@ -97,7 +97,7 @@ def test_planned_stations_are_reachable_by_forward_kinematics(layout):
     assert ok.all()
     dh = layout.dh_robot()
     lo, hi = np.asarray(dh.lower), np.asarray(dh.upper)
-    for T, qk in zip(poses, q):
+    for T, qk in zip(poses, q, strict=True):
         assert np.all((qk >= lo) & (qk <= hi))
         np.testing.assert_allclose(np.asarray(forward_kinematics(dh, qk)), T, atol=1e-6)  # IK tolerance 1e-6
 
