@@ -100,7 +100,7 @@ def calibrate(
         str, typer.Option(help="Covariance scale: a_posteriori (from residuals) or stated.")
     ] = "a_posteriori",
     outlier_threshold: Annotated[
-        Optional[float], typer.Option(help="Reject corners beyond this many σ (omit: keep all).")
+        float, typer.Option(help="Reject corners beyond this many σ (0 keeps every corner).")
     ] = 5.0,
 ) -> None:
     """Calibrate a cell from observations and write result.json."""
@@ -110,7 +110,10 @@ def calibrate(
     from jcalib.report.console import print_result
 
     options = CameraCalibrationOptions(
-        loss=loss, sigma_px=sigma_px, noise=noise, outlier_threshold=outlier_threshold
+        loss=loss,
+        sigma_px=sigma_px,
+        noise=noise,
+        outlier_threshold=outlier_threshold if outlier_threshold > 0 else None,
     )
     result = run(cell, observations, options)
     result.to_json(out)
@@ -218,6 +221,8 @@ def capture(
 
 def main() -> None:
     """Console-script entry point: maps jcalib errors to exit statuses without tracebacks."""
+    # Small numpy solves (closed forms) run far slower with a multithreaded BLAS on busy cores.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         app(standalone_mode=False)
     except JcalibError as e:

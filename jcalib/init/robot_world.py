@@ -23,13 +23,13 @@ nearest-rotation projection). Observability is checked first with the hand-eye m
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.init.handeye import (
     HandEyeDiagnostics,
+    HandEyeInit,
     Mount,
     _check_mount,
     _inv,
@@ -122,8 +122,7 @@ def solve_ax_zb(A, B, method: str = "shah") -> tuple[np.ndarray, np.ndarray]:
     return _SOLVERS[method](A, B)
 
 
-@dataclass(frozen=True)
-class RobotWorldInit:
+class RobotWorldInit(HandEyeInit):
     """A closed-form robot-world / hand-eye estimate (starting point, no covariance).
 
     Attributes:
@@ -135,22 +134,6 @@ class RobotWorldInit:
             (``other_*``: spread of the per-station ``T_other`` implied by ``T``; ``motion_*``:
             residual of ``A_i X`` against ``Z B_i`` over the stations).
     """
-
-    T: np.ndarray
-    T_other: np.ndarray
-    method: str
-    mount: str
-    diagnostics: HandEyeDiagnostics
-
-    @property
-    def name(self) -> str:
-        """``"T_flange_cam"`` or ``"T_base_cam"``."""
-        return "T_flange_cam" if self.mount == "flange" else "T_base_cam"
-
-    @property
-    def other_name(self) -> str:
-        """``"T_base_target"`` or ``"T_flange_target"``."""
-        return "T_base_target" if self.mount == "flange" else "T_flange_target"
 
 
 def solve_robot_world_hand_eye(
