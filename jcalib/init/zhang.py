@@ -22,7 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
-from jcalib.init.homography import _check_planar_points, estimate_homographies, homography_residuals
+from jcalib.init.homography import (
+    _DEGENERATE_RTOL,
+    _check_planar_points,
+    _estimate_stack,
+    estimate_homographies,
+    homography_residuals,
+)
 
 __all__ = [
     "ZhangInit",
@@ -463,10 +469,26 @@ def _focal_spread(closed: _Closed, H: np.ndarray, K: np.ndarray, check: bool, ma
         return 0.0 if sigma == 0.0 else float("nan")
     rng = np.random.default_rng(0)
     fx, failures = [], 0
-    for _ in range(_MC_DRAWS):
-        pix = [p + sigma * rng.standard_normal(p.shape) for p in closed.pix]
+    draws = [[p + sigma * rng.standard_normal(p.shape) for p in closed.pix] for _ in range(_MC_DRAWS)]
+    sizes = {p.shape[0] for p in closed.pix}
+    H_all = None
+    if len(sizes) == 1:
+        # every view has the same point count: all draws' homographies in one batched DLT (speed)
+        pts = np.stack([np.asarray(p, np.float64)[:, :2] for p in closed.pts] * _MC_DRAWS)
         try:
-            Hd = estimate_homographies(closed.pts, pix, refine=False, _checked=True)
+            H_all, sv = _estimate_stack(pts, np.concatenate([np.stack(d) for d in draws]), False, 0)
+            if np.any(sv[:, -2] <= _DEGENERATE_RTOL * sv[:, 0]) or not np.all(np.isfinite(H_all)):
+                H_all = None  # let the per-draw path name the failures
+            else:
+                H_all = H_all.reshape(_MC_DRAWS, len(closed.pix), 3, 3)
+        except np.linalg.LinAlgError:
+            H_all = None
+    for k in range(_MC_DRAWS):
+        try:
+            if H_all is not None:
+                Hd = H_all[k]
+            else:
+                Hd = estimate_homographies(closed.pts, draws[k], refine=False, _checked=True)
             fx.append(intrinsics_from_homographies(Hd, **closed.kw)[0, 0])
         except (NotObservableError, BadInputError):
             failures += 1

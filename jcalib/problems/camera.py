@@ -11,11 +11,13 @@ covariance. OpenCV serves nothing but a per-view PnP inside the initialiser.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jax.scipy.linalg as jsl
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
@@ -25,7 +27,8 @@ from jcalib.init import planar_pnp, zhang_init
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
-from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, solve
+from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, bucket_size, linear
+from jcalib.solve.lm import Status, lm_solve, unobservable_names
 
 #: Fewest target points per view: a homography has 8 degrees of freedom (4 points), and fewer
 #: than 6 points leave a view pose with almost no redundancy.
@@ -143,6 +146,11 @@ class _CameraData:
     points: list[np.ndarray]  # (n, 3) per view
     pixels: list[np.ndarray]  # (n, 2) per view
     point_index: list[np.ndarray]
+    # filled by _prepare: all views concatenated, station (view) index per corner, view offsets
+    station_flat: np.ndarray | None = None
+    points_flat: np.ndarray | None = None
+    pixels_flat: np.ndarray | None = None
+    view_starts: np.ndarray | None = None
 
 
 def _gather(cell: CellSpec, obs: Observations) -> tuple[list[_CameraData], str, np.ndarray, list[str]]:
@@ -202,12 +210,15 @@ def _gather(cell: CellSpec, obs: Observations) -> tuple[list[_CameraData], str, 
 def _initial_model(cd: _CameraData) -> tuple[AbstractCameraModel, dict[int, np.ndarray]]:
     """Start intrinsics (from the cell, else Zhang) and per-station target poses for one camera."""
     n_views = len(cd.stations)
+    zhang_poses = None
     if cd.K0 is not None:
         K, dist_given = cd.K0, (cd.dist0 if cd.dist0 is not None else np.zeros(0))
     else:
         principal_point = None
         if "cx" in cd.fix and "cy" in cd.fix:
             principal_point = ((cd.image_size[0] - 1) / 2, (cd.image_size[1] - 1) / 2)
+        # Cheap Zhang (single pass on the raw homographies): the joint solve does the distortion,
+        # and the re-seed check catches a view that starts in the flipped minimum.
         z = zhang_init(
             [p[:, :2] for p in cd.points],
             cd.pixels,
@@ -215,10 +226,14 @@ def _initial_model(cd: _CameraData) -> tuple[AbstractCameraModel, dict[int, np.n
             aspect_ratio=1.0 if "aspect" in cd.fix else None,
             principal_point=principal_point,
             image_size=cd.image_size,
+            estimate_distortion=False,
+            distortion_iterations=0,
+            refine_homographies=False,
             view_names=[f"{cd.name} view {i}" for i in range(n_views)],
         )
         K = z.K
-        dist_given = np.asarray(z.dist_opencv) if cd.model_name not in ("pinhole", "fisheye") else np.zeros(0)
+        dist_given = np.zeros(0)
+        zhang_poses = z.T_cam_target
     template = camera_model_from_name(cd.model_name, cd.image_size, skew=cd.skew)
     names = template.param_names
     values = dict(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
@@ -229,6 +244,8 @@ def _initial_model(cd: _CameraData) -> tuple[AbstractCameraModel, dict[int, np.n
         values[name] = value
     params = np.array([values.get(n, 0.0) for n in names], dtype=np.float64)
     model = template.with_params(jnp.asarray(params))
+    if zhang_poses is not None and cd.model_name != "fisheye":
+        return model, dict(zip(cd.stations, zhang_poses))
     K_cv, dist_cv = model.to_opencv()
     poses = {}
     for si, pts, pix in zip(cd.stations, cd.points, cd.pixels):
@@ -287,88 +304,197 @@ def _loss(options: CameraCalibrationOptions):
 # ------------------------------------------------------------------------------------ problem
 
 
-def _build_problem(data, models, fixed_masks, aspects, T_ref_target, T_cam_ref, weights, options, ref):
+# ------------------------------------------------------------------------------------ problem
+#
+# Speed (see benchmarks/bench_calibrate.py): the problem is built from plain arrays *inside* one
+# jitted function that solves, evaluates the residuals and inverts the Schur complement (the
+# intrinsics and rig covariances are blocks of it). Views and observations are padded to buckets
+# (:func:`jcalib.solve.bucket_size`), so data sets of similar size reuse one compiled function, and
+# ``jax.vmap`` of the same function solves a batch of same-shape calibrations in one call.
+
+
+@dataclass(frozen=True)
+class _CameraConfig:
+    """Static (hashable) description of one camera's factor group and intrinsics variable."""
+
+    name: str
+    model_cls: type
+    image_size: tuple[int, int]
+    skew: bool
+    coord_names: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class _Config:
+    """Static (hashable) part of a camera problem: one compiled function per config and shapes."""
+
+    cameras: tuple[_CameraConfig, ...]
+    loss: object
+    sigma_px: float
+    solve_options: SolveOptions
+
+
+def _problem_from_arrays(config: _Config, a: dict) -> Problem:
+    """The engine problem from arrays ``a`` (numpy or traced); see :func:`_arrays` for the keys."""
     variables = [
-        Variable(
-            "T_ref_target",
-            SE3(),
-            np.stack([_se3_params(T) for T in T_ref_target]),
-            eliminate=True,
-            entry_label="station {i} target pose",
-        ),
-        Variable(
-            "T_cam_ref",
-            SE3(),
-            np.stack([_se3_params(T_cam_ref[cd.name]) for cd in data]),
-            fixed=np.array([[cd.name == ref] * 6 for cd in data]),
-            entry_label="rig pose of camera {i}",
-        ),
+        Variable("T_ref_target", SE3(), a["pose"], fixed=a["pose_fixed"], eliminate=True,
+                 entry_label="station {i} target pose"),
+        Variable("T_cam_ref", SE3(), a["rig"], fixed=a["rig_fixed"], entry_label="rig pose of camera {i}"),
     ]
     factors = []
-    for ci, cd in enumerate(data):
-        model = models[cd.name]
+    for ci, cc in enumerate(config.cameras):
         variables.append(
-            Variable(
-                f"intrinsics:{cd.name}",
-                Euclidean(len(model.param_names)),
-                np.asarray(model.params),
-                fixed=fixed_masks[cd.name],
-                coord_names=list(model.param_names),
-                entry_label=cd.name,
-            )
+            Variable(f"intrinsics:{cc.name}", Euclidean(len(cc.coord_names)), a[f"intr{ci}"][None, :],
+                     fixed=a[f"intr_fixed{ci}"][None, :], coord_names=list(cc.coord_names), entry_label=cc.name)
         )
-        num = sum(p.shape[0] for p in cd.points)
-        station = np.concatenate([np.full(p.shape[0], s) for s, p in zip(cd.stations, cd.points)])
-        flag, ratio = aspects[cd.name]
+        station = a[f"station{ci}"]
         factors.append(
             FactorGroup(
-                f"reprojection:{cd.name}",
-                _reprojection_fn(type(model), tuple(model.image_size), bool(model.has_skew)),
-                (f"intrinsics:{cd.name}", "T_cam_ref", "T_ref_target"),
-                (np.zeros(num, np.int32), np.full(num, ci, np.int32), station.astype(np.int32)),
-                (
-                    np.concatenate(cd.points),
-                    np.concatenate(cd.pixels),
-                    np.broadcast_to(np.array([flag, ratio]), (num, 2)).copy(),
-                ),
-                sigma=options.sigma_px,
-                sqrt_weight=weights[cd.name],
-                loss=_loss(options),
+                f"reprojection:{cc.name}",
+                _reprojection_fn(cc.model_cls, cc.image_size, cc.skew),
+                (f"intrinsics:{cc.name}", "T_cam_ref", "T_ref_target"),
+                (jnp.zeros(station.shape, jnp.int32), jnp.full(station.shape, ci, jnp.int32), station),
+                (a[f"points{ci}"], a[f"pixels{ci}"], a[f"aspect{ci}"]),
+                sigma=config.sigma_px,
+                sqrt_weight=a[f"weight{ci}"],
+                loss=config.loss,
             )
         )
     return Problem(variables, factors)
 
 
-@eqx.filter_jit
-def _factor_residuals(f: FactorGroup, values: dict):
-    rows = [values[a][idx] for a, idx in zip(f.args, f.indices)]
-    return jax.vmap(f.fn)(*rows, f.observations)
+def _core(config: _Config, a: dict):
+    """Solve, residuals (pixels, unwhitened) and the inverse Schur complement, in one traced function."""
+    problem = _problem_from_arrays(config, a)
+    raw = lm_solve(problem, config.solve_options)
+    residuals = []
+    for f in problem.factors:
+        rows = [raw.values[name][idx] for name, idx in zip(f.args, f.indices)]
+        residuals.append(jax.vmap(f.fn)(*rows, f.observations))
+    S, _ = linear.reduced_system(raw.system, None, None)
+    n = S.shape[0]
+    sigma_ss = jsl.cho_solve(jsl.cho_factor(S, lower=True), jnp.eye(n, dtype=S.dtype))
+    return raw, tuple(residuals), sigma_ss
 
 
-def _residuals(problem: Problem, values: dict) -> dict[str, np.ndarray]:
-    """Unwhitened residuals (pixels) of every reprojection factor group at ``values``."""
-    return {
-        f.name.split(":", 1)[1]: np.asarray(_factor_residuals(f, values))
-        for f in problem.factors
-        if f.name.startswith("reprojection:")
-    }
+_core_jit = jax.jit(_core, static_argnums=0)
 
 
-def calibrate_cameras(
-    cell: CellSpec, obs: Observations, options: CameraCalibrationOptions = CameraCalibrationOptions()
-) -> CameraCalibration:
-    """Calibrate the free cameras of ``cell`` from target detections ``obs``.
+@functools.partial(jax.jit, static_argnums=0)
+def _core_batch_jit(config: _Config, a: dict):
+    return jax.vmap(functools.partial(_core, config))(a)
 
-    Returns:
-        A :class:`CameraCalibration` with every camera's model and intrinsic covariance, rig poses
-        and per-view diagnostics.
 
-    Raises:
-        BadInputError: malformed input (too few points in a view, non-planar target, unknown names).
-        NotObservableError: the data cannot determine some unknowns (fronto-parallel views, a camera
-            sharing no station with the others), naming them.
-    """
-    data, target_name, _, station_ids = _gather(cell, obs)
+@dataclass
+class _Prepared:
+    """One calibration data set, initialised and laid out for :func:`_core` (numpy only)."""
+
+    config: _Config
+    data: list[_CameraData]
+    ref: str
+    station_ids: list[str]
+    used: list[int]
+    models: dict[str, AbstractCameraModel]
+    fixed_masks: dict[str, np.ndarray]
+    aspects: dict[str, tuple[float, float]]
+    pose0: np.ndarray  # (V, 7) T_ref_target start
+    rig0: np.ndarray  # (C, 7) T_cam_ref start
+    weights: dict[str, np.ndarray]
+    num_views_padded: int = 0
+    num_obs_padded: tuple[int, ...] = ()
+
+    def shape_key(self):
+        return (self.num_views_padded, self.num_obs_padded)
+
+
+def _pad_rows(x: np.ndarray, n: int) -> np.ndarray:
+    extra = n - x.shape[0]
+    if extra <= 0:
+        return x
+    return np.concatenate([x, np.broadcast_to(x[:1], (extra,) + x.shape[1:])])
+
+
+def _arrays(p: _Prepared, pose: np.ndarray, rig: np.ndarray, intr: dict[str, np.ndarray],
+            weights: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Padded input arrays of :func:`_core` (padding: fixed copies of entry 0, zero-weight copies of obs 0)."""
+    V, Vp = pose.shape[0], p.num_views_padded
+    pose_fixed = np.zeros((Vp, 6), bool)
+    pose_fixed[V:] = True
+    rig_fixed = np.zeros((len(p.data), 6), bool)
+    rig_fixed[0] = True  # the reference camera comes first
+    a = dict(pose=_pad_rows(pose, Vp), pose_fixed=pose_fixed, rig=rig, rig_fixed=rig_fixed)
+    for ci, cd in enumerate(p.data):
+        Kp = p.num_obs_padded[ci]
+        K = weights[cd.name].shape[0]
+        flag, ratio = p.aspects[cd.name]
+        a[f"intr{ci}"] = np.asarray(intr[cd.name], np.float64)
+        a[f"intr_fixed{ci}"] = p.fixed_masks[cd.name]
+        a[f"station{ci}"] = _pad_rows(cd.station_flat, Kp)
+        a[f"points{ci}"] = _pad_rows(cd.points_flat, Kp)
+        a[f"pixels{ci}"] = _pad_rows(cd.pixels_flat, Kp)
+        a[f"aspect{ci}"] = np.broadcast_to(np.array([flag, ratio]), (Kp, 2))
+        w = np.zeros(Kp)
+        w[:K] = weights[cd.name]
+        a[f"weight{ci}"] = w
+    return a
+
+
+@dataclass
+class _Outcome:
+    """Host-side result of one :func:`_core` call (unpadded where it matters)."""
+
+    raw: object
+    values: dict[str, np.ndarray]
+    residuals: dict[str, np.ndarray]
+    sigma_ss: np.ndarray
+    cost: float
+    iterations: int
+    status: Status
+    num_residuals: int
+    num_free: int
+    sigma2: float
+    arrays: dict
+
+
+def _outcome(p: _Prepared, a: dict, out) -> _Outcome:
+    raw, residuals, sigma_ss = out
+    V = p.pose0.shape[0]
+    vals = {k: np.asarray(v) for k, v in raw.values.items()}
+    vals["T_ref_target"] = vals["T_ref_target"][:V]
+    res = {cd.name: np.asarray(r)[: cd.station_flat.shape[0]] for cd, r in zip(p.data, residuals)}
+    num_residuals, num_free, cost = int(raw.num_residuals), int(raw.num_free), float(raw.cost)
+    dof = num_residuals - num_free
+    return _Outcome(raw, vals, res, np.asarray(sigma_ss), cost, int(raw.iterations), Status(int(raw.status)),
+                    num_residuals, num_free, 2.0 * cost / dof if dof > 0 else float("nan"), a)
+
+
+def _raise_if_unobservable(p: _Prepared, o: _Outcome) -> None:
+    if o.status != Status.NOT_OBSERVABLE:
+        return
+    padded = _problem_from_arrays(p.config, o.arrays)
+    opts = p.config.solve_options
+    unknowns = unobservable_names(padded, linear.make_layout(padded), o.raw.observability, opts.rank_rtol)
+    raise NotObservableError(
+        "The data do not determine these unknowns (rank-deficient information matrix at the "
+        f"solution): {', '.join(unknowns)}. Fix them, add a prior, or collect data that constrains them.",
+        unknowns,
+    )
+
+
+def _check_finite_start(p: _Prepared, a: dict) -> None:
+    for key, label in (("pose", "T_ref_target"), ("rig", "T_cam_ref")):
+        if not np.all(np.isfinite(a[key])):
+            raise BadInputError(f"Variable {label!r} value: contains non-finite numbers, expected finite numbers.")
+    for ci, cd in enumerate(p.data):
+        if not np.all(np.isfinite(a[f"intr{ci}"])):
+            raise BadInputError(
+                f"Variable 'intrinsics:{cd.name}' value: got {a[f'intr{ci}']}, expected finite numbers."
+            )
+
+
+def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOptions) -> _Prepared:
+    """Validate, initialise (Zhang, poses, rig) and lay out one data set; numpy only."""
+    data, _, _, station_ids = _gather(cell, obs)
     ref = options.reference_camera or data[0].name
     if ref not in [cd.name for cd in data]:
         raise BadInputError(f"reference_camera: no camera '{ref}' in the cell")
@@ -416,130 +542,283 @@ def calibrate_cameras(
     for cd in data:
         cd.stations = [index_of[s] for s in cd.stations]
         poses[cd.name] = {index_of[s]: T for s, T in poses[cd.name].items()}
+        cd.station_flat = np.repeat(np.asarray(cd.stations, np.int32), [p.shape[0] for p in cd.points])
+        cd.points_flat = np.concatenate(cd.points)
+        cd.pixels_flat = np.concatenate(cd.pixels)
+        cd.view_starts = np.concatenate([[0], np.cumsum([p.shape[0] for p in cd.points])[:-1]]).astype(np.int64)
     T_ref_target = []
     for k in range(len(used)):
         for cd in data:
             if k in poses[cd.name]:
                 T_ref_target.append(np.linalg.inv(T_cam_ref[cd.name]) @ poses[cd.name][k])
                 break
+    config = _Config(
+        cameras=tuple(
+            _CameraConfig(cd.name, type(models[cd.name]), tuple(int(s) for s in models[cd.name].image_size),
+                          bool(models[cd.name].has_skew), tuple(models[cd.name].param_names))
+            for cd in data
+        ),
+        loss=_loss(options),
+        sigma_px=float(options.sigma_px),
+        solve_options=SolveOptions(max_iterations=options.max_iterations),
+    )
+    return _Prepared(
+        config=config,
+        data=data,
+        ref=ref,
+        station_ids=station_ids,
+        used=used,
+        models=models,
+        fixed_masks=fixed_masks,
+        aspects=aspects,
+        pose0=_se3_params_many(np.stack(T_ref_target)),
+        rig0=_se3_params_many(np.stack([T_cam_ref[cd.name] for cd in data])),
+        weights={cd.name: np.ones(cd.station_flat.shape[0]) for cd in data},
+        num_views_padded=bucket_size(len(used)),
+        num_obs_padded=tuple(bucket_size(cd.station_flat.shape[0]) for cd in data),
+    )
 
-    weights = {cd.name: np.ones(sum(p.shape[0] for p in cd.points)) for cd in data}
-    solve_options = SolveOptions(max_iterations=options.max_iterations)
 
-    def run(T_ref_target, T_cam_ref, weights):
-        problem = _build_problem(data, models, fixed_masks, aspects, T_ref_target, T_cam_ref, weights, options, ref)
-        return problem, solve(problem, options=solve_options)
+def _se3_params_many(T: np.ndarray) -> np.ndarray:
+    """(n, 4, 4) -> (n, 7) ``wxyz_xyz`` (vectorised :func:`conversions.matrix_to_pose`)."""
+    return np.stack([_se3_params(t) for t in T])
 
-    problem, sol = run(T_ref_target, T_cam_ref, weights)
 
-    def view_rms(problem, values):
-        res = _residuals(problem, values)
-        out = {}
-        for cd in data:
-            r = res[cd.name]
-            start = 0
-            for s, p in zip(cd.stations, cd.points):
-                n = p.shape[0]
-                w = weights[cd.name][start : start + n]
-                rr = r[start : start + n][w > 0]
-                out[(cd.name, s)] = float(np.sqrt(np.mean(np.sum(rr**2, axis=1)))) if rr.size else 0.0
-                start += n
-        return out, res
+def _start_arrays(p: _Prepared) -> dict:
+    intr = {cd.name: np.asarray(p.models[cd.name].params, np.float64) for cd in p.data}
+    a = _arrays(p, p.pose0, p.rig0, intr, p.weights)
+    _check_finite_start(p, a)
+    return a
 
-    reseeded = []
-    if options.reseed_views:
-        rms, _ = view_rms(problem, sol.values)
-        median = float(np.median(list(rms.values())))
-        suspects = sorted({s for (c, s), v in rms.items() if v > 3.0 * max(median, 1e-3)})
-        if suspects:
-            values = {k: np.asarray(v) for k, v in sol.values.items()}
-            new_T = [_se3_matrix(p) for p in values["T_ref_target"][: len(used)]]
-            for s in suspects:
-                cd = next(cd for cd in data if s in cd.stations)
-                v = cd.stations.index(s)
-                model = models[cd.name].with_params(jnp.asarray(values[f"intrinsics:{cd.name}"][0]))
-                K_cv, dist_cv = model.to_opencv()
-                if cd.model_name == "fisheye":
-                    continue
-                cand = planar_pnp(cd.points[v], cd.pixels[v], K_cv, dist_cv if dist_cv.size else None)
-                T_cam = _se3_matrix(values["T_cam_ref"][data.index(cd)])
-                new_T[s] = np.linalg.inv(T_cam) @ cand.T_cam_target[1]
-            for cd in data:
-                models[cd.name] = models[cd.name].with_params(jnp.asarray(values[f"intrinsics:{cd.name}"][0]))
-            T_cam_ref_now = {cd.name: _se3_matrix(values["T_cam_ref"][i]) for i, cd in enumerate(data)}
-            problem2, sol2 = run(new_T, T_cam_ref_now, weights)
-            if sol2.cost < sol.cost:
-                problem, sol, reseeded = problem2, sol2, [station_ids[used[s]] for s in suspects]
 
-    outliers = []
-    if options.outlier_threshold is not None:
-        _, res = view_rms(problem, sol.values)
-        sigma = float(np.sqrt(sol.sigma2)) * options.sigma_px if options.noise == "a_posteriori" else options.sigma_px
-        changed = False
-        for cd in data:
-            norm = np.linalg.norm(res[cd.name], axis=1)
-            bad = norm > options.outlier_threshold * sigma
-            if np.any(bad & (weights[cd.name] > 0)):
-                weights[cd.name] = np.where(bad, 0.0, weights[cd.name])
-                changed = True
-                index = np.concatenate(cd.point_index)
-                station = np.concatenate([np.full(p.shape[0], s) for s, p in zip(cd.stations, cd.points)])
-                outliers += [(cd.name, station_ids[used[station[k]]], int(index[k])) for k in np.flatnonzero(bad)]
-        if changed:
-            values = {k: np.asarray(v) for k, v in sol.values.items()}
-            for cd in data:
-                models[cd.name] = models[cd.name].with_params(jnp.asarray(values[f"intrinsics:{cd.name}"][0]))
-            problem, sol = run(
-                [_se3_matrix(p) for p in values["T_ref_target"][: len(used)]],
-                {cd.name: _se3_matrix(values["T_cam_ref"][i]) for i, cd in enumerate(data)},
-                weights,
+def _view_rms(p: _Prepared, res: dict[str, np.ndarray], weights: dict[str, np.ndarray]) -> dict:
+    """(camera, view index) -> RMS of the corners with nonzero weight (pixels)."""
+    out = {}
+    for cd in p.data:
+        sq = np.sum(res[cd.name] ** 2, axis=1) * (weights[cd.name] > 0)
+        total = np.add.reduceat(sq, cd.view_starts)
+        count = np.add.reduceat((weights[cd.name] > 0).astype(np.float64), cd.view_starts)
+        rms = np.sqrt(total / np.maximum(count, 1.0))
+        rms = np.where(count > 0, rms, 0.0)
+        for s, v in zip(cd.stations, rms.tolist()):
+            out[(cd.name, s)] = v
+    return out
+
+
+def _intrinsics_now(p: _Prepared, o: _Outcome) -> dict[str, np.ndarray]:
+    return {cd.name: o.values[f"intrinsics:{cd.name}"][0] for cd in p.data}
+
+
+def _reseed_arrays(p: _Prepared, o: _Outcome):
+    """Start arrays with suspect views re-seeded by their other planar-PnP pose, or None."""
+    rms = _view_rms(p, o.residuals, p.weights)
+    median = float(np.median(list(rms.values())))
+    suspects = sorted({s for (c, s), v in rms.items() if v > 3.0 * max(median, 1e-3)})
+    if not suspects:
+        return None, []
+    intr = _intrinsics_now(p, o)
+    new_pose = o.values["T_ref_target"].copy()
+    for s in suspects:
+        cd = next(cd for cd in p.data if s in cd.stations)
+        if cd.model_name == "fisheye":
+            continue
+        v = cd.stations.index(s)
+        K_cv, dist_cv = p.models[cd.name].with_params(jnp.asarray(intr[cd.name])).to_opencv()
+        cand = planar_pnp(cd.points[v], cd.pixels[v], K_cv, dist_cv if dist_cv.size else None)
+        T_cam = _se3_matrix(o.values["T_cam_ref"][p.data.index(cd)])
+        new_pose[s] = _se3_params(np.linalg.inv(T_cam) @ cand.T_cam_target[1])
+    return _arrays(p, new_pose, o.values["T_cam_ref"], intr, p.weights), suspects
+
+
+def _outlier_update(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions):
+    """Reject corners above the threshold; returns (new weights or None, outlier list)."""
+    sigma = float(np.sqrt(o.sigma2)) * options.sigma_px if options.noise == "a_posteriori" else options.sigma_px
+    weights = dict(p.weights)
+    outliers, changed = [], False
+    for cd in p.data:
+        bad = np.linalg.norm(o.residuals[cd.name], axis=1) > options.outlier_threshold * sigma
+        if np.any(bad & (weights[cd.name] > 0)):
+            weights[cd.name] = np.where(bad, 0.0, weights[cd.name])
+            changed = True
+            index = np.concatenate(cd.point_index)
+            outliers += [(cd.name, p.station_ids[p.used[cd.station_flat[k]]], int(index[k])) for k in np.flatnonzero(bad)]
+    return (weights if changed else None), outliers
+
+
+def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outliers, reseeded) -> CameraCalibration:
+    """Assemble the :class:`CameraCalibration` from the final solve (covariances: blocks of Σ_ss)."""
+    if options.noise == "a_posteriori":
+        if not o.sigma2 == o.sigma2:
+            raise NotObservableError(
+                f"The a-posteriori noise level needs more residuals ({o.num_residuals}) than free "
+                f"unknowns ({o.num_free}); use noise='stated'.",
+                ["sigma2"],
             )
-
-    values = {k: np.asarray(v) for k, v in sol.values.items()}
-    noise = "a_posteriori" if options.noise == "a_posteriori" else "stated"
+        scale = o.sigma2
+    else:
+        scale = 1.0
+    C = len(p.data)
     cameras, intr_cov, T_ref_cam, T_ref_cam_cov = {}, {}, {}, {}
     T_cam_target: dict[str, dict[str, np.ndarray]] = {}
-    for i, cd in enumerate(data):
-        p = values[f"intrinsics:{cd.name}"][0].copy()
-        cov = np.asarray(sol.covariance(f"intrinsics:{cd.name}", noise=noise))
-        flag, ratio = aspects[cd.name]
+    off = 6 * C
+    rig_fixed = np.zeros((C, 6), bool)
+    rig_fixed[0] = True
+    for i, cd in enumerate(p.data):
+        prm = o.values[f"intrinsics:{cd.name}"][0].copy()
+        n = prm.shape[0]
+        f = (~p.fixed_masks[cd.name]).astype(np.float64)
+        cov = scale * o.sigma_ss[off : off + n, off : off + n] * f[:, None] * f[None, :]
+        off += n
+        flag, ratio = p.aspects[cd.name]
         if flag:
-            p[1] = p[0] / ratio
+            prm[1] = prm[0] / ratio
             cov[1, :] = cov[0, :] / ratio
             cov[:, 1] = cov[:, 0] / ratio
             cov[1, 1] = cov[0, 0] / ratio**2
-        cameras[cd.name] = models[cd.name].with_params(jnp.asarray(p))
+        cameras[cd.name] = p.models[cd.name].with_params(jnp.asarray(prm))
         intr_cov[cd.name] = cov
-        T_cr = _se3_matrix(values["T_cam_ref"][i])
+        T_cr = _se3_matrix(o.values["T_cam_ref"][i])
         T_ref_cam[cd.name] = np.linalg.inv(T_cr)
+        fr = (~rig_fixed[i]).astype(np.float64)
+        cov_cr = scale * o.sigma_ss[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] * fr[:, None] * fr[None, :]
         # Cov of T_ref_cam = inv(T_cam_ref): right perturbation maps by -Ad(T_cam_ref).
-        cov_cr = np.asarray(sol.covariance("T_cam_ref", index=i, noise=noise))
         Ad = _adjoint_rot_first(T_cr)
         T_ref_cam_cov[cd.name] = Ad @ cov_cr @ Ad.T
         for s in cd.stations:
-            T_rt = _se3_matrix(values["T_ref_target"][s])
-            T_cam_target.setdefault(station_ids[used[s]], {})[cd.name] = T_cr @ T_rt
+            T_rt = _se3_matrix(o.values["T_ref_target"][s])
+            T_cam_target.setdefault(p.station_ids[p.used[s]], {})[cd.name] = T_cr @ T_rt
 
-    rms, res = view_rms(problem, sol.values)
-    all_res = np.concatenate([res[cd.name][weights[cd.name] > 0] for cd in data])
+    rms = _view_rms(p, o.residuals, p.weights)
+    all_res = np.concatenate([o.residuals[cd.name][p.weights[cd.name] > 0] for cd in p.data])
     return CameraCalibration(
         cameras=cameras,
         intrinsics_covariance=intr_cov,
         T_ref_cam=T_ref_cam,
         T_ref_cam_covariance=T_ref_cam_cov,
         T_cam_target=T_cam_target,
-        view_rms_px={(c, station_ids[used[s]]): v for (c, s), v in rms.items()},
-        residuals_px=res,
+        view_rms_px={(c, p.station_ids[p.used[s]]): v for (c, s), v in rms.items()},
+        residuals_px=o.residuals,
         outliers=outliers,
         rms_px=float(np.sqrt(np.mean(np.sum(all_res**2, axis=1)))),
-        sigma_px=float(np.sqrt(sol.sigma2)) * options.sigma_px,
+        sigma_px=float(np.sqrt(o.sigma2)) * options.sigma_px,
         num_residuals=int(all_res.size),
-        iterations=int(sol.iterations),
-        status=sol.status.name.lower(),
-        reference_camera=ref,
+        iterations=o.iterations,
+        status=o.status.name.lower(),
+        reference_camera=p.ref,
         reseeded_views=reseeded,
-        solution=sol,
+        solution=o.raw,
     )
+
+
+def _run_one(p: _Prepared, a: dict) -> _Outcome:
+    o = _outcome(p, a, jax.device_get(_core_jit(p.config, a)))
+    _raise_if_unobservable(p, o)
+    return o
+
+
+def _refine(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, run=None) -> CameraCalibration:
+    """Re-seed check and outlier rejection after the first solve (each re-solves only when needed)."""
+    run = run or _run_one
+    reseeded = []
+    if options.reseed_views:
+        a2, suspects = _reseed_arrays(p, o)
+        if a2 is not None:
+            o2 = run(p, a2)
+            if o2.cost < o.cost:
+                o, reseeded = o2, [p.station_ids[p.used[s]] for s in suspects]
+    outliers = []
+    if options.outlier_threshold is not None:
+        weights, outliers = _outlier_update(p, o, options)
+        if weights is not None:
+            p.weights = weights
+            o = run(p, _arrays(p, o.values["T_ref_target"], o.values["T_cam_ref"], _intrinsics_now(p, o), weights))
+    return _finish(p, o, options, outliers, reseeded)
+
+
+def calibrate_cameras(
+    cell: CellSpec, obs: Observations, options: CameraCalibrationOptions = CameraCalibrationOptions()
+) -> CameraCalibration:
+    """Calibrate the free cameras of ``cell`` from target detections ``obs``.
+
+    One jitted call solves, evaluates the residuals and forms the covariances; a second (same
+    compiled function) runs only when a view is re-seeded or corners are rejected.
+
+    Returns:
+        A :class:`CameraCalibration` with every camera's model and intrinsic covariance, rig poses
+        and per-view diagnostics.
+
+    Raises:
+        BadInputError: malformed input (too few points in a view, non-planar target, unknown names).
+        NotObservableError: the data cannot determine some unknowns (fronto-parallel views, a camera
+            sharing no station with the others), naming them.
+    """
+    p = _prepare(cell, obs, options)
+    o = _run_one(p, _start_arrays(p))
+    return _refine(p, o, options)
+
+
+def calibrate_cameras_batch(
+    cell: CellSpec,
+    observations: Sequence[Observations],
+    options: CameraCalibrationOptions = CameraCalibrationOptions(),
+    *,
+    raise_errors: bool = True,
+) -> list[CameraCalibration | Exception]:
+    """Calibrate many data sets of one cell (e.g. a Monte-Carlo study) with one vmapped solve.
+
+    Every data set is initialised on the host (cheap Zhang, its poses), padded to the largest
+    bucket of the batch, and all are solved by ``jax.vmap`` of the same jitted function as
+    :func:`calibrate_cameras` (one compilation per cell and padded shape). Data sets that need a
+    re-seeded view or outlier rejection are re-solved one by one afterwards. Results equal
+    :func:`calibrate_cameras` on each data set to solver tolerance.
+
+    Args:
+        cell: the cell (free cameras, one planar target).
+        observations: data sets, each an :class:`Observations` of that cell.
+        options: :class:`CameraCalibrationOptions`, shared.
+        raise_errors: raise the first data set's error (default); ``False`` returns the exception
+            (``BadInputError`` / ``NotObservableError``) in that data set's place instead.
+
+    Returns:
+        One :class:`CameraCalibration` (or exception) per data set, in order.
+    """
+    if len(observations) == 0:
+        raise BadInputError("observations: got an empty list, expected at least one data set")
+    results: list = [None] * len(observations)
+    prepared = []
+    for i, obs in enumerate(observations):
+        try:
+            p = _prepare(cell, obs, options)
+            prepared.append((i, p, _start_arrays(p)))
+        except (BadInputError, NotObservableError) as err:
+            if raise_errors:
+                raise
+            results[i] = err
+    # one vmapped call per (config, padded shape) group; pad groups to a common shape first
+    groups: dict = {}
+    for i, p, a in prepared:
+        groups.setdefault(p.config, []).append((i, p, a))
+    for members in groups.values():
+        Vp = max(p.num_views_padded for _, p, _ in members)
+        Kp = tuple(max(k) for k in zip(*(p.num_obs_padded for _, p, _ in members)))
+        fixed = []
+        for i, p, a in members:
+            if (p.num_views_padded, p.num_obs_padded) != (Vp, Kp):
+                p.num_views_padded, p.num_obs_padded = Vp, Kp
+                a = _start_arrays(p)
+            fixed.append((i, p, a))
+        stacked = {k: np.stack([a[k] for _, _, a in fixed]) for k in fixed[0][2]}
+        out = jax.device_get(_core_batch_jit(fixed[0][1].config, stacked))
+        for j, (i, p, a) in enumerate(fixed):
+            try:
+                o = _outcome(p, a, jax.tree.map(lambda x, j=j: x[j], out))
+                _raise_if_unobservable(p, o)
+                results[i] = _refine(p, o, options)
+            except (BadInputError, NotObservableError) as err:
+                if raise_errors:
+                    raise
+                results[i] = err
+    return results
 
 
 def _adjoint_rot_first(T: np.ndarray) -> np.ndarray:

@@ -42,8 +42,13 @@ PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
 def board_points(square: float) -> np.ndarray:
-    """calibration.cpp's calcChessboardCorners: point (row i, col j) = (j s, i s, 0), row-major."""
-    return np.array([[j * square, i * square, 0.0] for i in range(ROWS) for j in range(COLS)])
+    """calibration.cpp's calcChessboardCorners: point (row i, col j) = (j s, i s, 0), row-major.
+
+    Rounded to float32 as OpenCV takes them (0.025 m is not a float32 number), so that jcalib and
+    cv2 solve exactly the same problem: float64 points shift the optimum by ~1e-5 of a σ.
+    """
+    points = np.array([[j * square, i * square, 0.0] for i in range(ROWS) for j in range(COLS)])
+    return points.astype(np.float32).astype(np.float64)
 
 
 def detect(side: str, win: int) -> dict[int, np.ndarray]:
