@@ -78,8 +78,8 @@ def report(title: str, spec: dict, r: dict) -> None:
     lo, hi = stats.chi2(n * dof).ppf([0.0005, 0.9995]) / n
     print(f"\nd2 = e^T S^-1 e over the {dof} intrinsics; chi2({dof}): mean {dof}, 99.9% band for the mean "
           f"of {n}: [{lo:.2f}, {hi:.2f}]; tail fractions expected 0.50 / 0.10 / 0.01")
-    print(f"| covariance   | mean d2 | KS p   | >q50  | >q90  | >q99  |")
-    print(f"|--------------|---------|--------|-------|-------|-------|")
+    print("| covariance   | mean d2 | KS p   | >q50  | >q90  | >q99  |")
+    print("|--------------|---------|--------|-------|-------|-------|")
     for noise in ("stated", "a_posteriori"):
         d2 = np.array([x @ np.linalg.solve(S, x) for x, S in zip(e, r[noise])])
         p = stats.kstest(d2, stats.chi2(dof).cdf).pvalue

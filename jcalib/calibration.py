@@ -115,6 +115,16 @@ def calibrate(cell, observations, options=None) -> Result:
     }
     if cal.reseeded_views:
         stats["reseeded_views"] = cal.reseeded_views
+    warnings = []
+    if cal.rms_px > 5.0 * options.sigma_px:
+        warnings.append(
+            f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise "
+            f"({options.sigma_px:g} px): the lens model is probably too simple for this lens (try a model "
+            "with more distortion terms, or fisheye) or detections are wrong; the reported σ describe "
+            "noise only, not this model error"
+        )
+    if warnings:
+        stats["warnings"] = warnings
     provenance = Provenance.now(
         input_hash=_input_hash(cell, observations, cell_spec, obs), options=asdict(options)
     )

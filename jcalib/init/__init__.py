@@ -39,6 +39,7 @@ __all__ = [
     "frame_from_three_points",
     "pivot_calibration",
     "pivot_sphere_fit",
+    "point_distance",
     "planar_pnp",
     "planar_pnp_views",
     "solve_hand_eye",

@@ -73,3 +73,5 @@ def print_result(result: ResultFile, console: Console | None = None, truth=None)
         f"status {s.get('status', '?')} · {s.get('num_outliers', 0)} outliers rejected",
         highlight=False,
     )
+    for warning in s.get("warnings", []):
+        console.print(f"[bold yellow]warning:[/] {warning}", highlight=False)

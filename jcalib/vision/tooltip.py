@@ -369,7 +369,6 @@ def _coarse_tip_and_axis(blob: np.ndarray, name: str) -> tuple[np.ndarray, np.nd
         s = (contour - centroid) @ major
         wdt = (contour - centroid) @ np.array([-major[1], major[0]])
         s_min, s_max = float(s.min()), float(s.max())
-        length = s_max - s_min
 
         # the tip end narrows (cone), the other end is cut flat: compare the widths a little way in
         typical = float(np.median(np.abs(wdt))) * 2.0

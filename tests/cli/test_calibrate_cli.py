@@ -103,3 +103,15 @@ def test_demo_short_run_matches_truth(tmp_path):
 
     fs = cv2.FileStorage(str(tmp_path / "demo" / "cam0_opencv.yaml"), cv2.FILE_STORAGE_READ)
     np.testing.assert_allclose(fs.getNode("camera_matrix").mat(), np.asarray(cam["K"]), rtol=1e-9)
+
+
+def test_too_simple_lens_model_is_flagged(tmp_path, observations):
+    """A pinhole fitted to a lens with k1 = -0.2 cannot reach the corner noise: the result says so."""
+    (tmp_path / "cell.yaml").write_text(CELL.replace("opencv5", "pinhole"))
+    (tmp_path / "obs.json").write_text(json.dumps(observations))
+    proc = run("calibrate", "cell.yaml", "obs.json", "-o", "result.json", "--outlier-threshold", "0", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert result["stats"]["rms_px"] > 1.25  # 5x the stated 0.25 px
+    assert any("lens model is probably too simple" in w for w in result["stats"]["warnings"])
+    assert "warning" in proc.stdout

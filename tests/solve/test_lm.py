@@ -165,7 +165,7 @@ def test_weight_zero_masks_observations_like_removing_them():
 
 
 def test_vmap_over_batch_matches_individual_solves_and_masks_finished_members():
-    problems, singles = [], []
+    problems = []
     for seed in range(3):
         data = calibration_data(num_views=6, noise_px=0.1 + 0.2 * seed, seed=10 + seed)
         K0, P0 = perturbed_start(data, np.random.default_rng(seed), k_scale=1.0 + 2 * seed)
