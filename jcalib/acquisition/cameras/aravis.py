@@ -1,6 +1,6 @@
 """GigE Vision cameras through Aravis 0.8 (PyGObject), opened by IP address only.
 
-Device discovery (``Aravis.update_device_list``) broadcasts on every interface, so it is never used:
+Device discovery (Aravis' device-list update) broadcasts on every interface, so it is never used:
 the device object is built directly from the camera's address and the local address that routes to
 it (``Aravis.GvDevice.new``), which sends unicast GVCP to that camera only.
 
