@@ -137,6 +137,23 @@ def export(
     typer.echo(f"wrote {path}")
 
 
+@app.command()
+def report(
+    result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="HTML file to write.")],
+    observations: Annotated[
+        Optional[Path],
+        typer.Option(help="Observations (jcalib.observations/1) for the residual / coverage plots."),
+    ] = None,
+) -> None:
+    """Write a one-page, self-contained HTML report of a result (tables, warnings, plots)."""
+    enable_compilation_cache()
+    from jcalib.report.html import write_report
+
+    path = write_report(result, out, observations=observations)
+    typer.echo(f"wrote {path}")
+
+
 # --- acquisition commands (simulate, plan, capture) live below this line ---
 
 

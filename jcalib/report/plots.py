@@ -1,0 +1,287 @@
+"""Figures of the HTML report, each returned as PNG bytes (matplotlib, Agg backend, no display).
+
+The one computation here is :func:`projection_sigma_map`: how far the projection of a point moves
+(1 σ, pixels) because the intrinsics are uncertain, by linear propagation of the intrinsics
+covariance with a JAX Jacobian of the camera model's ``project``.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+from collections.abc import Mapping
+
+import numpy as np
+
+from jcalib.io.result import CameraResult
+
+__all__ = [
+    "coverage_png",
+    "projection_sigma_map",
+    "projection_sigma_png",
+    "radial_residuals_png",
+    "residual_vectors_png",
+    "view_rms_png",
+]
+
+#: Figure width in inches at :data:`DPI`: 10.4 in x 100 dpi = 1040 px, inside the page's 1100 px.
+FIG_WIDTH_IN = 10.4
+DPI = 100
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig) -> bytes:
+    plt = _pyplot()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _camera_model(cam: CameraResult):
+    from jcalib.geometry.cameras import camera_from_opencv
+
+    return camera_from_opencv(cam.K, cam.dist, cam.image_size, fisheye=cam.model == "fisheye")
+
+
+# ------------------------------------------------------------------------------ per-view RMS
+
+
+def view_rms_png(view_rms_px: Mapping[str, float], sigma_px: float | None = None) -> bytes:
+    """Bar chart of the RMS reprojection error of every view.
+
+    Args:
+        view_rms_px: ``"<camera>/<station>"`` -> RMS (pixels), as in ``stats["view_rms_px"]``.
+        sigma_px: the a-posteriori noise σ (pixels), drawn as a reference line when given.
+    """
+    plt = _pyplot()
+    names = list(view_rms_px)
+    values = np.array([float(view_rms_px[n]) for n in names], dtype=np.float64)
+    height = 3.2
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN, height))
+    x = np.arange(len(names))
+    median = float(np.median(values)) if values.size else 0.0
+    colors = ["#c0392b" if v > 2.0 * median and v > 0 else "#2e86c1" for v in values]
+    ax.bar(x, values, color=colors)
+    if sigma_px is not None:
+        ax.axhline(sigma_px, color="#555", ls="--", lw=1, label=f"a-posteriori σ = {sigma_px:.3g} px")
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_ylim(0.0, 1.3 * max(float(values.max()) if values.size else 0.0, sigma_px or 0.0, 1e-9))
+    ax.set_ylabel("RMS [px]")
+    ax.set_title("Reprojection RMS per view (red: over 2x the median)")
+    step = max(1, len(names) // 40)
+    ax.set_xticks(x[::step])
+    ax.set_xticklabels(names[::step], rotation=60, ha="right", fontsize=7)
+    ax.set_xlim(-0.6, max(len(names), 1) - 0.4)
+    ax.grid(axis="y", alpha=0.3)
+    return _png(fig)
+
+
+# ------------------------------------------------------------------------------ uncertainty map
+
+
+@functools.cache
+def _sigma_fn(model_cls: type, image_size: tuple[int, int], skew: bool):
+    """Jitted ``(params (p,), p_cam (n, 3), cov (p, p)) -> (n, 2, 2)`` pixel covariances."""
+    import jax
+
+    def one(params, p_cam, cov):
+        def proj(q):
+            return model_cls.from_params(image_size, q, skew=skew).project(p_cam)
+
+        J = jax.jacfwd(proj)(params)  # (2, p)
+        return J @ cov @ J.T
+
+    @jax.jit
+    def many(params, p_cam, cov):
+        return jax.vmap(one, in_axes=(None, 0, None))(params, p_cam, cov)
+
+    return many
+
+
+def projection_sigma_map(
+    cam: CameraResult, grid: tuple[int, int] = (33, 25)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """σ (pixels) of the projection of points across the image due to the intrinsics covariance.
+
+    For a grid of pixels, the estimated model unprojects each pixel to a point ``p_cam`` on its ray
+    (held fixed); the Jacobian ``J (2, p)`` of ``project(p_cam)`` w.r.t. the intrinsic vector
+    (order :attr:`CameraResult.param_names`, from JAX) propagates the covariance ``C``:
+    ``Σ = J C Jᵀ (2, 2)``. The value is the worst-direction σ, ``sqrt(λ_max(Σ))`` (mrcal's
+    "worstdirection-stdev").
+
+    Includes: the intrinsics uncertainty caused by pixel noise (as the solver reported it).
+    Excludes: model error (a too-simple lens model) and the uncertainty of the camera and target
+    poses. The lens models are central, so the value does not depend on the depth of the point.
+
+    Args:
+        cam: a camera with a ``covariance``.
+        grid: ``(nx, ny)`` grid points across the image.
+
+    Returns:
+        ``(u, v, sigma)``: pixel coordinates ``(ny, nx)`` each (OpenCV convention) and σ ``(ny, nx)``
+        in pixels; NaN where the pixel has no valid ray (outside a fisheye's valid range).
+    """
+    import jax.numpy as jnp
+
+    if cam.covariance is None:
+        from jcalib.errors import BadInputError
+
+        raise BadInputError(
+            f"cam: the camera ({cam.model}) has no intrinsics covariance; the projection "
+            "uncertainty needs one"
+        )
+    width, height = cam.image_size
+    nx, ny = grid
+    u, v = np.meshgrid(np.linspace(0.0, width - 1.0, nx), np.linspace(0.0, height - 1.0, ny))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=-1)
+    model = _camera_model(cam)
+    rays, valid = model.unproject_valid(jnp.asarray(pixels))
+    rays = np.asarray(rays)
+    valid = np.asarray(valid) & (rays[:, 2] > 1e-6)
+    # A point on each ray (1 m along it); central models make the result independent of this.
+    p_cam = rays
+    fn = _sigma_fn(type(model), tuple(model.image_size), bool(model.has_skew))
+    cov_px = np.asarray(
+        fn(jnp.asarray(cam.params), jnp.asarray(p_cam), jnp.asarray(cam.covariance))
+    )
+    eig = np.linalg.eigvalsh(0.5 * (cov_px + np.swapaxes(cov_px, -1, -2)))
+    sigma = np.sqrt(np.maximum(eig[:, -1], 0.0))
+    sigma = np.where(valid, sigma, np.nan)
+    return u, v, sigma.reshape(ny, nx)
+
+
+def projection_sigma_png(name: str, cam: CameraResult) -> tuple[bytes, dict[str, float]]:
+    """Map of :func:`projection_sigma_map` over the image; returns PNG bytes and summary numbers
+    (``centre_px``, ``max_px``: σ at the image centre and its maximum over the image, pixels)."""
+    plt = _pyplot()
+    u, v, sigma = projection_sigma_map(cam)
+    width, height = cam.image_size
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN * 0.62, FIG_WIDTH_IN * 0.62 * height / width + 0.6))
+    # geometric levels: σ grows by orders of magnitude towards unobserved image corners
+    lo, hi = float(np.nanmin(sigma)), float(np.nanmax(sigma))
+    levels = np.geomspace(max(lo, 1e-12), max(hi, lo * 1.01, 1e-12), 13)
+    from matplotlib.colors import BoundaryNorm
+
+    norm = BoundaryNorm(levels, ncolors=256)
+    cs = ax.contourf(u, v, sigma, levels=levels, cmap="viridis", norm=norm)
+    lines = ax.contour(u, v, sigma, levels=levels, colors="white", linewidths=0.5, alpha=0.8)
+    ax.clabel(lines, levels[::2], fmt=lambda x: f"{x:.2g}", fontsize=7)
+    cbar = fig.colorbar(cs, ax=ax, label="σ [px], worst direction")
+    cbar.set_ticks(levels[::2])
+    cbar.set_ticklabels([f"{x:.3g}" for x in levels[::2]])
+    ax.set_xlim(-0.5, width - 0.5)
+    ax.set_ylim(height - 0.5, -0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u [px]")
+    ax.set_ylabel("v [px]")
+    ax.set_title(f"{name}: projection uncertainty from the intrinsics", fontsize=10)
+    cy, cx = (sigma.shape[0] - 1) // 2, (sigma.shape[1] - 1) // 2
+    summary = {"centre_px": float(sigma[cy, cx]), "max_px": float(np.nanmax(sigma))}
+    return _png(fig), summary
+
+
+# ------------------------------------------------------------------------------ residuals
+
+
+def _frame(ax, image_size: tuple[int, int]) -> None:
+    width, height = image_size
+    ax.add_patch(
+        _pyplot().Rectangle((-0.5, -0.5), width, height, fill=False, ec="#333", lw=1)
+    )
+    ax.set_xlim(-0.5 - 0.02 * width, width - 0.5 + 0.02 * width)
+    ax.set_ylim(height - 0.5 + 0.02 * height, -0.5 - 0.02 * height)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u [px]")
+    ax.set_ylabel("v [px]")
+
+
+def residual_vectors_png(
+    name: str, image_size: tuple[int, int], pixels: np.ndarray, residuals: np.ndarray
+) -> tuple[bytes, float]:
+    """Residual vectors (observed − predicted) drawn at the observed corners, magnified.
+
+    Args:
+        pixels: ``(n, 2)`` observed corners, pixels.
+        residuals: ``(n, 2)`` observed − predicted, pixels.
+
+    Returns:
+        PNG bytes and the magnification factor of the arrows.
+    """
+    plt = _pyplot()
+    width, height = image_size
+    norm = np.linalg.norm(residuals, axis=-1)
+    typical = float(np.percentile(norm, 95)) if norm.size else 1.0
+    # the 95th-percentile arrow is 4 % of the image width long
+    scale = 0.04 * width / max(typical, 1e-12)
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN * 0.62, FIG_WIDTH_IN * 0.62 * height / width + 0.6))
+    ax.quiver(
+        pixels[:, 0], pixels[:, 1], residuals[:, 0] * scale, residuals[:, 1] * scale,
+        norm, angles="xy", scale_units="xy", scale=1.0, cmap="plasma", width=0.0025,
+    )
+    _frame(ax, image_size)
+    ax.set_title(f"{name}: residuals (observed − predicted) x {scale:.0f}", fontsize=10)
+    return _png(fig), scale
+
+
+def radial_residuals_png(
+    name: str, pixels: np.ndarray, residuals: np.ndarray, centre: np.ndarray
+) -> bytes:
+    """Radial residual component against distance from the principal point.
+
+    A systematic trend (an S-curve, a drift at the edge) hints at a too-simple lens model;
+    noise-only residuals scatter evenly about 0 at every radius.
+
+    Args:
+        pixels: ``(n, 2)`` observed corners, pixels.
+        residuals: ``(n, 2)`` observed − predicted, pixels.
+        centre: ``(2,)`` principal point ``(cx, cy)``, pixels.
+    """
+    plt = _pyplot()
+    d = pixels - centre[None, :]
+    r = np.linalg.norm(d, axis=-1)
+    radial = np.sum(residuals * d, axis=-1) / np.maximum(r, 1e-9)
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN, 3.2))
+    ax.scatter(r, radial, s=3, alpha=0.35, color="#2e86c1", label="corners")
+    if r.size > 20:
+        edges = np.linspace(0.0, float(r.max()) + 1e-9, 16)
+        idx = np.digitize(r, edges) - 1
+        centres, medians = [], []
+        for b in range(edges.size - 1):
+            sel = idx == b
+            if np.count_nonzero(sel) >= 5:
+                centres.append(0.5 * (edges[b] + edges[b + 1]))
+                medians.append(float(np.median(radial[sel])))
+        ax.plot(centres, medians, color="#c0392b", lw=2, label="median per radius bin")
+    ax.axhline(0.0, color="#333", lw=0.8)
+    ax.set_xlabel("distance from the principal point [px]")
+    ax.set_ylabel("radial residual [px]")
+    ax.set_title(f"{name}: radial residuals (a trend hints at a too-simple lens model)", fontsize=10)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    return _png(fig)
+
+
+def coverage_png(name: str, image_size: tuple[int, int], pixels_per_view: list[np.ndarray]) -> bytes:
+    """Detected corners of every view over the image frame (one colour per view).
+
+    Args:
+        pixels_per_view: one ``(n_i, 2)`` array of detected corners (pixels) per view.
+    """
+    plt = _pyplot()
+    width, height = image_size
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN * 0.62, FIG_WIDTH_IN * 0.62 * height / width + 0.6))
+    cmap = plt.get_cmap("tab20")
+    for i, pix in enumerate(pixels_per_view):
+        ax.scatter(pix[:, 0], pix[:, 1], s=4, color=cmap(i % 20))
+    _frame(ax, image_size)
+    ax.set_title(f"{name}: detected corners ({len(pixels_per_view)} views)", fontsize=10)
+    return _png(fig)
