@@ -32,6 +32,8 @@ _LAZY = {
     "Result": "jcalib.calibration",
     "calibrate_cameras": "jcalib.problems.camera",
     "CameraCalibrationOptions": "jcalib.problems.camera",
+    "calibrate_hand_eye": "jcalib.problems.handeye",
+    "HandEyeOptions": "jcalib.problems.handeye",
     "load_cell": "jcalib.io.cell",
     "load_observations": "jcalib.io.observations",
     "load_result": "jcalib.io.result",

@@ -70,7 +70,9 @@ def calibrate(cell, observations, options=None) -> Result:
         observations: a ``jcalib.observations/1`` document: path, dict or
             :class:`~jcalib.io.observations.Observations`.
         options: problem options (for camera-only cells a
-            :class:`~jcalib.problems.camera.CameraCalibrationOptions`).
+            :class:`~jcalib.problems.camera.CameraCalibrationOptions`; for hand-eye cells, one camera
+            and one target with one on the flange and the other on the base, a
+            :class:`~jcalib.problems.handeye.HandEyeOptions`).
 
     Returns:
         :class:`Result`. Uncertainties are sampling noise (pixel noise propagated to the
@@ -85,6 +87,11 @@ def calibrate(cell, observations, options=None) -> Result:
     has_robot = any(c.mount != "free" for c in cell_spec.cameras.values()) or any(
         t.mount != "free" for t in cell_spec.targets.values()
     )
+    if has_robot:
+        from jcalib.problems.handeye import is_hand_eye_cell
+
+        if is_hand_eye_cell(cell_spec):
+            return _calibrate_hand_eye(cell, observations, cell_spec, obs, options)
     if has_robot or cell_spec.tools or cell_spec.points:
         raise BadInputError(
             f"{cell_spec.source}: this version calibrates cameras with free-moving targets "
@@ -127,6 +134,62 @@ def calibrate(cell, observations, options=None) -> Result:
         stats["warnings"] = warnings
     provenance = Provenance.now(
         input_hash=_input_hash(cell, observations, cell_spec, obs), options=asdict(options)
+    )
+    # Per-view target poses (an optional key; the report re-projects residuals with them).
+    poses = {station: {c: T.tolist() for c, T in per_cam.items()} for station, per_cam in cal.T_cam_target.items()}
+    file = ResultFile(
+        cameras=cameras, transforms=transforms, stats=stats, provenance=provenance, extra={"T_cam_target": poses}
+    )
+    return Result(file, cal)
+
+
+def _calibrate_hand_eye(cell_arg, obs_arg, cell_spec: CellSpec, obs: Observations, options) -> Result:
+    """Hand-eye cells (one camera and one target, one on the flange, one on the base)."""
+    from jcalib.problems.camera import CameraCalibrationOptions
+    from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
+
+    options = options or HandEyeOptions()
+    if isinstance(options, CameraCalibrationOptions):  # e.g. from the CLI: keep what applies
+        if options.loss != "none":
+            raise BadInputError(
+                f"loss: got {options.loss!r}; the hand-eye problem has no robust loss yet, expected 'none'"
+            )
+        options = HandEyeOptions(sigma_px=options.sigma_px, noise=options.noise,
+                                 max_iterations=options.max_iterations)
+    if not isinstance(options, HandEyeOptions):
+        raise BadInputError(
+            f"options: got {type(options).__name__}, expected HandEyeOptions for a hand-eye cell"
+        )
+    cal = calibrate_hand_eye(cell_spec, obs, options)
+    cameras = {cal.camera: CameraResult.from_model(cal.model, covariance=cal.intrinsics_covariance)}
+    transforms = {
+        cal.hand_eye_name: TransformResult(cal.T_hand_eye, cal.T_hand_eye_covariance),
+        cal.target_name: TransformResult(cal.T_target, cal.T_target_covariance),
+    }
+    stats = {
+        "rms_px": cal.rms_px,
+        "num_residuals": cal.num_residuals,
+        "sigma_px": cal.sigma_px,
+        "iterations": cal.iterations,
+        "status": cal.status,
+        "num_stations": len(cal.station_ids),
+        "view_rms_px": {f"{cal.camera}/{s}": v for s, v in cal.view_rms_px.items()},
+        "hand_eye_init": cal.init.method,
+        "robot_pose_model": cal.pose_model,
+    }
+    if cal.robot:
+        stats["robot"] = cal.robot
+    warnings = list(cal.init.diagnostics.motion.warnings)
+    if cal.rms_px > 5.0 * options.sigma_px:
+        warnings.append(
+            f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise ({options.sigma_px:g} px): "
+            "the lens model is probably too simple, detections are wrong, or the robot poses are worse "
+            "than stated; the reported σ describe noise only, not this model error"
+        )
+    if warnings:
+        stats["warnings"] = warnings
+    provenance = Provenance.now(
+        input_hash=_input_hash(cell_arg, obs_arg, cell_spec, obs), options=asdict(options)
     )
     file = ResultFile(cameras=cameras, transforms=transforms, stats=stats, provenance=provenance)
     return Result(file, cal)
