@@ -7,14 +7,16 @@ vector of length ``n_s``; entry-major, tangent order) and **eliminated** kinds (
 - ``H_ss (n_s, n_s)``: dense shared block;
 - per eliminated kind ``V (num, d, d)`` (block-diagonal) and ``W (num, n_s, d)`` (shared × block);
 
-and never as one dense matrix of the whole problem. Jacobians come from ``vmap(jacfwd)`` per
-factor group with respect to each argument's tangent (retraction at zero), scattered into the
-blocks with ``.at[].add``. Fixed tangent coordinates get zero Jacobian columns and an identity
-diagonal (so every solve returns exactly 0 for them and the matrices stay invertible).
+and never as one dense matrix of the whole problem. Jacobians come from ``vmap(jacrev)`` (or
+``jacfwd`` when the residual has at least as many components as the tangent) per factor group with
+respect to each argument's tangent (first-order retraction at zero, see ``retract_linear``), summed
+per entry (pair) with whole-block windows into the blocks. Fixed tangent coordinates get zero
+Jacobian columns and an identity diagonal (so every solve returns exactly 0 for them and the matrices stay invertible).
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import equinox as eqx
@@ -104,11 +106,18 @@ def retract_all(problem: Problem, values: dict, deltas: dict) -> dict:
     return out
 
 
-def _obs_residual(f, manifolds):
-    """Whitened residual of one observation as a function of the argument tangents."""
+def _obs_residual(f, manifolds, first_order: bool = False):
+    """Whitened residual of one observation as a function of the argument tangents.
+
+    ``first_order=True`` uses the manifolds' ``retract_linear`` (right value and first derivative
+    at ``δ = 0`` only): for Gauss–Newton Jacobians, not for second derivatives.
+    """
 
     def r_obs(rows, deltas, obs, w):
-        params = [m.retract(x, d) for m, x, d in zip(manifolds, rows, deltas)]
+        if first_order:
+            params = [m.retract_linear(x, d) for m, x, d in zip(manifolds, rows, deltas)]
+        else:
+            params = [m.retract(x, d) for m, x, d in zip(manifolds, rows, deltas)]
         r = jnp.asarray(f.fn(*params, obs))
         # weight 0 (padding, masked outliers): exact zero, finite derivatives even if r is not.
         return jnp.where(w > 0.0, r * (w / f.sigma), jnp.zeros_like(r))
@@ -132,7 +141,7 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
         m_eff: number of residual components with nonzero weight. ``D`` = sum of argument dims.
     """
     by_name, manifolds, dims = _factor_parts(problem, f)
-    r_obs = _obs_residual(f, manifolds)
+    r_obs = _obs_residual(f, manifolds, first_order=True)
     rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
     zeros = tuple(jnp.zeros((f.num_obs, d), jnp.float64) for d in dims)
 
@@ -141,7 +150,11 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
             r = r_obs(rows_k, ds, obs_k, w_k)
             return r, r
 
-        jac, r = jax.jacfwd(g, argnums=tuple(range(len(dims))), has_aux=True)(*deltas_k)
+        # reverse mode when the residual has fewer components than the tangent (e.g. 2 pixels vs
+        # 21 tangent directions in camera calibration): m backward passes instead of D forward ones
+        m = math.prod(jax.eval_shape(g, *deltas_k)[0].shape)
+        jac_fn = jax.jacrev if m < sum(dims) else jax.jacfwd
+        jac, r = jac_fn(g, argnums=tuple(range(len(dims))), has_aux=True)(*deltas_k)
         return r, jnp.concatenate(jac, axis=-1)
 
     r, J = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
@@ -191,33 +204,131 @@ def empty_system(layout: Layout) -> System:
     return System(jnp.zeros((n, n), jnp.float64), jnp.zeros((n,), jnp.float64), tuple(V), tuple(W), tuple(g_e))
 
 
-def scatter_factor(system: System, layout: Layout, f, H_obs, g_obs) -> System:
-    """Scatter-add one factor group's per-observation blocks into the block system."""
-    shared_pos, shared_gidx = [], []
-    elim = None
-    pos = 0
-    for a, idx in zip(f.args, f.indices):
+def _segment_blocks(blocks, idx, num: int):
+    """``out[n] = Σ_{k: idx[k] = n} blocks[k]`` for ``blocks (K, ...)``, ``idx (K,)`` -> ``(num, ...)``.
+
+    One entry (``num == 1``) is a plain sum; otherwise one scatter with whole-block windows (one
+    index per observation, not one per matrix element, which is what makes XLA's CPU scatter slow).
+    """
+    if num == 1:
+        return jnp.sum(blocks, axis=0)[None]
+    return jax.ops.segment_sum(blocks, idx, num_segments=num)
+
+
+def _pair_blocks(blocks, idx_a, num_a: int, idx_b, num_b: int):
+    """``out[i, j] = Σ_{k: idx_a[k] = i, idx_b[k] = j} blocks[k]`` -> ``(num_a, num_b, ...)``."""
+    if num_a == 1:
+        return _segment_blocks(blocks, idx_b, num_b)[None]
+    if num_b == 1:
+        return _segment_blocks(blocks, idx_a, num_a)[:, None]
+    flat = _segment_blocks(blocks, idx_a * num_b + idx_b, num_a * num_b)
+    return flat.reshape((num_a, num_b) + blocks.shape[1:])
+
+
+def _factor_slots(layout: Layout, f):
+    """Per argument ``(kind, offset or -1, elim slot or -1, num, d, positions in the factor tangent)``."""
+    out, pos = [], 0
+    for a in f.args:
         k = layout.kind(a)
         d = layout.dims[k]
-        if layout.eliminate[k]:
-            elim = (layout.elim_slot[k], idx, np.arange(pos, pos + d))
-        else:
-            shared_pos.append(np.arange(pos, pos + d))
-            shared_gidx.append(layout.offsets[k] + idx[:, None] * d + jnp.arange(d, dtype=idx.dtype)[None, :])
+        out.append((k, layout.offsets[k], layout.elim_slot[k], layout.nums[k], d, slice(pos, pos + d)))
         pos += d
+    return out
+
+
+def scatter_factor(system: System, layout: Layout, f, H_obs, g_obs) -> System:
+    """Add one factor group's per-observation blocks into the block system.
+
+    When the argument entries have at most ``K`` combinations (e.g. camera calibration: one
+    intrinsics entry, one rig entry, one view pose per observation), the blocks are first summed
+    per combination with one whole-block ``segment_sum`` and then reduced densely; otherwise each
+    (argument pair) is summed with its own whole-block ``segment_sum``. Both avoid one scatter
+    index per matrix element, which is what makes XLA's CPU scatter slow.
+    """
+    slots = _factor_slots(layout, f)
+    nums = tuple(s[3] for s in slots)
+    if math.prod(nums) <= max(f.num_obs, 1):
+        return _scatter_grouped(system, slots, f, H_obs, g_obs)
+    return _scatter_pairs(system, slots, f, H_obs, g_obs)
+
+
+def _scatter_grouped(system: System, slots, f, H_obs, g_obs) -> System:
+    nums = tuple(s[3] for s in slots)
+    n_args = len(slots)
+    key = jnp.zeros_like(f.indices[0])
+    for idx, num in zip(f.indices, nums):
+        key = key * num + idx
+    P = math.prod(nums)
+    D = H_obs.shape[-1]
+    G = jax.ops.segment_sum(H_obs, key, num_segments=P).reshape(nums + (D, D))
+    Gg = jax.ops.segment_sum(g_obs, key, num_segments=P).reshape(nums + (D,))
+
+    def keep(*axes):  # sum over every argument axis except ``axes`` (kept in that order)
+        return tuple(i for i in range(n_args) if i not in axes)
+
     H_ss, g_s = system.H_ss, system.g_s
     V, W, g_e = list(system.V), list(system.W), list(system.g_e)
-    if shared_pos:
-        sp = np.concatenate(shared_pos)
-        gi = jnp.concatenate(shared_gidx, axis=-1)  # (K, D_s)
-        H_ss = H_ss.at[gi[:, :, None], gi[:, None, :]].add(H_obs[:, sp][:, :, sp])
-        g_s = g_s.at[gi].add(g_obs[:, sp])
+    for i, (_, off_a, slot_a, num_a, d_a, pa) in enumerate(slots):
+        if slot_a >= 0:
+            V[slot_a] = V[slot_a] + jnp.sum(G[..., pa, pa], axis=keep(i))
+            g_e[slot_a] = g_e[slot_a] + jnp.sum(Gg[..., pa], axis=keep(i))
+            continue
+        g_s = g_s.at[off_a:off_a + num_a * d_a].add(jnp.sum(Gg[..., pa], axis=keep(i)).reshape(-1))
+        for j, (_, off_b, slot_b, num_b, d_b, pb) in enumerate(slots):
+            if j == i:
+                blk = jnp.sum(G[..., pa, pa], axis=keep(i))  # (num_a, d_a, d_a): block diagonal
+                full = (blk[:, :, None, :] * jnp.eye(num_a, dtype=blk.dtype)[:, None, :, None])
+                H_ss = H_ss.at[off_a:off_a + num_a * d_a, off_a:off_a + num_a * d_a].add(
+                    full.reshape(num_a * d_a, num_a * d_a))
+                continue
+            blk = G[..., pa, pb]
+            # axes i, j kept -> (num_a, num_b, d_a, d_b), in argument order i, j
+            blk = jnp.sum(blk, axis=keep(i, j))
+            if j < i:
+                blk = jnp.swapaxes(blk, 0, 1)
+            if slot_b >= 0:  # W[e, shared a, e-coords] += H[a, e]
+                W[slot_b] = W[slot_b].at[:, off_a:off_a + num_a * d_a].add(
+                    jnp.transpose(blk, (1, 0, 2, 3)).reshape(num_b, num_a * d_a, d_b))
+            else:
+                H_ss = H_ss.at[off_a:off_a + num_a * d_a, off_b:off_b + num_b * d_b].add(
+                    jnp.transpose(blk, (0, 2, 1, 3)).reshape(num_a * d_a, num_b * d_b))
+    return System(H_ss, g_s, tuple(V), tuple(W), tuple(g_e))
+
+
+def _segment_blocks(blocks, idx, num: int):
+    """``out[n] = Σ_{k: idx[k] = n} blocks[k]`` for ``blocks (K, ...)``, ``idx (K,)`` -> ``(num, ...)``."""
+    return jax.ops.segment_sum(blocks, idx, num_segments=num)
+
+
+def _pair_blocks(blocks, idx_a, num_a: int, idx_b, num_b: int):
+    """``out[i, j] = Σ_{k: idx_a[k] = i, idx_b[k] = j} blocks[k]`` -> ``(num_a, num_b, ...)``."""
+    flat = _segment_blocks(blocks, idx_a * num_b + idx_b, num_a * num_b)
+    return flat.reshape((num_a, num_b) + blocks.shape[1:])
+
+
+def _scatter_pairs(system: System, slots, f, H_obs, g_obs) -> System:
+    shared, elim = [], None
+    for (_, off, slot, num, d, pos), idx in zip(slots, f.indices):
+        if slot >= 0:
+            elim = (slot, num, d, idx, pos)
+        else:
+            shared.append((off, num, d, idx, pos))
+    H_ss, g_s = system.H_ss, system.g_s
+    V, W, g_e = list(system.V), list(system.W), list(system.g_e)
+    for off_a, num_a, d_a, idx_a, pa in shared:
+        ga = _segment_blocks(g_obs[:, pa], idx_a, num_a)  # (num_a, d_a)
+        g_s = g_s.at[off_a:off_a + num_a * d_a].add(ga.reshape(-1))
+        for off_b, num_b, d_b, idx_b, pb in shared:
+            hab = _pair_blocks(H_obs[:, pa, pb], idx_a, num_a, idx_b, num_b)  # (num_a, num_b, d_a, d_b)
+            hab = jnp.transpose(hab, (0, 2, 1, 3)).reshape(num_a * d_a, num_b * d_b)
+            H_ss = H_ss.at[off_a:off_a + num_a * d_a, off_b:off_b + num_b * d_b].add(hab)
     if elim is not None:
-        slot, idx, ep = elim
-        V[slot] = V[slot].at[idx].add(H_obs[:, ep][:, :, ep])
-        g_e[slot] = g_e[slot].at[idx].add(g_obs[:, ep])
-        if shared_pos:
-            W[slot] = W[slot].at[idx[:, None], gi].add(H_obs[:, sp][:, :, ep])
+        slot, num_e, d_e, idx_e, pe = elim
+        V[slot] = V[slot] + _segment_blocks(H_obs[:, pe, pe], idx_e, num_e)
+        g_e[slot] = g_e[slot] + _segment_blocks(g_obs[:, pe], idx_e, num_e)
+        for off_a, num_a, d_a, idx_a, pa in shared:
+            wa = _pair_blocks(H_obs[:, pa, pe], idx_e, num_e, idx_a, num_a)  # (num_e, num_a, d_a, d_e)
+            W[slot] = W[slot].at[:, off_a:off_a + num_a * d_a].add(wa.reshape(num_e, num_a * d_a, d_e))
     return System(H_ss, g_s, tuple(V), tuple(W), tuple(g_e))
 
 

@@ -275,7 +275,11 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSol
         actual = cost - cost_new
         new_ok = all_finite(sys_new, cost_new)
         rho = jnp.where(pred > 0.0, actual / jnp.where(pred > 0.0, pred, 1.0), -1.0)
-        accept = (h_ok & new_ok & (pred > 0.0) & (rho > 0.0) & ~first) | (first & new_ok)
+        # a step whose predicted decrease is at the resolution of the cost (≤ ftol·cost) is taken
+        # unless it raises the cost by more than that resolution: its measured change is rounding
+        # noise, and whether such a last Gauss–Newton step is kept must not depend on it
+        at_resolution = (pred > 0.0) & (pred <= options.ftol * cost) & (actual >= -options.ftol * cost)
+        accept = (h_ok & new_ok & (pred > 0.0) & ((rho > 0.0) | at_resolution) & ~first) | (first & new_ok)
         no_progress = h_ok & (pred <= options.ftol * cost) & ~first
 
         ds_new, de_new = jtj_diag(sys_new)

@@ -4,7 +4,10 @@ Every manifold maps one parameter row (``param_dim``) and one tangent vector (``
 
 - ``retract(x, delta) -> x'`` is the update the solver applies (right perturbation ``x · Exp(δ)``
   for the groups, ``x + δ`` for Euclidean);
-- ``local(x, y) -> delta`` is its inverse, ``Log(x⁻¹ y)``, so ``retract(x, local(x, y)) == y``.
+- ``local(x, y) -> delta`` is its inverse, ``Log(x⁻¹ y)``, so ``retract(x, local(x, y)) == y``;
+- ``retract_linear(x, delta)`` equals ``retract`` in value and first derivative at ``δ = 0`` but has
+  no exp, trig or normalisation: the engine differentiates through it for Gauss–Newton Jacobians
+  (always taken at ``δ = 0``), never for updates or second derivatives.
 
 Layouts (DESIGN.md): SO(3) parameters are a ``wxyz`` unit quaternion, tangent ``(rx, ry, rz)`` in
 radians. SE(3) parameters are ``wxyz_xyz`` (quaternion, then translation in metres), tangent
@@ -71,6 +74,10 @@ class Euclidean(eqx.Module):
         """``x (dim,)``, ``delta (dim,)`` -> ``x + delta (dim,)``."""
         return x + delta
 
+    def retract_linear(self, x, delta):
+        """Same as :meth:`retract` (already linear)."""
+        return x + delta
+
     def local(self, x, y):
         """``y - x (dim,)``."""
         return y - x
@@ -97,6 +104,10 @@ class SO3(eqx.Module):
     def retract(self, x, delta):
         """``x (4,) wxyz``, ``delta (3,) rad`` -> ``x · Exp(delta) (4,)``."""
         return quat_multiply(x, jaxlie.SO3.exp(delta).wxyz)
+
+    def retract_linear(self, x, delta):
+        """First-order ``x · Exp(δ) ≈ x ⊗ [1, δ/2]`` (exact value and derivative at ``δ = 0``; not unit norm)."""
+        return x + 0.5 * quat_multiply(x, jnp.concatenate([jnp.zeros((1,), delta.dtype), delta]))
 
     def local(self, x, y):
         """``Log(x⁻¹ y) (3,) rad``."""
@@ -139,6 +150,16 @@ class SE3(eqx.Module):
         e = jaxlie.SE3.exp(_to_jaxlie_twist(delta)).wxyz_xyz
         q, t = x[:4], x[4:]
         return jnp.concatenate([quat_multiply(q, e[:4]), t + quat_rotate(q, e[4:])])
+
+    def retract_linear(self, x, delta):
+        """First-order ``T · Exp(δ) ≈ (q ⊗ [1, ω/2], t + R(q) v)`` for ``δ = (ω, v)``.
+
+        Equal to :meth:`retract` in value and first derivative at ``δ = 0`` (the ``V(ω) v`` term of
+        the exponential is second order); cheap to differentiate. Not a unit quaternion for ``δ ≠ 0``.
+        """
+        q, t = x[:4], x[4:]
+        w = jnp.concatenate([jnp.zeros((1,), delta.dtype), delta[:3]])
+        return jnp.concatenate([q + 0.5 * quat_multiply(q, w), t + quat_rotate(q, delta[3:])])
 
     def local(self, x, y):
         """``Log(x⁻¹ y) (6,)`` in the order ``(rx, ry, rz, tx, ty, tz)``."""
