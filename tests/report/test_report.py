@@ -177,6 +177,16 @@ def test_cli_report_without_poses_shows_coverage(tmp_path, result, observations)
     assert proc.returncode == 0, proc.stderr
     html = (tmp_path / "report.html").read_text()
     _self_contained(html)
+    assert "radial residuals" in html  # the result file keeps the per-view poses
+    # A result without per-view poses (e.g. written by an older jcalib): coverage instead.
+    data = json.loads((tmp_path / "result.json").read_text())
+    del data["T_cam_target"]
+    (tmp_path / "result.json").write_text(json.dumps(data))
+    proc = subprocess.run([*JCALIB, "report", "result.json", "-o", "report.html", "--observations", "obs.json"],
+                          capture_output=True, text=True, cwd=tmp_path, check=False)
+    assert proc.returncode == 0, proc.stderr
+    html = (tmp_path / "report.html").read_text()
+    _self_contained(html)
     assert "432 detected corners in 8 views" in html  # 8 views x 54 corners
     assert "radial residuals" not in html
     proc = subprocess.run([*JCALIB, "report", "missing.json", "-o", "r.html"],
