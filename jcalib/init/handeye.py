@@ -815,19 +815,34 @@ def solve_hand_eye(
 
     per_station = Hg @ X @ T_ct  # T_base_target_i (eye-in-hand) or T_flange_target_i (eye-to-hand)
     T_other = average_poses(per_station)
+    diagnostics = solution_diagnostics(motion, per_station, T_other, A @ X, X @ B)
+    return HandEyeInit(T=X, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)
+
+
+def solution_diagnostics(
+    motion: MotionDiagnostics, per_station: np.ndarray, T_other: np.ndarray, lhs: np.ndarray, rhs: np.ndarray
+) -> HandEyeDiagnostics:
+    """How well a closed-form solution fits the stations.
+
+    Args:
+        motion: the motion analysis of the stations.
+        per_station: (N, 4, 4) the other transform implied by the solution at each station.
+        T_other: (4, 4) their average.
+        lhs, rhs: (M, 4, 4) the two sides of the solved equation (``AX`` and ``XB``, or ``AX`` and ``ZB``).
+    """
     R_other = np.broadcast_to(T_other[:3, :3], per_station[:, :3, :3].shape)
     rot_other = _rotation_angle_deg(R_other, per_station[:, :3, :3])
     tr_other = np.linalg.norm(per_station[:, :3, 3] - T_other[:3, 3], axis=-1)
-    AX = A @ X
-    XB = X @ B
-    rot_m = _rotation_angle_deg(AX[:, :3, :3], XB[:, :3, :3])
-    tr_m = np.linalg.norm(AX[:, :3, 3] - XB[:, :3, 3], axis=-1)
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
-    diagnostics = HandEyeDiagnostics(
+    rot_m = _rotation_angle_deg(lhs[:, :3, :3], rhs[:, :3, :3])
+    tr_m = np.linalg.norm(lhs[:, :3, 3] - rhs[:, :3, 3], axis=-1)
+
+    def rms(v):
+        return float(np.sqrt(np.mean(np.square(v))))
+
+    return HandEyeDiagnostics(
         motion=motion,
         other_rotation_rms_deg=rms(rot_other),
         other_translation_rms=rms(tr_other),
         motion_rotation_rms_deg=rms(rot_m),
         motion_translation_rms=rms(tr_m),
     )
-    return HandEyeInit(T=X, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)

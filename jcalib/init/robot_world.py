@@ -28,7 +28,6 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.init.handeye import (
-    HandEyeDiagnostics,
     HandEyeInit,
     Mount,
     _check_mount,
@@ -36,10 +35,10 @@ from jcalib.init.handeye import (
     _lstsq,
     _pose,
     _project_to_rotation,
-    _rotation_angle_deg,
     analyse_motion,
     check_observable,
     check_poses,
+    solution_diagnostics,
 )
 
 __all__ = [
@@ -186,19 +185,5 @@ def solve_robot_world_hand_eye(
     # eye-to-hand T_base_flange_i^-1 T T_cam_target_i
     Hg = T_bf if mount == "flange" else _inv(T_bf)
     per_station = Hg @ T @ T_ct
-    R_other = np.broadcast_to(T_other[:3, :3], (len(T_ct), 3, 3))
-    rot_other = _rotation_angle_deg(R_other, per_station[:, :3, :3])
-    tr_other = np.linalg.norm(per_station[:, :3, 3] - T_other[:3, 3], axis=-1)
-    AX = T_ct @ X
-    ZB = Z @ B
-    rot_m = _rotation_angle_deg(AX[:, :3, :3], ZB[:, :3, :3])
-    tr_m = np.linalg.norm(AX[:, :3, 3] - ZB[:, :3, 3], axis=-1)
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
-    diagnostics = HandEyeDiagnostics(
-        motion=motion,
-        other_rotation_rms_deg=rms(rot_other),
-        other_translation_rms=rms(tr_other),
-        motion_rotation_rms_deg=rms(rot_m),
-        motion_translation_rms=rms(tr_m),
-    )
+    diagnostics = solution_diagnostics(motion, per_station, T_other, T_ct @ X, Z @ B)
     return RobotWorldInit(T=T, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)
