@@ -797,6 +797,29 @@ def solve_hand_eye(
     _check_mount(mount)
     if method not in _SOLVERS:
         raise BadInputError(f"method: expected one of {sorted(_SOLVERS)}, got {method!r}")
+    T_bf, T_ct, motion = checked_stations(T_base_flange, T_cam_target, mount, pairs, rotation_noise_deg)
+
+    Hg = T_bf if mount == "flange" else _inv(T_bf)
+    A, B, _ = relative_motions(Hg, T_ct, pairs)
+    X = _SOLVERS[method](A, B)
+
+    per_station = Hg @ X @ T_ct  # T_base_target_i (eye-in-hand) or T_flange_target_i (eye-to-hand)
+    T_other = average_poses(per_station)
+    diagnostics = solution_diagnostics(motion, per_station, T_other, A @ X, X @ B)
+    return HandEyeInit(T=X, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)
+
+
+
+def checked_stations(T_base_flange, T_cam_target, mount: str, pairs: str, rotation_noise_deg: float):
+    """Validated station poses and their motion analysis, raising on degenerate motion.
+
+    Returns:
+        ``(T_base_flange (N, 4, 4), T_cam_target (N, 4, 4), MotionDiagnostics)``.
+
+    Raises:
+        BadInputError: malformed poses or mismatched counts.
+        NotObservableError: degenerate motion, naming the undetermined part of the hand-eye unknown.
+    """
     T_bf = check_poses(T_base_flange, "T_base_flange")
     T_ct = check_poses(T_cam_target, "T_cam_target")
     if len(T_bf) != len(T_ct):
@@ -808,16 +831,7 @@ def solve_hand_eye(
     unknown = "T_flange_cam" if mount == "flange" else "T_base_cam"
     motion = analyse_motion(T_bf, frame=mount, pairs=pairs, rotation_noise_deg=rotation_noise_deg)
     check_observable(motion, unknown)
-
-    Hg = T_bf if mount == "flange" else _inv(T_bf)
-    A, B, _ = relative_motions(Hg, T_ct, pairs)
-    X = _SOLVERS[method](A, B)
-
-    per_station = Hg @ X @ T_ct  # T_base_target_i (eye-in-hand) or T_flange_target_i (eye-to-hand)
-    T_other = average_poses(per_station)
-    diagnostics = solution_diagnostics(motion, per_station, T_other, A @ X, X @ B)
-    return HandEyeInit(T=X, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)
-
+    return T_bf, T_ct, motion
 
 def solution_diagnostics(
     motion: MotionDiagnostics, per_station: np.ndarray, T_other: np.ndarray, lhs: np.ndarray, rhs: np.ndarray

@@ -35,9 +35,8 @@ from jcalib.init.handeye import (
     _lstsq,
     _pose,
     _project_to_rotation,
-    analyse_motion,
-    check_observable,
     check_poses,
+    checked_stations,
     solution_diagnostics,
 )
 
@@ -164,17 +163,7 @@ def solve_robot_world_hand_eye(
     _check_mount(mount)
     if method not in _SOLVERS:
         raise BadInputError(f"method: expected one of {sorted(_SOLVERS)}, got {method!r}")
-    T_bf = check_poses(T_base_flange, "T_base_flange")
-    T_ct = check_poses(T_cam_target, "T_cam_target")
-    if len(T_bf) != len(T_ct):
-        raise BadInputError(
-            f"T_cam_target: expected one pose per robot pose ({len(T_bf)} stations), got {len(T_ct)}"
-        )
-    if len(T_bf) == 0:
-        raise BadInputError("T_base_flange: expected at least 3 stations, got none")
-    unknown = "T_flange_cam" if mount == "flange" else "T_base_cam"
-    motion = analyse_motion(T_bf, frame=mount, pairs="all", rotation_noise_deg=rotation_noise_deg)
-    check_observable(motion, unknown)
+    T_bf, T_ct, motion = checked_stations(T_base_flange, T_cam_target, mount, "all", rotation_noise_deg)
 
     B = _inv(T_bf) if mount == "flange" else T_bf
     X, Z = _SOLVERS[method](T_ct, B)
