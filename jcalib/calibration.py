@@ -70,9 +70,10 @@ def calibrate(cell, observations, options=None) -> Result:
         observations: a ``jcalib.observations/1`` document: path, dict or
             :class:`~jcalib.io.observations.Observations`.
         options: problem options (for camera-only cells a
-            :class:`~jcalib.problems.camera.CameraCalibrationOptions`; for hand-eye cells, one camera
-            and one target with one on the flange and the other on the base, a
-            :class:`~jcalib.problems.handeye.HandEyeOptions`).
+            :class:`~jcalib.problems.camera.CameraCalibrationOptions`; for hand-eye cells, cameras on
+            the flange and one target on the base or the reverse, a
+            :class:`~jcalib.problems.handeye.HandEyeOptions`, e.g. ``HandEyeOptions(pose_model=False)``
+            to switch the cell's robot pose model off).
 
     Returns:
         :class:`Result`. Uncertainties are sampling noise (pixel noise propagated to the
@@ -144,28 +145,29 @@ def calibrate(cell, observations, options=None) -> Result:
 
 
 def _calibrate_hand_eye(cell_arg, obs_arg, cell_spec: CellSpec, obs: Observations, options) -> Result:
-    """Hand-eye cells (one camera and one target, one on the flange, one on the base)."""
+    """Hand-eye cells (cameras on the flange and one target on the base, or the reverse).
+
+    ``options``: a :class:`~jcalib.problems.handeye.HandEyeOptions` (``pose_model`` overrides the
+    cell's robot pose model, ``fix_unobservable`` etc.), or the CLI's
+    :class:`~jcalib.problems.camera.CameraCalibrationOptions`, of which ``sigma_px``, ``noise``,
+    ``loss``, ``loss_scale``, ``outlier_threshold`` and ``max_iterations`` carry over.
+    """
     from jcalib.problems.camera import CameraCalibrationOptions
     from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
 
     options = options or HandEyeOptions()
     if isinstance(options, CameraCalibrationOptions):  # e.g. from the CLI: keep what applies
-        if options.loss != "none":
-            raise BadInputError(
-                f"loss: got {options.loss!r}; the hand-eye problem has no robust loss yet, expected 'none'"
-            )
-        options = HandEyeOptions(sigma_px=options.sigma_px, noise=options.noise,
-                                 max_iterations=options.max_iterations)
+        options = HandEyeOptions.from_camera_options(options)
     if not isinstance(options, HandEyeOptions):
         raise BadInputError(
             f"options: got {type(options).__name__}, expected HandEyeOptions for a hand-eye cell"
         )
     cal = calibrate_hand_eye(cell_spec, obs, options)
-    cameras = {cal.camera: CameraResult.from_model(cal.model, covariance=cal.intrinsics_covariance)}
-    transforms = {
-        cal.hand_eye_name: TransformResult(cal.T_hand_eye, cal.T_hand_eye_covariance),
-        cal.target_name: TransformResult(cal.T_target, cal.T_target_covariance),
+    cameras = {
+        name: CameraResult.from_model(c.model, covariance=c.intrinsics_covariance) for name, c in cal.cameras.items()
     }
+    transforms = {c.hand_eye_name: TransformResult(c.T_hand_eye, c.T_hand_eye_covariance) for c in cal.cameras.values()}
+    transforms[cal.target_name] = TransformResult(cal.T_target, cal.T_target_covariance)
     stats = {
         "rms_px": cal.rms_px,
         "num_residuals": cal.num_residuals,
@@ -173,13 +175,18 @@ def _calibrate_hand_eye(cell_arg, obs_arg, cell_spec: CellSpec, obs: Observation
         "iterations": cal.iterations,
         "status": cal.status,
         "num_stations": len(cal.station_ids),
-        "view_rms_px": {f"{cal.camera}/{s}": v for s, v in cal.view_rms_px.items()},
+        "num_outliers": len(cal.outliers),
+        "view_rms_px": {f"{c.camera}/{s}": v for c in cal.cameras.values() for s, v in c.view_rms_px.items()},
         "hand_eye_init": cal.init.method,
         "robot_pose_model": cal.pose_model,
     }
+    if cal.outliers:
+        stats["outliers"] = [{"camera": c, "station": s, "point_index": i} for c, s, i in cal.outliers]
+    if cal.unobservable_fixed is not None:
+        stats["unobservable_fixed"] = cal.unobservable_fixed
     if cal.robot:
         stats["robot"] = cal.robot
-    warnings = list(cal.init.diagnostics.motion.warnings)
+    warnings = list(cal.warnings)
     if cal.rms_px > 5.0 * options.sigma_px:
         warnings.append(
             f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise ({options.sigma_px:g} px): "

@@ -102,11 +102,27 @@ def calibrate(
     outlier_threshold: Annotated[
         float, typer.Option(help="Reject corners beyond this many σ (0 keeps every corner).")
     ] = 5.0,
+    pose_model: Annotated[
+        Optional[bool],
+        typer.Option("--pose-model/--no-pose-model",
+                     help="Hand-eye: estimate per-station robot pose errors (default: as the cell's robot.pose_noise says)."),
+    ] = None,
+    fix_unobservable: Annotated[
+        bool, typer.Option(help="Hand-eye: hold a translation the motion cannot determine at a prior instead of failing.")
+    ] = False,
+    unobservable_prior_m: Annotated[
+        float, typer.Option(help="Hand-eye: prior value (m) of that translation component.")
+    ] = 0.0,
+    unobservable_prior_sigma_m: Annotated[
+        float, typer.Option(help="Hand-eye: prior σ (m) of that translation component.")
+    ] = 1e-6,
 ) -> None:
     """Calibrate a cell from observations and write result.json."""
     enable_compilation_cache()
     from jcalib.calibration import calibrate as run
+    from jcalib.io.cell import load_cell
     from jcalib.problems.camera import CameraCalibrationOptions
+    from jcalib.problems.handeye import HandEyeOptions, is_hand_eye_cell
     from jcalib.report.console import print_result
 
     options = CameraCalibrationOptions(
@@ -115,6 +131,11 @@ def calibrate(
         noise=noise,
         outlier_threshold=outlier_threshold if outlier_threshold > 0 else None,
     )
+    if is_hand_eye_cell(load_cell(cell)):
+        options = HandEyeOptions.from_camera_options(
+            options, pose_model=pose_model, fix_unobservable=fix_unobservable,
+            unobservable_prior_m=unobservable_prior_m, unobservable_prior_sigma_m=unobservable_prior_sigma_m,
+        )
     result = run(cell, observations, options)
     result.to_json(out)
     print_result(result.file)
@@ -145,13 +166,94 @@ def report(
         Optional[Path],
         typer.Option(help="Observations (jcalib.observations/1) for the residual / coverage plots."),
     ] = None,
+    cell: Annotated[
+        Optional[Path],
+        typer.Option(help="Cell spec (jcalib.cell/1): with --observations, adds the cross-validation section."),
+    ] = None,
 ) -> None:
     """Write a one-page, self-contained HTML report of a result (tables, warnings, plots)."""
     enable_compilation_cache()
     from jcalib.report.html import write_report
 
-    path = write_report(result, out, observations=observations)
+    path = write_report(result, out, observations=observations, cell=cell)
     typer.echo(f"wrote {path}")
+
+
+@app.command()
+def triangulate(
+    observations: Annotated[Path, typer.Argument(help="Pixels of named points (jcalib.pixels/1 JSON).")],
+    cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Points JSON (jcalib.points/1) to write.")],
+    result: Annotated[Optional[Path], typer.Option("--result", help="Calibration result with the cameras.")] = None,
+    frame: Annotated[str, typer.Option(help="Output frame: base, flange, a camera id or a target id.")] = "base",
+    station: Annotated[Optional[str], typer.Option(help="Station the frame refers to (not for base).")] = None,
+    sigma_px: Annotated[Optional[float], typer.Option(help="Pixel noise σ per coordinate (default: file, 0.5).")] = None,
+) -> None:
+    """Triangulate named points seen by calibrated cameras; write them with σ (m, m²).
+
+    \b
+    OBSERVATIONS (jcalib.pixels/1; OpenCV pixels, 4x4 poses in m):
+      {"schema": "jcalib.pixels/1", "sigma_px": 0.3,
+       "cameras": {"cam1": {"image_size": [1280, 1024]}},
+       "stations": [{"id": "s0", "T_base_flange": [[...4x4...]],
+                     "pixels": {"cam0": {"p1": [812.4, 600.1]},
+                                "cam1": {"p1": [402.0, 511.3]}}}]}
+
+    Cameras (intrinsics, T_base_<cam> / T_flange_<cam>, covariances) come from --result, else from
+    the cell; the cell's robot.pose_noise is each station's pose covariance. The σ includes pixel
+    noise, intrinsics, camera and robot poses, with their correlations. OUT (jcalib.points/1) holds
+    the points, their joint covariance and the pairwise distances with σ.
+    """
+    enable_compilation_cache()
+    from jcalib.points import triangulate_file
+
+    summary = triangulate_file(observations, cell, out, result=result, frame=frame, station=station,
+                               sigma_px=sigma_px)  # fmt: skip
+    for name, p in zip(summary.points.names, summary.points.points, strict=True):
+        std = " ".join(f"{s:.3f}" for s in p.std * 1e3)
+        typer.echo(f"{name}: {' '.join(f'{v:.6f}' for v in p.p_base)} m ({summary.frame}), σ {std} mm, "
+                   f"rms {p.rms_px:.2f} px, {p.num_views} views")  # fmt: skip
+    typer.echo(f"wrote {summary.path}")
+
+
+@app.command()
+def frame(
+    points: Annotated[Path, typer.Argument(help="Points JSON (jcalib.points/1, as triangulate writes).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Frame as a result JSON (jcalib.result/1).")],
+    method: Annotated[str, typer.Option(help="three-point (origin, +X, +Y side) or plane (N-point fit).")] = "three-point",
+    use: Annotated[Optional[str], typer.Option("--points", help="Point names to use, comma separated, in order.")] = None,
+    name: Annotated[str, typer.Option(help="Name of the work object / base.")] = "wobj",
+    origin: Annotated[str, typer.Option(help="three-point origin: first or foot.")] = "first",
+    sigma_mm: Annotated[Optional[float], typer.Option(help="Point σ (mm) where the file has no covariance.")] = None,
+    export: Annotated[Optional[str], typer.Option(help="Also write rapid (wobjdata) or krl (BASE_DATA).")] = None,
+    export_out: Annotated[Optional[Path], typer.Option(help="Export file (default: OUT with .mod / .dat).")] = None,
+) -> None:
+    """Fit a work-object frame to points; write it with its 6x6 covariance as a result file.
+
+    \b
+    POINTS (jcalib.points/1 as triangulate writes it; m, m²; covariances optional):
+      {"points": {"p1": {"position": \\[x, y, z], "frame": "base",
+                         "covariance": [[3x3]]}, ...},
+       "joint_covariance": {"points": \\[names], "matrix": [[3M x 3M]]}}
+
+    three-point: origin, a point on +X, a point on the +Y side (ABB / KUKA 3-point method).
+    plane: least-squares plane through all the points; +X from the first to the second point,
+    the third on the +Y side, origin the first projected onto the plane. OUT holds
+    T_<frame>_<name>; --export writes ABB wobjdata or KUKA BASE_DATA. Collinear points: exit 3.
+    """
+    enable_compilation_cache()
+    import math
+
+    from jcalib.points import frame_file
+
+    names = None if use is None else [s.strip() for s in use.split(",") if s.strip()]
+    summary = frame_file(points, out, method=method, use=names, name=name, origin=origin, sigma_mm=sigma_mm,
+                         export=export, export_out=export_out)  # fmt: skip
+    std = summary.frame.std
+    if std is not None:
+        typer.echo(f"{summary.transform}: σ rotation {' '.join(f'{math.degrees(s):.4f}' for s in std[:3])} deg, "
+                   f"translation {' '.join(f'{s * 1e3:.3f}' for s in std[3:])} mm")  # fmt: skip
+    typer.echo(f"wrote {summary.path}" + (f" and {summary.export_path}" if summary.export_path else ""))
 
 
 # --- acquisition commands (simulate, plan, capture) live below this line ---

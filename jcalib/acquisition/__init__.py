@@ -12,6 +12,8 @@ from jcalib.acquisition.capture import CaptureInterrupted, CaptureResult, captur
 from jcalib.acquisition.layout import CellLayout, cell_layout
 from jcalib.acquisition.plan import Plan, Station, load_plan, make_plan, save_plan
 from jcalib.acquisition.planner import PlannedStations, plan_cell
+from jcalib.acquisition.robocalib import RoboCalibPlan, handeye_stations, viewset_stations
+from jcalib.acquisition.servo import ServoResult, servo_tool_tip
 from jcalib.acquisition.session import SessionWriter, read_session, read_stations
 
 __all__ = [
@@ -20,6 +22,8 @@ __all__ = [
     "CellLayout",
     "Plan",
     "PlannedStations",
+    "RoboCalibPlan",
+    "ServoResult",
     "SessionWriter",
     "Station",
     "capture",
@@ -29,5 +33,8 @@ __all__ = [
     "plan_cell",
     "read_session",
     "read_stations",
+    "servo_tool_tip",
+    "handeye_stations",
+    "viewset_stations",
     "save_plan",
 ]

@@ -14,7 +14,17 @@ from jcalib.init.pivot import PivotResult, SphereFitResult, pivot_calibration, p
 from jcalib.init.pnp import PlanarPnPResult, PnPResult, planar_pnp, planar_pnp_views, solve_pnp
 from jcalib.init.robot_world import ROBOT_WORLD_METHODS, RobotWorldInit, solve_robot_world_hand_eye
 from jcalib.init.tcp_analytic import AnalyticTCPResult, tcp_from_camera_ray, tcp_three_pose, viewing_ray_base
-from jcalib.init.triangulation import TriangulatedPoint, point_distance, triangulate_dlt, triangulate_point
+from jcalib.init.triangulation import (
+    PointInFrame,
+    TriangulatedPoint,
+    TriangulatedPoints,
+    compose_pose_chains,
+    point_distance,
+    point_in_frame,
+    triangulate_dlt,
+    triangulate_point,
+    triangulate_points,
+)
 from jcalib.init.zhang import ZhangInit, zhang_init
 
 __all__ = [
@@ -26,13 +36,16 @@ __all__ = [
     "MotionDiagnostics",
     "PivotResult",
     "PlanarPnPResult",
+    "PointInFrame",
     "PnPResult",
     "RobotWorldInit",
     "SphereFitResult",
     "TriangulatedPoint",
+    "TriangulatedPoints",
     "ZhangInit",
     "analyse_motion",
     "check_observable",
+    "compose_pose_chains",
     "estimate_homographies",
     "estimate_homography",
     "frame_from_points",
@@ -40,6 +53,7 @@ __all__ = [
     "pivot_calibration",
     "pivot_sphere_fit",
     "point_distance",
+    "point_in_frame",
     "planar_pnp",
     "planar_pnp_views",
     "solve_hand_eye",
@@ -49,6 +63,7 @@ __all__ = [
     "tcp_three_pose",
     "triangulate_dlt",
     "triangulate_point",
+    "triangulate_points",
     "viewing_ray_base",
     "zhang_init",
 ]

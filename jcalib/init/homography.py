@@ -189,9 +189,15 @@ def _gauss_newton(
 
 
 def _estimate_stack(
-    points: np.ndarray, pixels: np.ndarray, refine: bool, num_iterations: int
+    points: np.ndarray, pixels: np.ndarray, refine: bool, num_iterations: int, normal_equations: bool = False
 ) -> np.ndarray:
-    """Same-size views: (V, N, 2), (V, N, 2) -> (V, 3, 3); inputs already validated."""
+    """Same-size views: (V, N, 2), (V, N, 2) -> (V, 3, 3); inputs already validated.
+
+    ``normal_equations=True`` takes the null vector from ``eigh(AᵀA)`` instead of the SVD of ``A``
+    (10x faster for large stacks; the squared condition number of Hartley-normalised data costs
+    ~1e-10 relative accuracy, fine for statistics such as the focal-length spread, not for the
+    estimate itself).
+    """
     Tx = normalizing_transform(points)
     Tu = normalizing_transform(pixels)
     xn = _apply(Tx, points)
@@ -199,8 +205,13 @@ def _estimate_stack(
     A = _dlt_matrix(xn, un)
     if A.shape[-2] < 9:  # 4 points: 8 equations; a zero row gives the full right singular basis
         A = np.concatenate([A, np.zeros(A.shape[:-2] + (9 - A.shape[-2], 9))], axis=-2)
-    _, s, Vt = np.linalg.svd(A, full_matrices=False)
-    Hn = Vt[..., -1, :].reshape(-1, 3, 3)
+    if normal_equations:
+        w, U = np.linalg.eigh(np.swapaxes(A, -1, -2) @ A)  # ascending
+        s = np.sqrt(np.maximum(w[..., ::-1], 0.0))
+        Hn = U[..., :, 0].reshape(-1, 3, 3)
+    else:
+        _, s, Vt = np.linalg.svd(A, full_matrices=False)
+        Hn = Vt[..., -1, :].reshape(-1, 3, 3)
     if refine and num_iterations > 0:
         Hn = _gauss_newton(Hn, xn, un, num_iterations)
     H = np.linalg.inv(Tu) @ Hn @ Tx

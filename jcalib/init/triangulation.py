@@ -1,4 +1,4 @@
-"""Multi-view triangulation of one point seen by N >= 2 calibrated cameras with known poses.
+"""Multi-view triangulation of points seen by N >= 2 calibrated cameras, with honest covariance.
 
 Two steps, as in Hartley & Zisserman (ch. 12):
 
@@ -7,23 +7,44 @@ Two steps, as in Hartley & Zisserman (ch. 12):
    and ``b_i x (R_i X + t_i w) = 0`` (two independent rows per view) is solved for the homogeneous
    point ``(X, w)`` by SVD. The 3-D frame is normalised first (origin at the mean camera centre,
    mean centre distance 1), so the SVD is well conditioned at any scale.
-2. **Gauss-Newton** on the reprojection error in pixels, ``sum_i |project_i(R_i X + t_i) - u_i|^2``,
-   a fixed number of iterations (one ``jit`` per number of views and camera types).
+2. **Gauss-Newton** on the whitened reprojection error, ``sum_i |project_i(R_i X + t_i) - u_i|^2 /
+   sigma_i^2``, a fixed number of iterations. One ``jit`` per camera layout and number of views; many
+   points are solved at once (``vmap``), each over the views that see it (the others get weight 0,
+   so points seen by different subsets of views share one compilation).
 
-The covariance is ``sigma_px^2 (J^T J)^-1`` with ``J`` the ``(2N, 3)`` Jacobian of the reprojection
-(pixels per metre) at the solution: **pixel noise only** (isotropic, independent, ``sigma_px``); the
-camera intrinsics and poses are taken as exact.
+**Covariance.** The point ``X`` is the minimiser of the reprojection error given the pixels ``u``,
+the intrinsics ``theta`` and the camera poses ``delta`` (right-perturbation tangents). By the
+implicit-function theorem (JAX Jacobians of the residual at the solution, ``J = dr/dX``)::
+
+    dX = -(J^T J)^-1 J^T (du + dr/dtheta dtheta + dr/ddelta ddelta)
+
+so ``Cov(X) = (J^T J)^-1`` (pixel noise, whitened) ``+ G Sigma_cam G^T`` with
+``G = -(J^T J)^-1 J^T [dr/dtheta, dr/ddelta]`` and ``Sigma_cam`` the given intrinsics and pose
+covariances. Views that share one camera model object share its intrinsic errors; a joint pose
+covariance ``(6N, 6N)`` carries correlations between views (a hand-eye transform common to all views
+of a robot-held camera: :func:`compose_pose_chains` builds it). Several points triangulated with the
+same uncertain cameras are correlated: :func:`triangulate_points` returns their joint covariance and
+:meth:`TriangulatedPoints.distance` uses it. What it does not include: model error (a lens model too
+simple for the lens), wrong correspondences, intrinsics/pose cross-correlations (a result file keeps
+none), and second-order effects (it is a linearisation: fine while the errors are small against the
+geometry).
+
+**RoboCalib's chain** (:func:`point_in_frame`): a point triangulated in a camera frame, moved into
+the target frame (RoboCalib's *Phys3D*, via ``T_cam_target``), the flange frame (*Hand3D*, via
+``T_flange_cam``) or the robot base (via ``T_base_flange @ T_flange_cam``), each transform with an
+optional covariance, propagated with JAX Jacobians.
 
 Degeneracy: when the viewing rays are nearly parallel (largest angle between two rays below
 ``min_parallax_deg``) the depth of the point along the viewing ray is not determined and
 :class:`jcalib.errors.NotObservableError` says so; a DLT point behind a camera (the rays meet behind
 it: usually a wrong correspondence) raises it too. Frames: ``T_cam_base`` maps base points into the
-camera (``p_cam = R p_base + t``); pass ``T_base_cam`` instead if that is what you have.
+camera (``p_cam = R p_base + t``); pass ``T_base_cam`` instead if that is what you have. "base" is
+whatever frame the poses are given in (a camera frame, a target, the robot base).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -33,14 +54,21 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import AbstractCameraModel
+from jcalib.geometry.lie import se3_apply, se3_exp, se3_to_matrix
 from jcalib.init.pivot import as_pose_matrices
 
 __all__ = [
+    "CHAIN_FRAMES",
     "DEFAULT_MIN_PARALLAX_DEG",
+    "PointInFrame",
     "TriangulatedPoint",
+    "TriangulatedPoints",
+    "compose_pose_chains",
     "point_distance",
+    "point_in_frame",
     "triangulate_dlt",
     "triangulate_point",
+    "triangulate_points",
 ]
 
 #: Smallest accepted angle (degrees) between two viewing rays. At 0.1 deg and 1 px noise with
@@ -51,33 +79,91 @@ DEFAULT_MIN_PARALLAX_DEG = 0.1
 #: precision in practice, the tests check against an independent optimiser).
 DEFAULT_ITERATIONS = 5
 
+#: Frames :func:`point_in_frame` can express a camera-frame point in (RoboCalib: Phys3D = target,
+#: Hand3D = flange).
+CHAIN_FRAMES = ("cam", "target", "flange", "base")
+
 
 @dataclass(frozen=True)
 class TriangulatedPoint:
     """A triangulated point with its covariance.
 
     Attributes:
-        p_base: ``(3,)`` the point in the base frame (metres, or the unit of the pose translations).
-        covariance: ``(3, 3)`` ``sigma_px^2 (J^T J)^-1``, base frame, unit^2; pixel noise only.
-        residuals_px: ``(N, 2)`` reprojection errors ``project - pixel`` per view, pixels.
-        rms_px: RMS of ``residuals_px`` over all coordinates, pixels.
-        sigma_px: the pixel noise assumed for ``covariance``.
+        p_base: ``(3,)`` the point in the frame of the poses ("base"; metres, or the poses' unit).
+        covariance: ``(3, 3)`` total covariance, same frame, unit^2: ``covariance_px`` +
+            ``covariance_camera``.
+        residuals_px: ``(N, 2)`` reprojection errors ``project - pixel`` per view, pixels (zeros
+            for views that do not see the point).
+        rms_px: RMS of ``residuals_px`` over the coordinates of the views that see the point.
+        sigma_px: the pixel noise assumed (a float, or ``(N,)`` per view).
         p_base_dlt: ``(3,)`` the DLT point before the Gauss-Newton refinement.
         parallax_deg: largest angle between two viewing rays, degrees.
+        covariance_px: ``(3, 3)`` the part from pixel noise, ``(J^T J)^-1`` (whitened ``J``).
+        covariance_camera: ``(3, 3)`` the part from the given intrinsics and pose covariances
+            (zeros when none were given).
+        num_views: number of views that see the point.
     """
 
     p_base: np.ndarray
     covariance: np.ndarray
     residuals_px: np.ndarray
     rms_px: float
-    sigma_px: float
+    sigma_px: float | np.ndarray
     p_base_dlt: np.ndarray
     parallax_deg: float
+    covariance_px: np.ndarray | None = None
+    covariance_camera: np.ndarray | None = None
+    num_views: int = 0
 
     @property
     def std(self) -> np.ndarray:
-        """``(3,)`` standard deviations of ``p_base`` (base-frame axes)."""
+        """``(3,)`` standard deviations of ``p_base`` (axes of the poses' frame)."""
         return np.sqrt(np.diag(self.covariance))
+
+
+@dataclass(frozen=True)
+class TriangulatedPoints:
+    """Several points triangulated from the same views, with their joint covariance.
+
+    Attributes:
+        points: one :class:`TriangulatedPoint` per point (its ``covariance`` is the diagonal block).
+        names: the point names (default ``"0"``, ``"1"``...).
+        covariance: ``(3M, 3M)`` joint covariance of the stacked points ``(x0, y0, z0, x1, ...)``,
+            unit^2: independent pixel noise per point plus the camera uncertainty they share.
+    """
+
+    points: tuple[TriangulatedPoint, ...]
+    names: tuple[str, ...]
+    covariance: np.ndarray
+
+    @property
+    def p_base(self) -> np.ndarray:
+        """``(M, 3)`` the points."""
+        return np.stack([p.p_base for p in self.points])
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def __getitem__(self, key: int | str) -> TriangulatedPoint:
+        return self.points[self._index(key)]
+
+    def _index(self, key: int | str) -> int:
+        if isinstance(key, str):
+            if key not in self.names:
+                raise BadInputError(f"point: no point {key!r}; have {', '.join(self.names)}")
+            return self.names.index(key)
+        if not isinstance(key, (int, np.integer)) or not -len(self) <= key < len(self):
+            raise BadInputError(f"point: expected a name or an index in [0, {len(self)}), got {key!r}")
+        return int(key) % len(self)
+
+    def cross_covariance(self, a: int | str, b: int | str) -> np.ndarray:
+        """``(3, 3)`` ``Cov(point a, point b)`` (shared camera uncertainty)."""
+        i, j = self._index(a), self._index(b)
+        return self.covariance[3 * i : 3 * i + 3, 3 * j : 3 * j + 3]
+
+    def distance(self, a: int | str, b: int | str) -> tuple[float, float]:
+        """``(distance, sigma)`` between two of the points, with their correlation (unit)."""
+        return point_distance(self[a], self[b], cross_covariance=self.cross_covariance(a, b))
 
 
 # --------------------------------------------------------------------------------------------- input
@@ -118,6 +204,139 @@ def _pixels(pixels) -> np.ndarray:
     return px
 
 
+def _pixel_sets(pixels, names) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """``(M, N, 2)`` pixels with NaN rows for unseen -> (pixels with zeros there, mask, names)."""
+    try:
+        px = np.asarray(pixels, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BadInputError(f"pixels: expected an (M, N, 2) array of numbers, got {type(pixels).__name__}") from None
+    if px.ndim != 3 or px.shape[2] != 2 or px.shape[0] < 1 or px.shape[1] < 2:
+        raise BadInputError(f"pixels: expected shape (M, N, 2) (M points, N >= 2 views), got {px.shape}")
+    m = px.shape[0]
+    names = tuple(str(i) for i in range(m)) if names is None else tuple(str(s) for s in names)
+    if len(names) != m or len(set(names)) != m:
+        raise BadInputError(f"names: expected {m} different point names, got {list(names)}")
+    nan = np.isnan(px)
+    if (nan[..., 0] != nan[..., 1]).any() or np.isinf(px).any():
+        k = int(np.argwhere((nan[..., 0] != nan[..., 1]) | np.isinf(px).any(-1))[0][0])
+        raise BadInputError(
+            f"pixels: point {names[k]!r} has a half-NaN or infinite pixel; expected finite (u, v), or NaN "
+            f"in both coordinates for a view that does not see the point"
+        )
+    mask = ~nan[..., 0]
+    for k in range(m):
+        if mask[k].sum() < 2:
+            raise BadInputError(
+                f"pixels: point {names[k]!r} is seen in {int(mask[k].sum())} view(s); triangulation needs >= 2"
+            )
+    return np.where(nan, 0.0, px), mask, names
+
+
+def _sigma(sigma_px, n: int) -> np.ndarray:
+    s = np.asarray(sigma_px, dtype=np.float64)
+    if s.ndim == 0:
+        s = np.full(n, float(s))
+    if s.shape != (n,) or not (np.isfinite(s).all() and (s > 0).all()):
+        raise BadInputError(
+            f"sigma_px: expected a positive pixel noise level (or {n} of them, one per view), got {sigma_px!r}"
+        )
+    return s
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Static description of the views: which unique camera each view uses (hashable)."""
+
+    groups: tuple[tuple[int, ...], ...]  # view indices of each unique camera
+    order: tuple[int, ...]  # inverse permutation of concat(groups)
+    num_views: int
+
+
+def _layout(cams: tuple[AbstractCameraModel, ...]) -> tuple[tuple[AbstractCameraModel, ...], _Layout]:
+    unique: list[AbstractCameraModel] = []
+    members: list[list[int]] = []
+    for i, cam in enumerate(cams):
+        for u, c in enumerate(unique):
+            if c is cam:
+                members[u].append(i)
+                break
+        else:
+            unique.append(cam)
+            members.append([i])
+    flat = [i for g in members for i in g]
+    order = tuple(int(k) for k in np.argsort(flat))
+    return tuple(unique), _Layout(tuple(tuple(g) for g in members), order, len(cams))
+
+
+def _intrinsics_covariance(cov, single: bool, unique, layout: _Layout) -> list[np.ndarray]:
+    """One ``(p_u, p_u)`` per unique camera (zeros where none is given)."""
+    out = [np.zeros((len(c.param_names),) * 2) for c in unique]
+    if cov is None:
+        return out
+
+    def check(c, u, where):
+        p = len(unique[u].param_names)
+        try:
+            c = np.asarray(c, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise BadInputError(f"{where}: expected a ({p}, {p}) covariance, got {type(c).__name__}") from None
+        if c.shape != (p, p) or not np.isfinite(c).all() or np.abs(c - c.T).max(initial=0.0) > 1e-9 * max(
+            np.abs(c).max(initial=0.0), 1e-300
+        ):
+            raise BadInputError(
+                f"{where}: expected a finite symmetric ({p}, {p}) covariance of the intrinsics "
+                f"{list(unique[u].param_names)}, got shape {c.shape}"
+            )
+        return c
+
+    if single or (isinstance(cov, np.ndarray) and cov.ndim == 2):
+        if len(unique) != 1:
+            raise BadInputError(
+                f"intrinsics_covariance: one matrix given for {len(unique)} different camera models; give a "
+                f"sequence with one entry (or None) per view"
+            )
+        out[0] = check(cov, 0, "intrinsics_covariance")
+        return out
+    if not isinstance(cov, Sequence) or len(cov) != layout.num_views:
+        raise BadInputError(
+            f"intrinsics_covariance: expected None, one (p, p) matrix (one camera model) or a sequence of "
+            f"{layout.num_views} entries (one per view, None for exact intrinsics)"
+        )
+    for u, group in enumerate(layout.groups):
+        given = [(i, cov[i]) for i in group if cov[i] is not None]
+        if not given:
+            continue
+        first = check(given[0][1], u, f"intrinsics_covariance[{given[0][0]}]")
+        for i, c in given[1:]:
+            if not np.array_equal(check(c, u, f"intrinsics_covariance[{i}]"), first):
+                raise BadInputError(
+                    f"intrinsics_covariance[{i}]: views {given[0][0]} and {i} share one camera model but "
+                    f"give different intrinsics covariances"
+                )
+        out[u] = first
+    return out
+
+
+def _pose_covariance(cov, n: int, name: str) -> np.ndarray:
+    if cov is None:
+        return np.zeros((6 * n, 6 * n))
+    c = np.asarray(cov, dtype=np.float64)
+    if c.shape == (n, 6, 6):
+        full = np.zeros((6 * n, 6 * n))
+        for i in range(n):
+            full[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = c[i]
+    elif c.shape == (6, 6) and n == 1 or c.shape == (6 * n, 6 * n):
+        full = c
+    else:
+        raise BadInputError(
+            f"pose_covariance: expected ({n}, 6, 6) per view or ({6 * n}, {6 * n}) joint, over the right-"
+            f"perturbation tangents (rx, ry, rz, tx, ty, tz) of {name} (rad, m), got shape {c.shape}"
+        )
+    if not np.isfinite(full).all() or np.abs(full - full.T).max(initial=0.0) > 1e-9 * max(np.abs(full).max(), 1e-300):
+        raise BadInputError("pose_covariance: expected finite, symmetric covariances (rad^2, m^2)")
+    return full
+
+
 @eqx.filter_jit
 def _unproject(camera, pixels):
     return camera.unproject_valid(pixels)
@@ -137,6 +356,25 @@ def _bearings(cams: tuple[AbstractCameraModel, ...], px: np.ndarray) -> np.ndarr
             f"its lens model is one-to-one)"
         )
     return np.asarray(rays)
+
+
+def _bearings_masked(unique, layout: _Layout, px: np.ndarray, mask: np.ndarray, names) -> np.ndarray:
+    """``(M, N, 3)`` bearings (zeros where unseen); one unproject call per unique camera."""
+    m, n = mask.shape
+    rays = np.zeros((m, n, 3))
+    for cam, group in zip(unique, layout.groups, strict=True):
+        idx = np.array(group)
+        r, valid = _unproject(cam, jnp.asarray(px[:, idx].reshape(-1, 2)))
+        r, valid = np.asarray(r).reshape(m, len(idx), 3), np.asarray(valid).reshape(m, len(idx))
+        bad = mask[:, idx] & ~valid
+        if bad.any():
+            k, j = (int(v) for v in np.argwhere(bad)[0])
+            raise BadInputError(
+                f"pixels: point {names[k]!r} in view {int(idx[j])} at {px[k, idx[j]].tolist()}: the camera cannot "
+                f"unproject it (outside the region where its lens model is one-to-one)"
+            )
+        rays[:, idx] = r
+    return rays
 
 
 # --------------------------------------------------------------------------------------------- DLT
@@ -189,7 +427,7 @@ def triangulate_dlt(
 
 def _checked_dlt(R, t, b, min_parallax_deg: float) -> tuple[np.ndarray, float]:
     parallax = _parallax_deg(R, b)
-    X, w = _dlt(R, t, b)
+    X, _ = _dlt(R, t, b)
     if parallax < min_parallax_deg or not np.isfinite(X).all():
         raise NotObservableError(
             f"triangulation: the viewing rays are nearly parallel (largest angle between two rays "
@@ -211,28 +449,153 @@ def _checked_dlt(R, t, b, min_parallax_deg: float) -> tuple[np.ndarray, float]:
 # --------------------------------------------------------------------------------------------- refinement
 
 
+def _project_views(cams, layout: _Layout, p_cam):
+    """Project ``p_cam (N, 3)`` view by view (one batched call per unique camera)."""
+    pix, valid = [], []
+    for cam, group in zip(cams, layout.groups, strict=True):
+        p, v = cam.project_valid(p_cam[jnp.asarray(group)])
+        pix.append(p)
+        valid.append(v)
+    order = jnp.asarray(layout.order)
+    return jnp.concatenate(pix, axis=0)[order], jnp.concatenate(valid, axis=0)[order]
+
+
+def _residual(cams, layout: _Layout, R, t, X, theta, delta, px, w):
+    """Whitened residuals ``(2N,)`` and validity ``(N,)`` of one point.
+
+    ``theta`` stacks the unique cameras' intrinsics; ``delta (6N,)`` right-perturbs each view's
+    ``T_cam_base``: ``p_cam = R (Exp(d) X) + t``.
+    """
+    n = layout.num_views
+    sizes = [len(c.param_names) for c in cams]
+    offsets = np.cumsum([0, *sizes])
+    models = [c.with_params(theta[offsets[u] : offsets[u + 1]]) for u, c in enumerate(cams)]
+    q = se3_apply(se3_exp(delta.reshape(n, 6)), jnp.broadcast_to(X, (n, 3)))
+    p_cam = jnp.einsum("nij,nj->ni", R, q) + t
+    pix, valid = _project_views(models, layout, p_cam)
+    return (w[:, None] * (pix - px)).reshape(-1), valid
+
+
 @eqx.filter_jit
-def _gauss_newton(cams, R, t, px, X0, num_iterations: int):
-    """``cams`` is one camera (shared by all views, vmapped) or a tuple (one per view, unrolled)."""
-    shared = isinstance(cams, AbstractCameraModel)
+def _refine(cams, layout: _Layout, R, t, px, w, X0, num_iterations: int):
+    """Gauss-Newton for M points at once (``vmap``), then the Jacobian of the whitened residual
+    with respect to ``(X, theta, delta)`` at the solution (one trace of the projection each)."""
+    theta0 = jnp.concatenate([c.params for c in cams])
+    delta0 = jnp.zeros(6 * layout.num_views)
+    p = theta0.shape[0]
 
-    def project_all(X):
-        p_cam = jnp.einsum("nij,j->ni", R, X) + t
-        if shared:
-            return cams.project_valid(p_cam)
-        out = [cam.project_valid(p_cam[i]) for i, cam in enumerate(cams)]
-        return jnp.stack([o[0] for o in out]), jnp.stack([o[1] for o in out])
+    def one(px_m, w_m, X0_m):
+        def f(X):
+            r = _residual(cams, layout, R, t, X, theta0, delta0, px_m, w_m)[0]
+            return r, r
 
-    def residual(X):
-        return (project_all(X)[0] - px).reshape(-1)
+        def step(_, X):
+            J, r = jax.jacfwd(f, has_aux=True)(X)
+            return X + jnp.linalg.solve(J.T @ J, -(J.T @ r))
 
-    def step(_, X):
-        r = residual(X)
-        J = jax.jacfwd(residual)(X)
-        return X + jnp.linalg.solve(J.T @ J, -(J.T @ r))
+        X = jax.lax.fori_loop(0, num_iterations, step, X0_m)
 
-    X = jax.lax.fori_loop(0, num_iterations, step, X0)
-    return X, residual(X), jax.jacfwd(residual)(X), project_all(X)[1]
+        def full(z):
+            r, valid = _residual(cams, layout, R, t, z[:3], z[3 : 3 + p], z[3 + p :], px_m, w_m)
+            return r, (r, valid)
+
+        J, (r, valid) = jax.jacfwd(full, has_aux=True)(jnp.concatenate([X, theta0, delta0]))
+        return X, r, J[:, :3], J[:, 3 : 3 + p], J[:, 3 + p :], valid
+
+    return jax.vmap(one)(px, w, X0)
+
+
+def _checked_dlt_named(R, t, b, min_parallax_deg: float, name: str | None) -> tuple[np.ndarray, float]:
+    if name is None:
+        return _checked_dlt(R, t, b, min_parallax_deg)
+    try:
+        return _checked_dlt(R, t, b, min_parallax_deg)
+    except NotObservableError as e:
+        raise NotObservableError(f"point {name!r}: {e}", [f"point {name!r}: {u}" for u in e.unknowns]) from None
+
+
+def _triangulate(
+    cameras, px, mask, names, T_cam_base, T_base_cam, sigma_px, intrinsics_covariance, pose_covariance,
+    num_iterations, min_parallax_deg, single_point: bool,
+) -> TriangulatedPoints:  # fmt: skip
+    m, n = mask.shape
+    cams = _cameras(cameras, n)
+    R, t = _poses(T_cam_base, T_base_cam, n)
+    sigma = _sigma(sigma_px, n)
+    if not (isinstance(num_iterations, (int, np.integer)) and num_iterations >= 0):
+        raise BadInputError(f"num_iterations: expected a non-negative int, got {num_iterations!r}")
+    unique, layout = _layout(cams)
+    cov_theta = _intrinsics_covariance(intrinsics_covariance, isinstance(cameras, AbstractCameraModel), unique, layout)
+    cov_delta = _pose_covariance(pose_covariance, n, "T_cam_base" if T_cam_base is not None else "T_base_cam")
+    if T_base_cam is not None and pose_covariance is not None:
+        # (T_base_cam Exp(d))^-1 = T_cam_base Exp(-Ad(T_base_cam) d): move to T_cam_base tangents
+        A = np.zeros((6 * n, 6 * n))
+        for i in range(n):
+            T_bc = np.eye(4)
+            T_bc[:3, :3], T_bc[:3, 3] = R[i].T, -R[i].T @ t[i]
+            A[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = -_adjoint(T_bc)
+        cov_delta = A @ cov_delta @ A.T
+    if single_point:
+        b = _bearings(cams, px[0])[None]
+    else:
+        b = _bearings_masked(unique, layout, px, mask, names)
+    X0 = np.zeros((m, 3))
+    parallax = np.zeros(m)
+    for k in range(m):
+        sel = mask[k]
+        X0[k], parallax[k] = _checked_dlt_named(R[sel], t[sel], b[k, sel], min_parallax_deg, None if single_point else names[k])
+    w = mask / sigma[None, :]
+    X, r, J_X, J_theta, J_delta, valid = (
+        np.asarray(a)
+        for a in _refine(unique, layout, jnp.asarray(R), jnp.asarray(t), jnp.asarray(px), jnp.asarray(w),
+                         jnp.asarray(X0), int(num_iterations))
+    )  # fmt: skip
+    bad = mask & ~valid
+    if bad.any() or not np.isfinite(X).all():
+        k, i = (int(v) for v in np.argwhere(bad)[0]) if bad.any() else (int(np.argmin(np.isfinite(X).all(1))), 0)
+        who = "" if single_point else f"point {names[k]!r}: "
+        raise NotObservableError(
+            f"triangulation: {who}the refined point is behind camera {i} or outside its valid field of view; "
+            f"check the correspondences",
+            unknowns=[f"{who}point position (invalid in camera {i})"],
+        )
+    sigma_out: float | np.ndarray = float(sigma[0]) if np.all(sigma == sigma[0]) else sigma
+    cov_cam_params = np.zeros((J_theta.shape[2] + 6 * n,) * 2)
+    o = 0
+    for c in cov_theta:
+        cov_cam_params[o : o + len(c), o : o + len(c)] = c
+        o += len(c)
+    cov_cam_params[o:, o:] = cov_delta
+    has_camera_cov = bool(np.any(cov_cam_params != 0.0))
+    G = np.zeros((3 * m, cov_cam_params.shape[0]))
+    points = []
+    for k in range(m):
+        H_inv = np.linalg.inv(J_X[k].T @ J_X[k])
+        cov_px = 0.5 * (H_inv + H_inv.T)
+        G[3 * k : 3 * k + 3] = -H_inv @ J_X[k].T @ np.concatenate([J_theta[k], J_delta[k]], axis=1)
+        Gk = G[3 * k : 3 * k + 3]
+        cov_cam = Gk @ cov_cam_params @ Gk.T if has_camera_cov else np.zeros((3, 3))
+        cov_cam = 0.5 * (cov_cam + cov_cam.T)
+        res = r[k].reshape(n, 2) * (sigma[:, None] * mask[k][:, None])  # un-whiten, pixels
+        points.append(
+            TriangulatedPoint(
+                p_base=X[k],
+                covariance=cov_px + cov_cam,
+                residuals_px=res,
+                rms_px=float(np.sqrt(np.sum(res**2) / (2 * mask[k].sum()))),
+                sigma_px=sigma_out,
+                p_base_dlt=X0[k],
+                parallax_deg=float(parallax[k]),
+                covariance_px=cov_px,
+                covariance_camera=cov_cam,
+                num_views=int(mask[k].sum()),
+            )
+        )
+    joint = G @ cov_cam_params @ G.T if has_camera_cov else np.zeros((3 * m, 3 * m))
+    for k, p in enumerate(points):
+        joint[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] += p.covariance_px
+    joint = 0.5 * (joint + joint.T)
+    return TriangulatedPoints(tuple(points), tuple(names), joint)
 
 
 def triangulate_point(
@@ -241,7 +604,9 @@ def triangulate_point(
     T_cam_base=None,
     *,
     T_base_cam=None,
-    sigma_px: float = 1.0,
+    sigma_px=1.0,
+    intrinsics_covariance=None,
+    pose_covariance=None,
     num_iterations: int = DEFAULT_ITERATIONS,
     min_parallax_deg: float = DEFAULT_MIN_PARALLAX_DEG,
 ) -> TriangulatedPoint:
@@ -249,63 +614,81 @@ def triangulate_point(
 
     Args:
         cameras: one :class:`~jcalib.geometry.cameras.AbstractCameraModel` for all views, or a
-            sequence of N (one per view).
+            sequence of N (one per view; views given the *same object* share its intrinsic errors).
         pixels: ``(N, 2)`` the point's pixel in each view (OpenCV convention).
         T_cam_base: ``(N, 4, 4)`` (or ``(N, 7)``) pose of the base in each camera
             (``p_cam = T_cam_base @ p_base``), metres. Give this or ``T_base_cam``.
         T_base_cam: ``(N, 4, 4)`` (or ``(N, 7)``) camera poses in the base frame instead.
-        sigma_px: standard deviation of each pixel coordinate, for the covariance.
+        sigma_px: standard deviation of each pixel coordinate (one value, or ``(N,)`` per view).
+        intrinsics_covariance: uncertainty of the intrinsics: None (exact), one ``(p, p)``
+            matrix (order ``camera.param_names``) when ``cameras`` is one model, or a sequence of
+            N entries (``(p_i, p_i)`` or None) when it is a sequence.
+        pose_covariance: uncertainty of the poses as given (``T_cam_base`` or ``T_base_cam``),
+            over their right-perturbation tangents ``(rx, ry, rz, tx, ty, tz)`` (rad, m):
+            ``(N, 6, 6)`` independent per view or ``(6N, 6N)`` joint; None for exact poses.
         num_iterations: Gauss-Newton iterations after the DLT.
         min_parallax_deg: smallest accepted largest-angle between two viewing rays.
 
     Returns:
-        :class:`TriangulatedPoint`.
+        :class:`TriangulatedPoint` (covariance: pixel noise + the given camera uncertainty,
+        linearised; see the module docstring for what it leaves out).
 
     Raises:
-        BadInputError: malformed pixels, poses, cameras, or a pixel a camera cannot unproject.
+        BadInputError: malformed pixels, poses, cameras, covariances, or a pixel a camera cannot
+            unproject.
         NotObservableError: nearly parallel rays (depth along the ray), or rays meeting behind a
             camera.
     """
     px = _pixels(pixels)
-    n = len(px)
-    cams = _cameras(cameras, n)
-    R, t = _poses(T_cam_base, T_base_cam, n)
-    if not (np.isfinite(sigma_px) and sigma_px > 0):
-        raise BadInputError(f"sigma_px: expected a positive pixel noise level, got {sigma_px!r}")
-    if not (isinstance(num_iterations, int) and num_iterations >= 0):
-        raise BadInputError(f"num_iterations: expected a non-negative int, got {num_iterations!r}")
-    b = _bearings(cams, px)
-    X0, parallax = _checked_dlt(R, t, b, min_parallax_deg)
-    shared = cams[0] if all(c is cams[0] for c in cams) else cams
-    X, r, J, valid = _gauss_newton(
-        shared, jnp.asarray(R), jnp.asarray(t), jnp.asarray(px), jnp.asarray(X0), num_iterations
-    )
-    X, r, J, valid = np.asarray(X), np.asarray(r), np.asarray(J), np.asarray(valid)
-    if not valid.all() or not np.isfinite(X).all():
-        i = int(np.argmin(valid)) if not valid.all() else 0
-        raise NotObservableError(
-            f"triangulation: the refined point is behind camera {i} or outside its valid field of view; "
-            f"check the correspondences",
-            unknowns=[f"point position (invalid in camera {i})"],
-        )
-    cov = sigma_px**2 * np.linalg.inv(J.T @ J)
-    return TriangulatedPoint(
-        p_base=X,
-        covariance=0.5 * (cov + cov.T),
-        residuals_px=r.reshape(n, 2),
-        rms_px=float(np.sqrt(np.mean(r**2))),
-        sigma_px=float(sigma_px),
-        p_base_dlt=X0,
-        parallax_deg=parallax,
-    )
+    return _triangulate(
+        cameras, px[None], np.ones((1, len(px)), dtype=bool), ("0",), T_cam_base, T_base_cam, sigma_px,
+        intrinsics_covariance, pose_covariance, num_iterations, min_parallax_deg, single_point=True,
+    ).points[0]  # fmt: skip
+
+
+def triangulate_points(
+    cameras,
+    pixels,
+    T_cam_base=None,
+    *,
+    T_base_cam=None,
+    names: Sequence[str] | None = None,
+    sigma_px=1.0,
+    intrinsics_covariance=None,
+    pose_covariance=None,
+    num_iterations: int = DEFAULT_ITERATIONS,
+    min_parallax_deg: float = DEFAULT_MIN_PARALLAX_DEG,
+) -> TriangulatedPoints:
+    """Triangulate M points seen in (subsets of) the same N views, with their joint covariance.
+
+    Args:
+        cameras, T_cam_base, T_base_cam, sigma_px, intrinsics_covariance, pose_covariance,
+            num_iterations, min_parallax_deg: as for :func:`triangulate_point` (per view).
+        pixels: ``(M, N, 2)`` pixel of point m in view i; NaN (both coordinates) where view i does
+            not see point m. Every point needs >= 2 views.
+        names: M point names for messages and lookups (default ``"0"``, ``"1"``...).
+
+    Returns:
+        :class:`TriangulatedPoints`: per-point results and the ``(3M, 3M)`` joint covariance
+        (pixel noise is independent per point; the camera uncertainty is shared).
+
+    Raises:
+        BadInputError / NotObservableError: as :func:`triangulate_point`, naming the point.
+    """
+    px, mask, names = _pixel_sets(pixels, names)
+    return _triangulate(
+        cameras, px, mask, names, T_cam_base, T_base_cam, sigma_px, intrinsics_covariance, pose_covariance,
+        num_iterations, min_parallax_deg, single_point=False,
+    )  # fmt: skip
 
 
 def point_distance(a, b, cross_covariance=None) -> tuple[float, float]:
     """Distance between two points and its standard deviation (linear propagation).
 
-    ``sigma^2 = u^T (C_a + C_b - C_ab - C_ab^T) u`` with ``u = (a - b) / |a - b|``. Two points
-    triangulated from independent pixels are independent (``C_ab = 0``, the default), as long as the
-    camera poses and intrinsics are taken as exact.
+    ``sigma^2 = u^T (C_a + C_b - C_ab - C_ab^T) u`` with ``u = (a - b) / |a - b|``. Points
+    triangulated from independent pixels with exact cameras are independent (``C_ab = 0``, the
+    default); with uncertain cameras they are not: use :meth:`TriangulatedPoints.distance`, or
+    pass :meth:`TriangulatedPoints.cross_covariance`.
 
     Args:
         a, b: :class:`TriangulatedPoint` results, or ``(point (3,), covariance (3, 3))`` pairs.
@@ -332,6 +715,8 @@ def point_distance(a, b, cross_covariance=None) -> tuple[float, float]:
     pa, ca = parts(a, "a")
     pb, cb = parts(b, "b")
     cab = np.zeros((3, 3)) if cross_covariance is None else np.asarray(cross_covariance, np.float64)
+    if cab.shape != (3, 3):
+        raise BadInputError(f"cross_covariance: expected shape (3, 3), got {cab.shape}")
     diff = pa - pb
     dist = float(np.linalg.norm(diff))
     if dist == 0.0:
@@ -339,3 +724,220 @@ def point_distance(a, b, cross_covariance=None) -> tuple[float, float]:
     u = diff / dist
     var = float(u @ (ca + cb - cab - cab.T) @ u)
     return dist, float(np.sqrt(max(var, 0.0)))
+
+
+# --------------------------------------------------------------------------------------------- frames / chains
+
+
+def _adjoint(T: np.ndarray) -> np.ndarray:
+    """``(6, 6)`` adjoint in the ``(omega, v)`` order: ``T Exp(d) = Exp(Ad d) T`` (numpy)."""
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    out = np.zeros((6, 6))
+    out[:3, :3] = R
+    out[3:, :3] = tx @ R
+    out[3:, 3:] = R
+    return out
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def compose_pose_chains(
+    sources: Mapping[str, tuple[np.ndarray, np.ndarray | None]],
+    chains: Sequence[Sequence[str]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Products of uncertain poses and the joint covariance of the products.
+
+    Each chain is a list of source names multiplied left to right; a leading ``~`` takes the
+    inverse, e.g. ``["T_base_flange@s0", "T_flange_cam0"]`` gives ``T_base_cam0`` at station s0
+    and ``["~T_base_board", "T_base_cam1"]`` gives ``T_board_cam1``. Every source has a
+    right-perturbation covariance (``T_true = T . Exp(d)``, ``d = (rx, ry, rz, tx, ty, tz)``, rad
+    and m; None = exact); sources are independent of each other. A source used in several chains
+    makes them correlated, which the joint covariance keeps (what :func:`triangulate_point` needs as
+    ``pose_covariance`` when views share a hand-eye transform or a robot pose).
+
+    Linear propagation through adjoints: perturbing factor ``F_j`` of ``F_1 ... F_n`` on the right
+    by ``e`` perturbs the product on the right by ``Ad((F_{j+1} ... F_n)^-1) e``; an inverted source
+    ``A^-1`` is perturbed by ``-Ad(A) d``.
+
+    Args:
+        sources: name -> ``((4, 4) pose, (6, 6) covariance or None)``, metres.
+        chains: K chains of names (``~name`` for an inverse). An empty chain is the identity.
+
+    Returns:
+        ``(T (K, 4, 4), covariance (6K, 6K))`` over the products' right-perturbation tangents.
+
+    Raises:
+        BadInputError: an unknown source name, a malformed pose or covariance.
+    """
+    mats: dict[str, np.ndarray] = {}
+    covs: dict[str, np.ndarray | None] = {}
+    for name, value in sources.items():
+        try:
+            T, C = value
+        except (TypeError, ValueError):
+            raise BadInputError(f"sources[{name!r}]: expected (pose (4, 4), covariance (6, 6) or None)") from None
+        mats[name] = as_pose_matrices(np.asarray(T, np.float64)[None], f"sources[{name!r}]")[0]
+        if C is not None:
+            C = np.asarray(C, np.float64)
+            if C.shape != (6, 6) or not np.isfinite(C).all():
+                raise BadInputError(f"sources[{name!r}]: expected a finite (6, 6) covariance, got shape {C.shape}")
+        covs[name] = C
+    uncertain = [s for s in mats if covs[s] is not None]
+    col = {s: 6 * i for i, s in enumerate(uncertain)}
+    K = len(chains)
+    Ts = np.zeros((K, 4, 4))
+    J = np.zeros((6 * K, 6 * len(uncertain)))
+    for k, chain in enumerate(chains):
+        factors = []
+        for item in chain:
+            inv = item.startswith("~")
+            name = item[1:] if inv else item
+            if name not in mats:
+                raise BadInputError(f"chains[{k}]: unknown pose {name!r}; have {', '.join(mats) or 'none'}")
+            factors.append((name, inv, _inv(mats[name]) if inv else mats[name]))
+        T = np.eye(4)
+        for *_, F in factors:
+            T = T @ F
+        Ts[k] = T
+        suffix = np.eye(4)
+        for name, inv, F in reversed(factors):
+            if covs[name] is not None:
+                A = _adjoint(_inv(suffix))
+                if inv:
+                    A = -A @ _adjoint(mats[name])
+                J[6 * k : 6 * k + 6, col[name] : col[name] + 6] += A
+            suffix = F @ suffix
+    C_src = np.zeros((6 * len(uncertain),) * 2)
+    for s in uncertain:
+        C_src[col[s] : col[s] + 6, col[s] : col[s] + 6] = covs[s]
+    cov = J @ C_src @ J.T
+    return Ts, 0.5 * (cov + cov.T)
+
+
+@dataclass(frozen=True)
+class PointInFrame:
+    """A point moved along RoboCalib's chain, with its covariance.
+
+    Attributes:
+        position: ``(3,)`` metres, in ``frame``.
+        covariance: ``(3, 3)`` m^2: the point's own covariance and those of the transforms used,
+            propagated linearly (taken as independent of each other).
+        frame: ``"cam"``, ``"target"`` (Phys3D), ``"flange"`` (Hand3D) or ``"base"``.
+    """
+
+    position: np.ndarray
+    covariance: np.ndarray
+    frame: str
+
+    @property
+    def std(self) -> np.ndarray:
+        """``(3,)`` standard deviations along the frame's axes, m."""
+        return np.sqrt(np.diag(self.covariance))
+
+
+def _perturbed(T, d):
+    """``T . Exp(d)`` as a 4x4 matrix (T (4, 4), d (6,) rad and m)."""
+    return T @ se3_to_matrix(se3_exp(d))
+
+
+@jax.jit
+def _chain_point(p, T_cam_target, T_flange_cam, T_base_flange):
+    """All four frames at once (one compilation): ``(4, 3)`` points and their Jacobians."""
+
+    def f(p, d_ct, d_fc, d_bf):
+        ph = jnp.concatenate([p, jnp.ones(1)])
+        T = _perturbed(T_cam_target, d_ct)
+        target = T[:3, :3].T @ (p - T[:3, 3])
+        T_fc = _perturbed(T_flange_cam, d_fc)
+        flange = (T_fc @ ph)[:3]
+        base = (_perturbed(T_base_flange, d_bf) @ T_fc @ ph)[:3]
+        return jnp.stack([p, target, flange, base])
+
+    z = jnp.zeros(6)
+    return f(p, z, z, z), jax.jacfwd(f, argnums=(0, 1, 2, 3))(p, z, z, z)
+
+
+def point_in_frame(
+    point,
+    frame: str,
+    *,
+    T_cam_target=None,
+    T_flange_cam=None,
+    T_base_flange=None,
+    T_cam_target_covariance=None,
+    T_flange_cam_covariance=None,
+    T_base_flange_covariance=None,
+) -> PointInFrame:
+    """Move a camera-frame point along RoboCalib's chain: camera, target (Phys3D), flange (Hand3D), base.
+
+    ``p_target = T_cam_target^-1 p_cam``, ``p_flange = T_flange_cam p_cam``,
+    ``p_base = T_base_flange T_flange_cam p_cam``. The covariance adds the point's own covariance
+    and each used transform's right-perturbation covariance (``(rx, ry, rz, tx, ty, tz)``, rad and
+    m), through JAX Jacobians; all are taken as independent. Do not give a transform's covariance
+    here if it was already part of the point's covariance (e.g. the hand-eye transform was in the
+    triangulation's ``pose_covariance``): that would count it twice.
+
+    Args:
+        point: a :class:`TriangulatedPoint` triangulated in the camera frame (its ``p_base``), or
+            ``(p_cam (3,), covariance (3, 3) or None)``, metres.
+        frame: one of :data:`CHAIN_FRAMES`.
+        T_cam_target: ``(4, 4)`` the target (e.g. a calibration plate) in the camera; for "target".
+        T_flange_cam: ``(4, 4)`` hand-eye transform; for "flange" and "base".
+        T_base_flange: ``(4, 4)`` robot pose at the time of the images; for "base".
+        T_cam_target_covariance, T_flange_cam_covariance, T_base_flange_covariance: ``(6, 6)`` or None.
+
+    Returns:
+        :class:`PointInFrame`.
+
+    Raises:
+        BadInputError: unknown frame, a transform the frame needs is missing, malformed input.
+    """
+    if frame not in CHAIN_FRAMES:
+        raise BadInputError(f"frame: expected one of {', '.join(CHAIN_FRAMES)}, got {frame!r}")
+    if isinstance(point, TriangulatedPoint):
+        p, C = point.p_base, point.covariance
+    else:
+        try:
+            p, C = point
+        except (TypeError, ValueError):
+            raise BadInputError(
+                f"point: expected a TriangulatedPoint or (p_cam, covariance), got {type(point).__name__}"
+            ) from None
+    p = np.asarray(p, np.float64)
+    C = np.zeros((3, 3)) if C is None else np.asarray(C, np.float64)
+    if p.shape != (3,) or C.shape != (3, 3) or not (np.isfinite(p).all() and np.isfinite(C).all()):
+        raise BadInputError(f"point: expected a finite p_cam (3,) and covariance (3, 3), got {p.shape}, {C.shape}")
+    needed = {"cam": (), "target": ("T_cam_target",), "flange": ("T_flange_cam",),
+              "base": ("T_flange_cam", "T_base_flange")}[frame]  # fmt: skip
+    given = {"T_cam_target": T_cam_target, "T_flange_cam": T_flange_cam, "T_base_flange": T_base_flange}
+    covs = {"T_cam_target": T_cam_target_covariance, "T_flange_cam": T_flange_cam_covariance,
+            "T_base_flange": T_base_flange_covariance}  # fmt: skip
+    mats = {}
+    for name, T in given.items():
+        if T is None:
+            if name in needed:
+                raise BadInputError(f"{name}: frame {frame!r} needs it (the chain is camera -> {frame}), got None")
+            mats[name] = np.eye(4)
+        else:
+            mats[name] = as_pose_matrices(np.asarray(T, np.float64)[None], name)[0]
+        c = covs[name]
+        if c is not None:
+            c = np.asarray(c, np.float64)
+            if c.shape != (6, 6) or not np.isfinite(c).all():
+                raise BadInputError(f"{name}_covariance: expected a finite (6, 6) covariance, got shape {c.shape}")
+        covs[name] = c
+    k = CHAIN_FRAMES.index(frame)
+    out, (Jp, *Jd) = _chain_point(jnp.asarray(p), *(jnp.asarray(mats[n]) for n in given))
+    Jp = np.asarray(Jp)[k]
+    cov = Jp @ C @ Jp.T
+    for name, J in zip(given, Jd, strict=True):
+        if covs[name] is not None and name in needed:
+            J = np.asarray(J)[k]
+            cov = cov + J @ covs[name] @ J.T
+    return PointInFrame(np.asarray(out)[k], 0.5 * (cov + cov.T), frame)

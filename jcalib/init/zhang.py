@@ -193,20 +193,7 @@ def intrinsics_from_homographies(
         if pp.shape != (2,) or not np.all(np.isfinite(pp)):
             raise BadInputError(f"principal_point: expected (cx, cy) in pixels, got {principal_point!r}")
 
-    # Constraint subspace b = basis @ c, b = (B11, B12, B22, B13, B23, B33) of the normalised B.
-    basis = np.eye(6)
-    keep = [0, 1, 2, 3, 4, 5]
-    if not skew:
-        keep.remove(1)  # B12 = 0  <=>  zero skew
-    if principal_point is not None:
-        keep.remove(3)  # principal point at the normalisation centre: B13 = B23 = 0
-        keep.remove(4)
-    basis = basis[:, keep]
-    if aspect_ratio is not None:
-        # B11 = r^2 B22 (r = fy / fx): merge the B11 and B22 columns into one.
-        col = np.zeros(6)
-        col[0], col[2] = aspect_ratio**2, 1.0
-        basis = np.column_stack([col] + [basis[:, k] for k in range(basis.shape[1]) if keep[k] not in (0, 2)])
+    basis = _constraint_basis(skew, aspect_ratio, principal_point)
     m = basis.shape[1]
     V = H.shape[0]
     free = _free_intrinsics(skew, aspect_ratio, principal_point)
@@ -221,10 +208,7 @@ def intrinsics_from_homographies(
         )
 
     N = _normalization(image_size, principal_point, H)
-    Hn = N @ H
-    Hn = Hn / np.linalg.norm(Hn, axis=(-2, -1), keepdims=True)
-    rows = np.concatenate([_v(Hn, 0, 1), _v(Hn, 0, 0) - _v(Hn, 1, 1)], axis=0)  # (2V, 6)
-    M = rows @ basis
+    M = _constraint_rows(N, H) @ basis
     if M.shape[0] < m:  # pad so the SVD returns the full right singular basis
         M = np.concatenate([M, np.zeros((m - M.shape[0], m))], axis=0)
     _, s, Vt = np.linalg.svd(M, full_matrices=False)
@@ -243,12 +227,7 @@ def intrinsics_from_homographies(
             + ", or the data are too noisy / distorted for the selected model",
             unknowns=free,
         ) from None
-    # B = L L^T = K^-T K^-1 up to scale with K^-1 upper triangular: K^-1 ~ L^T.
-    Kn = np.linalg.inv(L.T)
-    Kn = Kn / Kn[2, 2]
-    K = np.linalg.solve(N, Kn)
-    K = K / K[2, 2]
-    K[1, 0] = K[2, 0] = K[2, 1] = 0.0
+    K = _camera_matrix_from_cholesky(N, L)
     if not skew:
         K[0, 1] = 0.0
     if aspect_ratio is not None:
@@ -258,6 +237,73 @@ def intrinsics_from_homographies(
     if _return_diagnostics:
         return K, s
     return K
+
+
+def _constraint_basis(skew: bool, aspect_ratio, principal_point) -> np.ndarray:
+    """Constraint subspace ``b = basis @ c`` of ``b = (B11, B12, B22, B13, B23, B33)`` (normalised B)."""
+    basis = np.eye(6)
+    keep = [0, 1, 2, 3, 4, 5]
+    if not skew:
+        keep.remove(1)  # B12 = 0  <=>  zero skew
+    if principal_point is not None:
+        keep.remove(3)  # principal point at the normalisation centre: B13 = B23 = 0
+        keep.remove(4)
+    basis = basis[:, keep]
+    if aspect_ratio is not None:
+        # B11 = r^2 B22 (r = fy / fx): merge the B11 and B22 columns into one.
+        col = np.zeros(6)
+        col[0], col[2] = aspect_ratio**2, 1.0
+        basis = np.column_stack([col] + [basis[:, k] for k in range(basis.shape[1]) if keep[k] not in (0, 2)])
+    return basis
+
+
+def _constraint_rows(N: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """Zhang's two constraints per view on ``b`` for (..., V, 3, 3) homographies -> (..., 2V, 6)."""
+    Hn = N @ H
+    Hn = Hn / np.linalg.norm(Hn, axis=(-2, -1), keepdims=True)
+    lead = Hn.shape[:-3]
+    Hf = Hn.reshape((-1,) + Hn.shape[-2:])
+    rows = np.concatenate(
+        [_v(Hf, 0, 1).reshape(lead + (-1, 6)), (_v(Hf, 0, 0) - _v(Hf, 1, 1)).reshape(lead + (-1, 6))], axis=-2
+    )
+    return rows
+
+
+def _camera_matrix_from_cholesky(N: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """``B = L Lᵀ = K⁻ᵀ K⁻¹`` (normalised pixels, up to scale) -> (..., 3, 3) K in pixels."""
+    # K^-1 upper triangular: K^-1 ~ L^T.
+    Kn = np.linalg.inv(np.swapaxes(L, -1, -2))
+    Kn = Kn / Kn[..., 2:3, 2:3]
+    K = np.linalg.solve(N, Kn)
+    K = K / K[..., 2:3, 2:3]
+    K[..., 1, 0] = K[..., 2, 0] = K[..., 2, 1] = 0.0
+    return K
+
+
+def _focal_lengths_batch(H: np.ndarray, kw: dict) -> np.ndarray | None:
+    """fx of the closed form for (D, V, 3, 3) homographies at once, or None if any draw fails.
+
+    Same numerics as :func:`intrinsics_from_homographies` (which names the failure of a draw).
+    """
+    if kw.get("image_size") is None:
+        return None
+    basis = _constraint_basis(kw["skew"], kw["aspect_ratio"], kw["principal_point"])
+    m = basis.shape[1]
+    N = _normalization(kw["image_size"], kw["principal_point"], H[0])
+    M = _constraint_rows(N, H) @ basis
+    if M.shape[-2] < m:
+        return None
+    _, s, Vt = np.linalg.svd(M, full_matrices=False)
+    if np.any(s[:, 0] == 0.0) or np.any(s[:, m - 2] <= _RANK_RTOL * s[:, 0]):
+        return None
+    b = Vt[:, -1, :] @ basis.T
+    B = np.stack([b[:, [0, 1, 3]], b[:, [1, 2, 4]], b[:, [3, 4, 5]]], axis=-2)
+    B = B * np.where(B[:, 0, 0] < 0.0, -1.0, 1.0)[:, None, None]
+    try:
+        L = np.linalg.cholesky(B)
+    except np.linalg.LinAlgError:
+        return None
+    return _camera_matrix_from_cholesky(N, L)[:, 0, 0]
 
 
 def extrinsics_from_homographies(K, homographies) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -381,7 +427,7 @@ class _Closed:
         self.kw = intrinsics_kwargs
         self.scale = float(np.mean(np.asarray(intrinsics_kwargs["image_size"], np.float64)))
 
-    def run(self, K_und=None, k_und=None):
+    def run(self, K_und=None, k_und=None, distortion: bool = True):
         if K_und is None:
             pix = self.pix
         else:
@@ -393,7 +439,7 @@ class _Closed:
         )
         K, s = intrinsics_from_homographies(H, _return_diagnostics=True, **self.kw)
         R, t, ortho = extrinsics_from_homographies(K, H)
-        k = estimate_radial_distortion(K, R, t, self.pts, self.pix)
+        k = estimate_radial_distortion(K, R, t, self.pts, self.pix) if distortion else np.zeros(2)
         return H, K, s, R, t, ortho, k, pix
 
     def pack(self, K, k):
@@ -456,45 +502,67 @@ def _distortion_fixed_point(closed: _Closed, K, dist, free: list[int], iteration
 
 
 _MC_DRAWS = 16
+_MC_SCREEN_DRAWS = 4  # a first, cheap stage: accept at once when far below the threshold
+
+
+def _fx_of_draws(closed: _Closed, draws) -> tuple[list[float], int]:
+    """Closed-form fx of each noisy draw of the pixels (failed draws counted, not raised)."""
+    fx: list[float] = []
+    if isinstance(draws, np.ndarray):  # (D, V, N, 2): every view has the same point count
+        # all draws' homographies in one batched DLT and all closed forms in one batched solve
+        D, V = draws.shape[:2]
+        pts = np.stack([np.asarray(p, np.float64)[:, :2] for p in closed.pts] * D)
+        try:
+            H_all, sv = _estimate_stack(pts, draws.reshape((-1,) + draws.shape[2:]), False, 0, True)
+            if np.all(sv[:, -2] > _DEGENERATE_RTOL * sv[:, 0]) and np.all(np.isfinite(H_all)):
+                fx_all = _focal_lengths_batch(H_all.reshape(D, V, 3, 3), closed.kw)
+                if fx_all is not None and np.all(np.isfinite(fx_all)):
+                    return list(fx_all), 0
+        except np.linalg.LinAlgError:
+            pass
+        draws = [list(d) for d in draws]  # some draw fails: the per-draw path counts which
+    failures = 0
+    for d in draws:
+        try:
+            Hd = estimate_homographies(closed.pts, d, refine=False, _checked=True)
+            fx.append(intrinsics_from_homographies(Hd, **closed.kw)[0, 0])
+        except (NotObservableError, BadInputError):
+            failures += 1
+    return fx, failures
 
 
 def _focal_spread(closed: _Closed, H: np.ndarray, K: np.ndarray, check: bool, max_rel_std: float) -> float:
-    """Monte Carlo spread of the closed-form fx under pixel noise of the homography residual."""
-    res = np.concatenate(
-        [homography_residuals(H[i], closed.pts[i], closed.pix[i]).reshape(-1) for i in range(len(H))]
-    )
+    """Monte Carlo spread of the closed-form fx under pixel noise of the homography residual.
+
+    A screening stage of 4 draws accepts at once when the spread is below a quarter of
+    ``max_rel_std`` with no failed draw; otherwise all 16 draws decide.
+    """
+    if len({p.shape[0] for p in closed.pix}) == 1:  # one batched evaluation
+        res = homography_residuals(H, np.stack(closed.pts), np.stack(closed.pix)).reshape(-1)
+    else:
+        res = np.concatenate(
+            [homography_residuals(H[i], closed.pts[i], closed.pix[i]).reshape(-1) for i in range(len(H))]
+        )
     dof = max(res.size - 8 * len(H), 1)
     sigma = float(np.sqrt(np.sum(res * res) / dof))
     if sigma == 0.0 or not check:
         return 0.0 if sigma == 0.0 else float("nan")
     rng = np.random.default_rng(0)
-    fx, failures = [], 0
-    draws = [[p + sigma * rng.standard_normal(p.shape) for p in closed.pix] for _ in range(_MC_DRAWS)]
-    sizes = {p.shape[0] for p in closed.pix}
-    H_all = None
-    if len(sizes) == 1:
-        # every view has the same point count: all draws' homographies in one batched DLT (speed)
-        pts = np.stack([np.asarray(p, np.float64)[:, :2] for p in closed.pts] * _MC_DRAWS)
-        try:
-            H_all, sv = _estimate_stack(pts, np.concatenate([np.stack(d) for d in draws]), False, 0)
-            if np.any(sv[:, -2] <= _DEGENERATE_RTOL * sv[:, 0]) or not np.all(np.isfinite(H_all)):
-                H_all = None  # let the per-draw path name the failures
-            else:
-                H_all = H_all.reshape(_MC_DRAWS, len(closed.pix), 3, 3)
-        except np.linalg.LinAlgError:
-            H_all = None
-    for k in range(_MC_DRAWS):
-        try:
-            if H_all is not None:
-                Hd = H_all[k]
-            else:
-                Hd = estimate_homographies(closed.pts, draws[k], refine=False, _checked=True)
-            fx.append(intrinsics_from_homographies(Hd, **closed.kw)[0, 0])
-        except (NotObservableError, BadInputError):
-            failures += 1
-    # spread of 1/fx^2 (linear in B: finite, also when the focal length runs off to infinity)
-    w = 1.0 / np.asarray(fx) ** 2
-    rel = float(0.5 * np.std(w) * K[0, 0] ** 2) if len(fx) >= 2 else float("inf")
+    if len({p.shape[0] for p in closed.pix}) == 1:
+        pix = np.stack(closed.pix)
+        draws = pix[None] + sigma * rng.standard_normal((_MC_DRAWS,) + pix.shape)
+    else:
+        draws = [[p + sigma * rng.standard_normal(p.shape) for p in closed.pix] for _ in range(_MC_DRAWS)]
+
+    def spread(fx):  # of 1/fx^2 (linear in B: finite, also when the focal length runs off to infinity)
+        w = 1.0 / np.asarray(fx) ** 2
+        return float(0.5 * np.std(w, ddof=1) * K[0, 0] ** 2) if len(fx) >= 2 else float("inf")
+
+    fx, failures = _fx_of_draws(closed, draws[:_MC_SCREEN_DRAWS])
+    rel = spread(fx)
+    if failures or rel > 0.25 * max_rel_std:
+        fx, failures = _fx_of_draws(closed, draws)
+        rel = spread(fx)
     if failures > _MC_DRAWS // 4 or rel > max_rel_std:
         if failures > _MC_DRAWS // 4:
             how = f"is non-physical in {failures}/{_MC_DRAWS} draws"
@@ -573,7 +641,7 @@ def zhang_init(
         view_names,
         dict(skew=skew, aspect_ratio=aspect_ratio, principal_point=principal_point, image_size=image_size),
     )
-    H, K, s, R, t, ortho, dist, used_pix = closed.run()
+    H, K, s, R, t, ortho, dist, used_pix = closed.run(distortion=estimate_distortion)
     focal_rel_std = _focal_spread(closed, H, K, check_observability, max_focal_rel_std)
     if not estimate_distortion:
         dist = np.zeros(2)
@@ -586,12 +654,13 @@ def zhang_init(
         out = _distortion_fixed_point(closed, K, dist, free, distortion_iterations)
         if out is not None:
             H, K, s, R, t, ortho, dist, used_pix = out
-    rms = np.array(
-        [
-            np.sqrt(np.mean(homography_residuals(H[i], pts[i], used_pix[i]) ** 2))
-            for i in range(len(pix))
-        ]
-    )
+    if len({p.shape[0] for p in pts}) == 1:  # one batched evaluation
+        res = homography_residuals(H, np.stack(pts), np.stack(used_pix))
+        rms = np.sqrt(np.mean(res.reshape(len(pix), -1) ** 2, axis=-1))
+    else:
+        rms = np.array(
+            [np.sqrt(np.mean(homography_residuals(H[i], pts[i], used_pix[i]) ** 2)) for i in range(len(pix))]
+        )
     tilt = np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))
     return ZhangInit(
         K=K,

@@ -150,6 +150,8 @@ class _CameraData:
     points_flat: np.ndarray | None = None
     pixels_flat: np.ndarray | None = None
     view_starts: np.ndarray | None = None
+    chunk: int = 0  # corners per view in the padded layout (max over views, rounded up to 8)
+    pad_index: np.ndarray | None = None  # position of each flat corner in the padded layout
 
 
 def _gather(cell: CellSpec, obs: Observations) -> tuple[list[_CameraData], str, np.ndarray, list[str]]:
@@ -321,6 +323,7 @@ class _CameraConfig:
     image_size: tuple[int, int]
     skew: bool
     coord_names: tuple[str, ...]
+    chunk: int  # corners per view in the padded (views x corners) layout
 
 
 @dataclass(frozen=True)
@@ -338,7 +341,9 @@ def _problem_from_arrays(config: _Config, a: dict) -> Problem:
     variables = [
         Variable("T_ref_target", SE3(), a["pose"], fixed=a["pose_fixed"], eliminate=True,
                  entry_label="station {i} target pose"),
-        Variable("T_cam_ref", SE3(), a["rig"], fixed=a["rig_fixed"], entry_label="rig pose of camera {i}"),
+        # one camera: its rig pose is the identity, known at trace time (no Jacobian columns)
+        Variable("T_cam_ref", SE3(), a["rig"], fixed=a["rig_fixed"], entry_label="rig pose of camera {i}",
+                 constant=len(config.cameras) == 1),
     ]
     factors = []
     for ci, cc in enumerate(config.cameras):
@@ -357,6 +362,7 @@ def _problem_from_arrays(config: _Config, a: dict) -> Problem:
                 sigma=config.sigma_px,
                 sqrt_weight=a[f"weight{ci}"],
                 loss=config.loss,
+                chunk=cc.chunk,
             )
         )
     return Problem(variables, factors)
@@ -400,7 +406,7 @@ class _Prepared:
     rig0: np.ndarray  # (C, 7) T_cam_ref start
     weights: dict[str, np.ndarray]
     num_views_padded: int = 0
-    num_obs_padded: tuple[int, ...] = ()
+    num_obs_padded: tuple[int, ...] = ()  # per camera: padded number of views (runs of ``chunk`` corners)
 
     def shape_key(self):
         return (self.num_views_padded, self.num_obs_padded)
@@ -423,17 +429,20 @@ def _arrays(p: _Prepared, pose: np.ndarray, rig: np.ndarray, intr: dict[str, np.
     rig_fixed[0] = True  # the reference camera comes first
     a = dict(pose=_pad_rows(pose, Vp), pose_fixed=pose_fixed, rig=rig, rig_fixed=rig_fixed)
     for ci, cd in enumerate(p.data):
-        Kp = p.num_obs_padded[ci]
-        K = weights[cd.name].shape[0]
+        # (views x corners) layout: view v's corners at v * chunk + [0, n_v); padding (short views,
+        # extra views) repeats corner 0 of the camera with weight 0, in a run of one station
+        Kp = p.num_obs_padded[ci] * cd.chunk
         flag, ratio = p.aspects[cd.name]
         a[f"intr{ci}"] = np.asarray(intr[cd.name], np.float64)
         a[f"intr_fixed{ci}"] = p.fixed_masks[cd.name]
-        a[f"station{ci}"] = _pad_rows(cd.station_flat, Kp)
-        a[f"points{ci}"] = _pad_rows(cd.points_flat, Kp)
-        a[f"pixels{ci}"] = _pad_rows(cd.pixels_flat, Kp)
+        a[f"station{ci}"] = np.repeat(_pad_rows(np.asarray(cd.stations, np.int32), p.num_obs_padded[ci]), cd.chunk)
+        for key, flat in (("points", cd.points_flat), ("pixels", cd.pixels_flat)):
+            full = np.repeat(flat[:1], Kp, axis=0)
+            full[cd.pad_index] = flat
+            a[f"{key}{ci}"] = full
         a[f"aspect{ci}"] = np.broadcast_to(np.array([flag, ratio]), (Kp, 2))
         w = np.zeros(Kp)
-        w[:K] = weights[cd.name]
+        w[cd.pad_index] = weights[cd.name]
         a[f"weight{ci}"] = w
     return a
 
@@ -460,7 +469,7 @@ def _outcome(p: _Prepared, a: dict, out) -> _Outcome:
     V = p.pose0.shape[0]
     vals = {k: np.asarray(v) for k, v in raw.values.items()}
     vals["T_ref_target"] = vals["T_ref_target"][:V]
-    res = {cd.name: np.asarray(r)[: cd.station_flat.shape[0]] for cd, r in zip(p.data, residuals)}
+    res = {cd.name: np.asarray(r)[cd.pad_index] for cd, r in zip(p.data, residuals)}
     num_residuals, num_free, cost = int(raw.num_residuals), int(raw.num_free), float(raw.cost)
     dof = num_residuals - num_free
     return _Outcome(raw, vals, res, np.asarray(sigma_ss), cost, int(raw.iterations), Status(int(raw.status)),
@@ -545,6 +554,10 @@ def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOption
         cd.points_flat = np.concatenate(cd.points)
         cd.pixels_flat = np.concatenate(cd.pixels)
         cd.view_starts = np.concatenate([[0], np.cumsum([p.shape[0] for p in cd.points])[:-1]]).astype(np.int64)
+        counts = np.array([p.shape[0] for p in cd.points])
+        cd.chunk = int(-(-counts.max() // 8) * 8)
+        cd.pad_index = (np.repeat(np.arange(len(counts)) * cd.chunk, counts)
+                        + np.arange(counts.sum()) - np.repeat(cd.view_starts, counts))
     T_ref_target = []
     for k in range(len(used)):
         for cd in data:
@@ -554,12 +567,14 @@ def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOption
     config = _Config(
         cameras=tuple(
             _CameraConfig(cd.name, type(models[cd.name]), tuple(int(s) for s in models[cd.name].image_size),
-                          bool(models[cd.name].has_skew), tuple(models[cd.name].param_names))
+                          bool(models[cd.name].has_skew), tuple(models[cd.name].param_names), cd.chunk)
             for cd in data
         ),
         loss=_loss(options),
         sigma_px=float(options.sigma_px),
-        solve_options=SolveOptions(max_iterations=options.max_iterations),
+        # mu0 1e-6: the Zhang start is close enough that near-Gauss-Newton steps are accepted at
+        # once (6 instead of 9 iterations on benchmarks/bench_calibrate.py's data, same optimum)
+        solve_options=SolveOptions(max_iterations=options.max_iterations, mu0=1e-6),
     )
     return _Prepared(
         config=config,
@@ -574,13 +589,13 @@ def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOption
         rig0=_se3_params_many(np.stack([T_cam_ref[cd.name] for cd in data])),
         weights={cd.name: np.ones(cd.station_flat.shape[0]) for cd in data},
         num_views_padded=bucket_size(len(used)),
-        num_obs_padded=tuple(bucket_size(cd.station_flat.shape[0]) for cd in data),
+        num_obs_padded=tuple(bucket_size(len(cd.stations)) for cd in data),
     )
 
 
 def _se3_params_many(T: np.ndarray) -> np.ndarray:
-    """(n, 4, 4) -> (n, 7) ``wxyz_xyz`` (vectorised :func:`conversions.matrix_to_pose`)."""
-    return np.stack([_se3_params(t) for t in T])
+    """(n, 4, 4) -> (n, 7) ``wxyz_xyz`` (one vectorised :func:`conversions.matrix_to_pose` call)."""
+    return np.asarray(conversions.matrix_to_pose(np.asarray(T, dtype=np.float64)))
 
 
 def _start_arrays(p: _Prepared) -> dict:
@@ -662,6 +677,7 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
     off = 6 * C
     rig_fixed = np.zeros((C, 6), bool)
     rig_fixed[0] = True
+    T_ref_target_all = conversions.pose_to_matrix(np.asarray(o.values["T_ref_target"], np.float64))
     for i, cd in enumerate(p.data):
         prm = o.values[f"intrinsics:{cd.name}"][0].copy()
         n = prm.shape[0]
@@ -684,8 +700,7 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
         Ad = _adjoint_rot_first(T_cr)
         T_ref_cam_cov[cd.name] = Ad @ cov_cr @ Ad.T
         for s in cd.stations:
-            T_rt = _se3_matrix(o.values["T_ref_target"][s])
-            T_cam_target.setdefault(p.station_ids[p.used[s]], {})[cd.name] = T_cr @ T_rt
+            T_cam_target.setdefault(p.station_ids[p.used[s]], {})[cd.name] = T_cr @ T_ref_target_all[s]
 
     rms = _view_rms(p, o.residuals, p.weights)
     all_res = np.concatenate([o.residuals[cd.name][p.weights[cd.name] > 0] for cd in p.data])
@@ -756,6 +771,9 @@ def calibrate_cameras(
     return _refine(p, o, options)
 
 
+_BATCH = 8
+
+
 def calibrate_cameras_batch(
     cell: CellSpec,
     observations: Sequence[Observations],
@@ -806,11 +824,18 @@ def calibrate_cameras_batch(
                 p.num_views_padded, p.num_obs_padded = Vp, Kp
                 a = _start_arrays(p)
             fixed.append((i, p, a))
-        stacked = {k: np.stack([a[k] for _, _, a in fixed]) for k in fixed[0][2]}
-        out = jax.device_get(_core_batch_jit(fixed[0][1].config, stacked))
+        # sub-batches of _BATCH data sets (the last one padded with copies): one compiled shape,
+        # and XLA:CPU gains nothing from wider batches here (it stalled at 64+ in a while loop)
+        outs = []
+        for start in range(0, len(fixed), _BATCH):
+            part = fixed[start:start + _BATCH]
+            part = part + [part[0]] * (_BATCH - len(part)) if len(fixed) > _BATCH else part
+            stacked = {k: np.stack([a[k] for _, _, a in part]) for k in part[0][2]}
+            outs.append(jax.device_get(_core_batch_jit(fixed[0][1].config, stacked)))
         for j, (i, p, a) in enumerate(fixed):
             try:
-                o = _outcome(p, a, jax.tree.map(lambda x, j=j: x[j], out))
+                out = outs[j // _BATCH]
+                o = _outcome(p, a, jax.tree.map(lambda x, j=j % _BATCH: x[j], out))
                 _raise_if_unobservable(p, o)
                 results[i] = _refine(p, o, options)
             except (BadInputError, NotObservableError) as err:

@@ -1,23 +1,36 @@
-"""Joint hand-eye calibration: one camera on the robot (or fixed), one target fixed (or on the robot).
+"""Joint hand-eye calibration: cameras on the robot (or fixed), one target fixed (or on the robot).
 
-Eye-in-hand (camera ``mount: flange``, target ``mount: base``): unknowns ``T_flange_cam``,
-``T_base_target`` and the intrinsics; corner ``p`` of station ``i`` is seen at
+Eye-in-hand (cameras ``mount: flange``, target ``mount: base``): unknowns ``T_flange_<cam>`` and
+the intrinsics of every camera and one shared ``T_base_target``; corner ``p`` of station ``i`` is
+seen by camera ``c`` at
 
-    project(K, inv(T_flange_cam) · inv(T_base_flange_i) · T_base_target · p).
+    project(K_c, inv(T_flange_c) · inv(T_base_flange_i) · T_base_target · p).
 
-Eye-to-hand (camera ``mount: base``, target ``mount: flange``): unknowns ``T_base_cam``,
-``T_flange_target``; ``p_cam = inv(T_base_cam) · T_base_flange_i · T_flange_target · p``.
+Eye-to-hand (cameras ``mount: base``, target ``mount: flange``): unknowns ``T_base_<cam>``,
+``T_flange_target``; ``p_cam = inv(T_base_cam) · T_base_flange_i · T_flange_target · p``. Several
+cameras share the stations (and the robot poses) and the one target pose.
 
 Robot pose error model: with ``robot: {pose_noise: {translation_m, rotation_deg}}`` in the cell, the
 true flange pose of every station is an unknown ``T_base_flange_i = T_meas_i · Exp(δ_i)`` (right
 perturbation: ``δ_i`` in the flange frame, ``(rx, ry, rz, tx, ty, tz)``) with a zero-mean Gaussian
-prior of those per-axis σ. These per-station poses are the eliminated variable (Schur complement),
-so the shared system stays small (intrinsics + two poses). Without ``pose_noise`` the measured poses
-are taken as exact (the same variable, fully fixed).
+prior of those per-axis σ (square-root information ``diag(1/σ)``). These per-station poses are the
+eliminated variable (Schur complement), so the shared system stays small (intrinsics + poses).
+Without ``pose_noise`` (or with ``HandEyeOptions(pose_model=False)``) the measured poses are taken
+as exact (the same variable, fully fixed). On simulated data the estimate with the pose model is
+efficient: its median error equals the one its own covariance predicts (the Cramér–Rao bound);
+see ``benchmarks/bench_handeye.py``.
 
 Start: Zhang on all views (or the cell's intrinsics), per-view planar pose, motion observability
-check (:func:`jcalib.init.handeye.check_observable`), then a closed-form hand-eye solve
-(Park–Martin by default). jcalib's engine refines everything jointly and gives the covariance.
+check (:func:`jcalib.init.handeye.check_observable`) on the first camera whose motion passes it,
+then a closed-form hand-eye solve (Park–Martin by default) for that camera; the other cameras start
+from the target pose it implies. jcalib's engine refines everything jointly and gives the
+covariance. Robust losses (Huber, Cauchy) and outlier rejection act on the corner reprojections.
+
+Degenerate motion raises :class:`NotObservableError` naming the undetermined unknowns. When every
+rotation is about one axis (e.g. a SCARA, all rotations about the base z), everything but the
+translation of the hand-eye transform along that axis is still determined:
+``HandEyeOptions(fix_unobservable=True)`` holds that one component at a stated prior and says so
+in the warnings.
 """
 
 from __future__ import annotations
@@ -35,8 +48,14 @@ from jcalib.geometry.cameras import AbstractCameraModel
 from jcalib.init.handeye import (
     HAND_EYE_METHODS,
     HandEyeInit,
+    MotionDiagnostics,
+    _fmt_axis,
+    _rotvec,
     analyse_motion,
+    average_poses,
     check_observable,
+    relative_motions,
+    solution_diagnostics,
     solve_hand_eye,
 )
 from jcalib.io.cell import CellSpec
@@ -50,6 +69,7 @@ from jcalib.problems.camera import (
     _se3_matrix,
     _se3_params,
 )
+from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
 from jcalib.solve import (
     SE3,
     Euclidean,
@@ -60,6 +80,9 @@ from jcalib.solve import (
     solve,
 )
 from jcalib.solve.covariance import covariance as _covariance
+
+#: Rounds of outlier rejection (each re-solves from the previous estimate) before giving up.
+MAX_OUTLIER_ROUNDS = 5
 
 
 @dataclass(frozen=True)
@@ -75,6 +98,23 @@ class HandEyeOptions:
         pose_model: per-station robot-pose corrections: ``None`` (default) = on when the cell has
             ``robot.pose_noise``; ``False`` = off (poses exact) even then. ``True`` needs ``pose_noise``.
         max_iterations: LM iteration limit.
+        loss: robust loss on each corner's whitened reprojection error: ``"none"``, ``"huber"`` or
+            ``"cauchy"``.
+        loss_scale: the loss scale in units of ``sigma_px``.
+        outlier_threshold: corners whose reprojection error exceeds this many σ (a-posteriori σ by
+            default, ``sigma_px`` with ``noise="stated"``) are rejected and the problem re-solved,
+            up to :data:`MAX_OUTLIER_ROUNDS` times; ``None`` keeps every corner.
+        fix_unobservable: when all rotations are about one axis (one-axis or planar SCARA-like
+            motion), hold the translation of the hand-eye transform along that axis at
+            ``unobservable_prior_m`` instead of raising :class:`NotObservableError`; the result's
+            warnings say so. Other degeneracies (fewer than 3 stations, no usable rotation) still raise.
+            With several cameras the prior goes on the first camera's transform (the others follow
+            through the shared target pose).
+        unobservable_prior_m: that component (m): ``a · t`` with ``a`` the reported unit axis in the
+            flange frame (eye-in-hand, ``t`` the translation of ``T_flange_cam``) or the base frame
+            (eye-to-hand, of ``T_base_cam``).
+        unobservable_prior_sigma_m: σ of that prior (m); the default holds it to 1 µm, a larger σ
+            (what you know about the mounting) enters the reported covariance.
     """
 
     method: str = "park_martin"
@@ -82,6 +122,22 @@ class HandEyeOptions:
     noise: str = "a_posteriori"
     pose_model: bool | None = None
     max_iterations: int = 100
+    loss: str = "none"
+    loss_scale: float = 3.0
+    outlier_threshold: float | None = 5.0
+    fix_unobservable: bool = False
+    unobservable_prior_m: float = 0.0
+    unobservable_prior_sigma_m: float = 1e-6
+
+    @classmethod
+    def from_camera_options(cls, options, **overrides) -> HandEyeOptions:
+        """The hand-eye options carrying over what applies from a
+        :class:`~jcalib.problems.camera.CameraCalibrationOptions` (``sigma_px``, ``noise``,
+        ``max_iterations``, ``loss``, ``loss_scale``, ``outlier_threshold``), then ``overrides``
+        (e.g. ``pose_model=False``, ``fix_unobservable=True``). For the CLI, which parses one set
+        of options for every cell."""
+        keep = ("sigma_px", "noise", "max_iterations", "loss", "loss_scale", "outlier_threshold")
+        return cls(**{k: getattr(options, k) for k in keep}, **overrides)
 
     def __post_init__(self):
         if self.method not in HAND_EYE_METHODS:
@@ -90,16 +146,68 @@ class HandEyeOptions:
             raise BadInputError(f"noise: got {self.noise!r}, expected 'a_posteriori' or 'stated'")
         if not self.sigma_px > 0:
             raise BadInputError(f"sigma_px: got {self.sigma_px!r}, expected a positive number of pixels")
+        if self.pose_model not in (None, True, False):
+            raise BadInputError(f"pose_model: got {self.pose_model!r}, expected None, True or False")
+        if self.loss not in ("none", "huber", "cauchy"):
+            raise BadInputError(f"loss: got {self.loss!r}, expected 'none', 'huber' or 'cauchy'")
+        if not self.loss_scale > 0:
+            raise BadInputError(f"loss_scale: got {self.loss_scale!r}, expected a positive number of σ")
+        if self.outlier_threshold is not None and not self.outlier_threshold > 0:
+            raise BadInputError(
+                f"outlier_threshold: got {self.outlier_threshold!r}, expected a positive number of σ or None"
+            )
+        if not np.isfinite(self.unobservable_prior_m):
+            raise BadInputError(f"unobservable_prior_m: got {self.unobservable_prior_m!r}, expected a finite value (m)")
+        if not self.unobservable_prior_sigma_m > 0:
+            raise BadInputError(
+                f"unobservable_prior_sigma_m: got {self.unobservable_prior_sigma_m!r}, expected a positive σ (m)"
+            )
+
+
+@dataclass
+class HandEyeCamera:
+    """One camera's part of a :class:`HandEyeCalibration`.
+
+    Attributes:
+        camera: camera id.
+        model: the calibrated camera model.
+        intrinsics_covariance: ``(p, p)`` covariance of ``model.params`` (order ``param_names``).
+        hand_eye_name: ``"T_flange_<camera>"`` or ``"T_base_<camera>"``.
+        T_hand_eye: (4, 4) that transform, m.
+        T_hand_eye_covariance: (6, 6) right-perturbation covariance (rx..tz; rad², m²).
+        station_ids: the stations where this camera sees the target.
+        view_rms_px: station id -> RMS reprojection error of the inlier corners (pixels).
+        rms_px: RMS over this camera's inlier corners (pixels).
+        num_residuals: residual components of this camera's inlier corners.
+        init: the closed-form (or derived) start (:class:`jcalib.init.handeye.HandEyeInit`).
+        motion: the motion analysis of this camera's stations.
+    """
+
+    camera: str
+    model: AbstractCameraModel
+    intrinsics_covariance: np.ndarray
+    hand_eye_name: str
+    T_hand_eye: np.ndarray
+    T_hand_eye_covariance: np.ndarray
+    station_ids: list[str]
+    view_rms_px: dict[str, float]
+    rms_px: float
+    num_residuals: int
+    init: HandEyeInit
+    motion: MotionDiagnostics
 
 
 @dataclass
 class HandEyeCalibration:
     """The outcome of :func:`calibrate_hand_eye` (see :class:`jcalib.Result` for the file form).
 
+    The single-camera fields (``camera`` ... ``init``, ``view_rms_px``) describe the first camera of
+    the cell; ``cameras`` holds every camera.
+
     Attributes:
-        mount: ``"flange"`` (eye-in-hand) or ``"base"`` (eye-to-hand): where the camera is.
-        camera, target: ids from the cell.
-        model: the calibrated camera model.
+        mount: ``"flange"`` (eye-in-hand) or ``"base"`` (eye-to-hand): where the cameras are.
+        camera, target: ids from the cell (first camera).
+        model: the calibrated camera model (first camera).
         intrinsics_covariance: ``(p, p)`` covariance of ``model.params`` (order ``param_names``).
         hand_eye_name: ``"T_flange_<camera>"`` or ``"T_base_<camera>"``.
         T_hand_eye: (4, 4) that transform, m.
@@ -107,7 +215,7 @@ class HandEyeCalibration:
         target_name: ``"T_base_<target>"`` or ``"T_flange_<target>"``.
         T_target: (4, 4) that transform, m.
         T_target_covariance: (6, 6), as above.
-        station_ids: ids of the stations used (those where the camera sees the target).
+        station_ids: ids of the stations used (where some camera sees the target).
         T_base_flange_measured: (N, 4, 4) measured flange poses of those stations, m.
         T_base_flange: (N, 4, 4) estimated true flange poses (equal to the measured ones without the
             pose model), m.
@@ -117,10 +225,17 @@ class HandEyeCalibration:
             the prior σ scaled by sqrt(Σ‖Sδ‖² / redundancy of the prior residuals)),
             ``redundancy`` of the prior residuals. Units: ``_m`` metres, ``_deg`` degrees;
             axes in the flange frame.
-        init: the closed-form start (:class:`jcalib.init.handeye.HandEyeInit`).
-        view_rms_px: station id -> RMS reprojection error (pixels).
-        rms_px, sigma_px: overall RMS and a-posteriori corner noise σ (pixels).
+        init: the closed-form start of the first camera.
+        view_rms_px: station id -> RMS reprojection error of the first camera (pixels).
+        rms_px, sigma_px: overall RMS (inlier corners, all cameras) and a-posteriori corner noise σ
+            (pixels).
         num_residuals, iterations, status, sigma2: solver facts (``sigma2`` the variance factor).
+        pose_model: whether the robot pose model was on.
+        cameras: camera id -> :class:`HandEyeCamera`, every camera of the cell.
+        outliers: (camera id, station id, point index) of rejected corners.
+        unobservable_fixed: ``{"transform", "axis", "frame", "value_m", "sigma_m"}`` when
+            ``fix_unobservable`` held a translation component at its prior, else ``None``.
+        warnings: remarks on weak motion and on what was held at a prior.
         solution: the :class:`jcalib.solve.Solution`.
     """
 
@@ -148,10 +263,14 @@ class HandEyeCalibration:
     status: str
     sigma2: float
     pose_model: bool
+    cameras: dict[str, HandEyeCamera] = field(default_factory=dict)
+    outliers: list[tuple[str, str, int]] = field(default_factory=list)
+    unobservable_fixed: dict | None = None
+    warnings: list[str] = field(default_factory=list)
     solution: object = field(default=None, repr=False)
 
 
-# ------------------------------------------------------------------------------------ residual
+# ------------------------------------------------------------------------------------ residuals
 
 
 @functools.cache
@@ -179,9 +298,24 @@ def _handeye_reprojection_fn(model_cls: type, image_size: tuple[int, int], skew:
     return fn
 
 
+def _axis_translation_prior(T_hand_eye, obs):
+    """``(T (7,) wxyz_xyz, (axis (3,), value (1,))) -> (1,)``: ``axis · t - value`` (m), the translation
+    of the hand-eye transform along the unobservable axis against its stated value."""
+    axis, value = obs
+    return jnp.matmul(axis, T_hand_eye[4:7])[None] - value
+
+
 @functools.cache
 def _residuals_jit(fn):
     return jax.jit(jax.vmap(fn))
+
+
+def _loss(options: HandEyeOptions):
+    if options.loss == "huber":
+        return HuberLoss(options.loss_scale)
+    if options.loss == "cauchy":
+        return CauchyLoss(options.loss_scale)
+    return TrivialLoss()
 
 
 # ------------------------------------------------------------------------------------ data
@@ -189,37 +323,38 @@ def _residuals_jit(fn):
 
 @dataclass
 class _Data:
-    camera: object  # CameraSpec
+    cameras: list  # CameraSpec, cell order
+    cds: list[_CameraData]  # one per camera; cd.stations index the used stations
     target_name: str
-    mount: str  # camera mount
-    cd: _CameraData
+    mount: str  # the cameras' mount
     station_ids: list[str]
     T_base_flange: np.ndarray  # (N, 4, 4) measured, for the used stations
 
 
-def _select(cell: CellSpec) -> tuple[object, object]:
-    """The (camera, target) pair of a hand-eye cell, or BadInputError."""
+def _select(cell: CellSpec) -> tuple[list, object]:
+    """The cameras (one mount) and the target of a hand-eye cell, or BadInputError."""
     cams = list(cell.cameras.values())
     tgts = list(cell.targets.values())
-    if len(cams) != 1 or len(tgts) != 1:
+    if not cams or len(tgts) != 1:
         raise BadInputError(
-            f"{cell.source}: hand-eye calibration takes one camera and one target, the cell has cameras "
+            f"{cell.source}: hand-eye calibration takes cameras and one target, the cell has cameras "
             f"{[c.name for c in cams]} and targets {[t.name for t in tgts]}"
         )
-    cam, tgt = cams[0], tgts[0]
+    tgt = tgts[0]
+    mounts = sorted({c.mount for c in cams})
     pairs = {("flange", "base"), ("base", "flange")}
-    if (cam.mount, tgt.mount) not in pairs:
+    if len(mounts) != 1 or (mounts[0], tgt.mount) not in pairs:
         raise BadInputError(
-            f"{cell.source}: camera '{cam.name}' mount '{cam.mount}' with target '{tgt.name}' mount "
-            f"'{tgt.mount}': expected camera on the flange and target on the base (eye-in-hand) or camera "
-            "on the base and target on the flange (eye-to-hand)"
+            f"{cell.source}: cameras {[(c.name, c.mount) for c in cams]} (name, mount) with target "
+            f"'{tgt.name}' mount '{tgt.mount}': expected every camera on the flange and the target on the "
+            "base (eye-in-hand) or every camera on the base and the target on the flange (eye-to-hand)"
         )
-    return cam, tgt
+    return cams, tgt
 
 
 def is_hand_eye_cell(cell: CellSpec) -> bool:
-    """Whether :func:`calibrate_hand_eye` handles ``cell`` (one camera and one target, one on the
-    flange and the other on the base, no tools or points)."""
+    """Whether :func:`calibrate_hand_eye` handles ``cell``: cameras all on the flange and one target
+    on the base, or cameras all on the base and one target on the flange; no tools or points."""
     if cell.tools or cell.points:
         return False
     try:
@@ -230,20 +365,26 @@ def is_hand_eye_cell(cell: CellSpec) -> bool:
 
 
 def _gather(cell: CellSpec, obs: Observations) -> _Data:
-    cam, tgt = _select(cell)
+    cams, tgt = _select(cell)
     if tgt.name not in obs.targets:
         raise BadInputError(f"{obs.source}: the observations have no target '{tgt.name}'")
-    if cam.name not in obs.cameras:
-        raise BadInputError(f"{obs.source}: camera '{cam.name}' of the cell has no image size in the observations")
+    for cam in cams:
+        if cam.name not in obs.cameras:
+            raise BadInputError(f"{obs.source}: camera '{cam.name}' of the cell has no image size in the observations")
     points = obs.targets[tgt.name]
     if not np.allclose(points[:, 2], 0.0):
         raise BadInputError(
             f"{obs.source}: target '{tgt.name}' is not planar (z != 0); hand-eye calibration needs a planar target"
         )
-    cd = _CameraData(cam.name, cam.model, obs.cameras[cam.name], cam.skew, cam.fix, cam.K, cam.dist, [], [], [], [])
+    cds = [_CameraData(c.name, c.model, obs.cameras[c.name], c.skew, c.fix, c.K, c.dist, [], [], [], [])
+           for c in cams]
+    by_name = {c.name: k for k, c in enumerate(cams)}
     ids, poses = [], []
     for station in obs.stations:
-        dets = [d for d in station.detections if d.camera == cam.name and d.target == tgt.name]
+        dets = {}
+        for det in station.detections:
+            if det.target == tgt.name and det.camera in by_name and det.camera not in dets:
+                dets[det.camera] = det
         if not dets:
             continue
         if station.T_base_flange is None:
@@ -251,27 +392,31 @@ def _gather(cell: CellSpec, obs: Observations) -> _Data:
                 f"{obs.source}: station '{station.id}' has no T_base_flange; a hand-eye cell needs the robot "
                 "flange pose of every station"
             )
-        det = dets[0]
-        n = det.point_index.size
-        if n < MIN_POINTS_PER_VIEW:
-            raise BadInputError(
-                f"{obs.source}: station '{station.id}', camera '{cam.name}': only {n} target points; a view "
-                f"needs at least {MIN_POINTS_PER_VIEW}. Drop the view or re-detect it"
-            )
-        cd.stations.append(len(ids))
-        cd.point_index.append(det.point_index)
-        cd.points.append(points[det.point_index])
-        cd.pixels.append(det.pixels)
+        for name, det in dets.items():
+            n = det.point_index.size
+            if n < MIN_POINTS_PER_VIEW:
+                raise BadInputError(
+                    f"{obs.source}: station '{station.id}', camera '{name}': only {n} target points; a view "
+                    f"needs at least {MIN_POINTS_PER_VIEW}. Drop the view or re-detect it"
+                )
+            cd = cds[by_name[name]]
+            cd.stations.append(len(ids))
+            cd.point_index.append(det.point_index)
+            cd.points.append(points[det.point_index])
+            cd.pixels.append(det.pixels)
         ids.append(station.id)
         poses.append(np.asarray(station.T_base_flange, np.float64))
-    if len(ids) < 3:
-        hand_eye = f"T_{cam.mount}_{cam.name}"
-        raise NotObservableError(
-            f"camera '{cam.name}' sees target '{tgt.name}' in {len(ids)} station(s); hand-eye calibration "
-            "needs at least 3 stations rotating about two different axes",
-            [f"rotation of {hand_eye}", f"translation of {hand_eye}"],
-        )
-    return _Data(cam, tgt.name, cam.mount, cd, ids, np.stack(poses))
+    for cam, cd in zip(cams, cds):
+        if len(cd.stations) < 3:
+            hand_eye = f"T_{cam.mount}_{cam.name}"
+            unknowns = [f"rotation of {hand_eye}", f"translation of {hand_eye}"]
+            raise NotObservableError(
+                f"camera '{cam.name}' sees target '{tgt.name}' in {len(cd.stations)} station(s); hand-eye "
+                "calibration needs at least 3 stations rotating about two different axes. Undetermined: "
+                + "; ".join(unknowns) + ".",
+                unknowns,
+            )
+    return _Data(cams, cds, tgt.name, cams[0].mount, ids, np.stack(poses))
 
 
 def _pose_sqrt_info(cell: CellSpec) -> np.ndarray:
@@ -293,47 +438,85 @@ def _known_pose(cell: CellSpec, spec, transform_name: str) -> tuple[np.ndarray |
     return (None if spec.pose is None else np.asarray(spec.pose, np.float64)), fixed
 
 
-# ------------------------------------------------------------------------------------ solve
+# ------------------------------------------------------------------------------------ start
 
 
-def calibrate_hand_eye(
-    cell: CellSpec, obs: Observations, options: HandEyeOptions = HandEyeOptions()
-) -> HandEyeCalibration:
-    """Calibrate a hand-eye cell jointly: intrinsics, hand-eye, target pose (and robot pose errors).
+def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
 
-    Args:
-        cell: a cell with one camera and one target, one mounted on the flange and the other on
-            the base; ``robot.pose_noise`` switches the robot pose error model on.
-        obs: target detections with ``T_base_flange`` per station (m, px).
-        options: :class:`HandEyeOptions`.
 
-    Returns:
-        :class:`HandEyeCalibration`. Covariances are sampling noise (pixel noise and, with the pose
-        model, robot noise as stated, propagated to first order, scaled by σ̂² by default), not model
-        error (wrong lens model, unmodelled robot error beyond the stated prior).
+def _rotation_between(b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector ``b`` to unit vector ``a`` (3, 3)."""
+    v = np.cross(b, a)
+    c = float(b @ a)
+    if c < -1.0 + 1e-12:  # opposite: half a turn about any axis perpendicular to b
+        p = np.cross(b, np.eye(3)[int(np.argmin(np.abs(b)))])
+        p /= np.linalg.norm(p)
+        return 2.0 * np.outer(p, p) - np.eye(3)
+    V = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + V + V @ V / (1.0 + c)
 
-    Raises:
-        BadInputError: malformed input (cell layout, missing poses, too few points in a view).
-        NotObservableError: degenerate robot motion (fewer than 3 stations, pure translation,
-            rotations about one axis only; names e.g. the translation along the axis) or a
-            rank-deficient joint problem, naming the unknowns.
+
+def _one_axis_init(T_bf, T_ct, mount: str, motion: MotionDiagnostics, along_m: float) -> HandEyeInit:
+    """Closed-form start when every rotation is about one axis ``a`` (``motion.dominant_axis``).
+
+    ``A X = X B`` then fixes the rotation of ``X`` up to an angle ``φ`` about ``a`` (the axis of
+    ``B`` maps to ``a``), and the translation equations ``(R_A − I) t = R_X t_B − t_A`` are linear in
+    ``(cos φ, sin φ)`` and the two components of ``t`` across ``a``; the component along ``a`` is
+    in the null space of every ``R_A − I`` and is set to ``along_m``.
     """
-    d = _gather(cell, obs)
-    cd, cam_name, mount = d.cd, d.camera.name, d.mount
-    use_pose_model = options.pose_model
-    has_noise = cell.robot is not None and cell.robot.pose_noise_translation_m is not None
-    if use_pose_model is None:
-        use_pose_model = has_noise
-    if use_pose_model and not has_noise:
-        raise BadInputError(
-            f"options.pose_model: got True, but {cell.source} has no robot.pose_noise; state the robot's "
-            "pose accuracy (translation_m, rotation_deg) in the cell"
-        )
-    hand_eye_name = f"T_{mount}_{cam_name}"
-    other_frame = "base" if mount == "flange" else "flange"
-    target_name = f"T_{other_frame}_{d.target_name}"
+    Hg = T_bf if mount == "flange" else np.linalg.inv(T_bf)
+    A, B, _ = relative_motions(Hg, T_ct)
+    rA, rB = _rotvec(A[:, :3, :3]), _rotvec(B[:, :3, :3])
+    a = np.asarray(motion.dominant_axis, np.float64)
+    a = a / np.linalg.norm(a)
+    _, _, vt = np.linalg.svd(rB, full_matrices=False)
+    b = vt[0] if np.sum(rB @ vt[0]) * np.sum(rA @ a) >= 0.0 else -vt[0]
+    R0 = _rotation_between(b, a)
+    P = np.linalg.svd(np.eye(3) - np.outer(a, a))[0][:, :2]  # (3, 2) basis across the axis
+    u = B[:, :3, 3] @ R0.T  # R0 t_B
+    au = u @ a
+    RmI = A[:, :3, :3] - np.eye(3)
+    M = np.concatenate([RmI @ P, -(u - au[:, None] * a)[..., None], -np.cross(a, u)[..., None]], axis=-1)
+    rhs = -A[:, :3, 3] + au[:, None] * a - along_m * (RmI @ a)
+    z = np.linalg.lstsq(M.reshape(-1, 4), rhs.reshape(-1), rcond=None)[0]
+    phi = float(np.arctan2(z[3], z[2]))
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    R_X = (np.eye(3) + np.sin(phi) * K + (1.0 - np.cos(phi)) * K @ K) @ R0
+    rhs = B[:, :3, 3] @ R_X.T - A[:, :3, 3] - along_m * (RmI @ a)  # re-solve t for the rounded rotation
+    w = np.linalg.lstsq((RmI @ P).reshape(-1, 2), rhs.reshape(-1), rcond=None)[0]
+    X = _pose(R_X, P @ w + along_m * a)
+    per_station = Hg @ X @ T_ct
+    Y = average_poses(per_station)
+    diagnostics = solution_diagnostics(motion, per_station, Y, A @ X, X @ B)
+    return HandEyeInit(T=X, T_other=Y, method="one_axis", mount=mount, diagnostics=diagnostics)
 
-    # --- start: intrinsics and per-view poses, motion check, closed-form hand-eye
+
+def _init_from_target(T_bf, T_ct, Y, mount: str, motion: MotionDiagnostics) -> HandEyeInit:
+    """Start of a further camera from the target pose ``Y`` of the first: ``X = Hg_i⁻¹ Y T_ct_i⁻¹``
+    averaged over its stations (``Hg = T_base_flange`` eye-in-hand, its inverse eye-to-hand)."""
+    Hg = T_bf if mount == "flange" else np.linalg.inv(T_bf)
+    X = average_poses(np.linalg.inv(Hg) @ Y @ np.linalg.inv(T_ct))
+    A, B, _ = relative_motions(Hg, T_ct)
+    per_station = Hg @ X @ T_ct
+    diagnostics = solution_diagnostics(motion, per_station, Y, A @ X, X @ B)
+    return HandEyeInit(T=X, T_other=Y, method="from_target", mount=mount, diagnostics=diagnostics)
+
+
+@dataclass
+class _Start:
+    model: AbstractCameraModel
+    fixed_mask: np.ndarray
+    ratio: float
+    aspect_flag: float
+    T_cam_target: np.ndarray  # (n_views, 4, 4)
+    motion: MotionDiagnostics
+
+
+def _camera_start(cd: _CameraData, T_bf: np.ndarray, mount: str, rot_noise: float) -> _Start:
     model, poses = _initial_model(cd)
     fixed_mask = _intrinsics_fixed_mask(model, cd.fix)
     ratio = float(cd.K0[0, 0] / cd.K0[1, 1]) if cd.K0 is not None else 1.0
@@ -342,17 +525,91 @@ def calibrate_hand_eye(
         p = np.asarray(model.params).copy()
         p[1] = p[0] / ratio
         model = model.with_params(jnp.asarray(p))
+    T_ct = np.stack([poses[s] for s in cd.stations])
+    motion = analyse_motion(T_bf[cd.stations], frame=mount, rotation_noise_deg=rot_noise)
+    return _Start(model, fixed_mask, ratio, aspect_flag, T_ct, motion)
+
+
+def _choose_reference(d: _Data, starts: list[_Start], options: HandEyeOptions):
+    """The camera whose motion determines its hand-eye transform (its closed form starts the
+    solve), or the first camera with one-axis motion under ``fix_unobservable``.
+
+    Returns ``(index, None)`` or ``(0, (axis (3,), why))`` for the one-axis case; raises the first
+    camera's :class:`NotObservableError` otherwise.
+    """
+    first_error = None
+    for k, (cam, s) in enumerate(zip(d.cameras, starts)):
+        try:
+            check_observable(s.motion, f"T_{d.mount}_{cam.name}")
+            return k, None
+        except NotObservableError as err:
+            first_error = first_error or err
+    m = starts[0].motion
+    if options.fix_unobservable and m.rank == 1 and m.num_stations >= 3:
+        why = "planar (SCARA-like) motion, every rotation about the base z" if m.planar else "one-axis rotations"
+        return 0, (np.asarray(m.dominant_axis, np.float64), why)
+    raise first_error
+
+
+def calibrate_hand_eye(
+    cell: CellSpec, obs: Observations, options: HandEyeOptions = HandEyeOptions()
+) -> HandEyeCalibration:
+    """Calibrate a hand-eye cell jointly: intrinsics, hand-eye, target pose (and robot pose errors).
+
+    Args:
+        cell: a cell with one or more cameras all mounted on the flange and one target on the base
+            (eye-in-hand), or cameras all on the base and one target on the flange (eye-to-hand);
+            ``robot.pose_noise`` switches the robot pose error model on (``options.pose_model``
+            overrides).
+        obs: target detections with ``T_base_flange`` per station (m, px); cameras share stations.
+        options: :class:`HandEyeOptions`.
+
+    Returns:
+        :class:`HandEyeCalibration`. Covariances are sampling noise (pixel noise and, with the pose
+        model, robot noise as stated, propagated to first order, scaled by σ̂² by default), not model
+        error (wrong lens model, unmodelled robot error beyond the stated prior). A component held
+        by ``fix_unobservable`` has the prior's σ.
+
+    Raises:
+        BadInputError: malformed input (cell layout, missing poses, too few points in a view).
+        NotObservableError: degenerate robot motion (fewer than 3 stations, pure translation,
+            rotations too small for the noise, rotations about one axis only; names e.g. the
+            translation along the axis) or a rank-deficient joint problem, naming the unknowns.
+    """
+    d = _gather(cell, obs)
+    mount = d.mount
+    has_noise = cell.robot is not None and cell.robot.pose_noise_translation_m is not None
+    use_pose_model = has_noise if options.pose_model is None else bool(options.pose_model)
+    if use_pose_model and not has_noise:
+        raise BadInputError(
+            f"options.pose_model: got True, but {cell.source} has no robot.pose_noise; state the robot's "
+            "pose accuracy (translation_m, rotation_deg) in the cell"
+        )
+    other_frame = "base" if mount == "flange" else "flange"
+    target_name = f"T_{other_frame}_{d.target_name}"
+    he_names = [f"T_{mount}_{cam.name}" for cam in d.cameras]
+    intr_names = [f"intrinsics:{cam.name}" for cam in d.cameras]
+
+    # --- start: intrinsics and per-view poses, motion check, closed-form hand-eye
     rot_noise = 0.02
     if has_noise:
         rot_noise = max(rot_noise, float(np.max(cell.robot.pose_noise_rotation_deg)))
-    motion = analyse_motion(d.T_base_flange, frame=mount, rotation_noise_deg=rot_noise)
-    check_observable(motion, hand_eye_name)
-    T_ct = np.stack([poses[i] for i in range(len(d.station_ids))])
-    init = solve_hand_eye(d.T_base_flange, T_ct, method=options.method, mount=mount, rotation_noise_deg=rot_noise)
+    starts = [_camera_start(cd, d.T_base_flange, mount, rot_noise) for cd in d.cds]
+    ref, one_axis = _choose_reference(d, starts, options)
+    T_bf_ref = d.T_base_flange[d.cds[ref].stations]
+    if one_axis is None:
+        init_ref = solve_hand_eye(T_bf_ref, starts[ref].T_cam_target, method=options.method, mount=mount,
+                                  rotation_noise_deg=rot_noise)
+    else:
+        init_ref = _one_axis_init(T_bf_ref, starts[ref].T_cam_target, mount, starts[ref].motion,
+                                  options.unobservable_prior_m)
+    inits = [
+        init_ref if k == ref else
+        _init_from_target(d.T_base_flange[cd.stations], s.T_cam_target, init_ref.T_other, mount, s.motion)
+        for k, (cd, s) in enumerate(zip(d.cds, starts))
+    ]
 
     # --- problem
-    n_st = len(d.station_ids)
-    intr_name = f"intrinsics:{cam_name}"
     meas = np.stack([_se3_params(T) for T in d.T_base_flange])
     if use_pose_model:
         flange = Variable("T_base_flange", SE3(), meas, prior_mean=meas, prior_sqrt_info=_pose_sqrt_info(cell),
@@ -360,80 +617,148 @@ def calibrate_hand_eye(
     else:
         flange = Variable("T_base_flange", SE3(), meas, fixed=True, eliminate=True,
                           entry_label="station {i} flange pose")
-    he_pose, he_fixed = _known_pose(cell, d.camera, hand_eye_name)
     tg_pose, tg_fixed = _known_pose(cell, cell.targets[d.target_name], target_name)
     variables = [
-        Variable(intr_name, Euclidean(len(model.param_names)), np.asarray(model.params, np.float64)[None, :],
-                 fixed=fixed_mask[None, :], coord_names=list(model.param_names), entry_label=cam_name),
-        Variable(hand_eye_name, SE3(), _se3_params(init.T if he_pose is None else he_pose), fixed=he_fixed),
-        Variable(target_name, SE3(), _se3_params(init.T_other if tg_pose is None else tg_pose), fixed=tg_fixed),
+        Variable(target_name, SE3(), _se3_params(init_ref.T_other if tg_pose is None else tg_pose), fixed=tg_fixed),
         flange,
     ]
-    station_flat = np.repeat(np.asarray(cd.stations, np.int32), [p.shape[0] for p in cd.points])
-    points_flat = np.concatenate(cd.points)
-    pixels_flat = np.concatenate(cd.pixels)
-    K = station_flat.shape[0]
-    aspect = np.broadcast_to(np.array([aspect_flag, ratio]), (K, 2))
-    fn = _handeye_reprojection_fn(type(model), tuple(int(s) for s in model.image_size), bool(model.has_skew), mount)
-    zeros = np.zeros(K, np.int32)
-    factor = FactorGroup(f"reprojection:{cam_name}", fn, (intr_name, hand_eye_name, target_name, "T_base_flange"),
-                         (zeros, zeros, zeros, station_flat), (points_flat, pixels_flat, aspect),
-                         sigma=options.sigma_px)
-    problem = Problem(variables, [factor])
-    sol = solve(problem, options=SolveOptions(max_iterations=options.max_iterations))
+    fns, obs_arrays, station_flat = [], [], []
+    for cam, cd, s, init, intr_name, he_name in zip(d.cameras, d.cds, starts, inits, intr_names, he_names):
+        he_pose, he_fixed = _known_pose(cell, cam, he_name)
+        variables += [
+            Variable(intr_name, Euclidean(len(s.model.param_names)), np.asarray(s.model.params, np.float64)[None, :],
+                     fixed=s.fixed_mask[None, :], coord_names=list(s.model.param_names), entry_label=cam.name),
+            Variable(he_name, SE3(), _se3_params(init.T if he_pose is None else he_pose), fixed=he_fixed),
+        ]
+        st = np.repeat(np.asarray(cd.stations, np.int32), [p.shape[0] for p in cd.points])
+        aspect = np.broadcast_to(np.array([s.aspect_flag, s.ratio]), (st.shape[0], 2))
+        station_flat.append(st)
+        obs_arrays.append((np.concatenate(cd.points), np.concatenate(cd.pixels), aspect))
+        fns.append(_handeye_reprojection_fn(type(s.model), tuple(int(v) for v in s.model.image_size),
+                                            bool(s.model.has_skew), mount))
+    extra_factors = []
+    unobservable_fixed = None
+    warnings = []
+    for k, s in enumerate(starts):
+        warnings += [f"camera '{d.cameras[k].name}': {w}" if len(starts) > 1 else w for w in s.motion.warnings]
+    if one_axis is not None:
+        axis, why = one_axis
+        value, sigma = float(options.unobservable_prior_m), float(options.unobservable_prior_sigma_m)
+        extra_factors.append(FactorGroup(
+            f"prior:{he_names[ref]} along the rotation axis", _axis_translation_prior, (he_names[ref],),
+            (np.zeros(1, np.int32),), (axis[None, :], np.array([[value]])), sigma=sigma))
+        unobservable_fixed = {"transform": he_names[ref], "axis": axis.tolist(), "frame": mount,
+                              "value_m": value, "sigma_m": sigma}
+        warnings.append(
+            f"{why}: the translation of {he_names[ref]} along the common rotation axis (axis = {_fmt_axis(axis)} "
+            f"in the {mount} frame) is not observable from these stations; it is held at the stated prior "
+            f"{value:g} m ± {sigma:g} m (fix_unobservable), and {target_name} shifts with it. Everything else "
+            "is estimated from the data."
+        )
+    loss = _loss(options)
 
-    # --- outputs
-    scale_noise = options.noise
-    vals = {k: np.asarray(v) for k, v in sol.values.items()}
-    res = np.asarray(_residuals_jit(fn)(
-        jnp.broadcast_to(sol.values[intr_name], (K, vals[intr_name].shape[1])),
-        jnp.broadcast_to(sol.values[hand_eye_name], (K, 7)),
-        jnp.broadcast_to(sol.values[target_name], (K, 7)),
-        sol.values["T_base_flange"][station_flat],
-        (jnp.asarray(points_flat), jnp.asarray(pixels_flat), jnp.asarray(aspect)),
-    ))
-    if scale_noise == "a_posteriori" and not sol.sigma2 == sol.sigma2:
+    def build(weights):
+        factors = [
+            FactorGroup(f"reprojection:{cam.name}", fn, (intr_name, he_name, target_name, "T_base_flange"),
+                        (np.zeros_like(st), np.zeros_like(st), np.zeros_like(st), st), o,
+                        sigma=options.sigma_px, sqrt_weight=w, loss=loss)
+            for cam, fn, intr_name, he_name, st, o, w in zip(d.cameras, fns, intr_names, he_names, station_flat,
+                                                              obs_arrays, weights)
+        ]
+        return Problem(variables, factors + extra_factors)
+
+    def residuals(sol):
+        out = []
+        for fn, intr_name, he_name, st, o in zip(fns, intr_names, he_names, station_flat, obs_arrays):
+            n = st.shape[0]
+            out.append(np.asarray(_residuals_jit(fn)(
+                jnp.broadcast_to(sol.values[intr_name], (n, sol.values[intr_name].shape[1])),
+                jnp.broadcast_to(sol.values[he_name], (n, 7)),
+                jnp.broadcast_to(sol.values[target_name], (n, 7)),
+                sol.values["T_base_flange"][st],
+                tuple(jnp.asarray(a) for a in o),
+            )))
+        return out
+
+    solve_options = SolveOptions(max_iterations=options.max_iterations)
+    weights = [np.ones(st.shape[0]) for st in station_flat]
+    sol = solve(build(weights), options=solve_options)
+    res = residuals(sol)
+    outliers: list[tuple[str, str, int]] = []
+    rounds = MAX_OUTLIER_ROUNDS if options.outlier_threshold is not None else 0
+    for _ in range(rounds):
+        sigma = options.sigma_px * (float(np.sqrt(sol.sigma2)) if options.noise == "a_posteriori" else 1.0)
+        changed = False
+        for k, (r, w, cd) in enumerate(zip(res, weights, d.cds)):
+            bad = (np.linalg.norm(r, axis=1) > options.outlier_threshold * sigma) & (w > 0)
+            if np.any(bad):
+                changed = True
+                weights[k] = np.where(bad, 0.0, w)
+                index = np.concatenate(cd.point_index)
+                outliers += [(d.cameras[k].name, d.station_ids[int(station_flat[k][j])], int(index[j]))
+                             for j in np.flatnonzero(bad)]
+        if not changed:
+            break
+        sol = solve(build(weights), x0=sol.values, options=solve_options)
+        res = residuals(sol)
+    if options.noise == "a_posteriori" and not sol.sigma2 == sol.sigma2:
         raise NotObservableError(
             f"The a-posteriori noise level needs more residuals ({sol.num_residuals}) than free unknowns "
             f"({sol.num_free}); use noise='stated'.",
             ["sigma2"],
         )
-    prm = vals[intr_name][0].copy()
-    cov_i = np.asarray(_covariance(sol, intr_name, noise=scale_noise))
-    if aspect_flag:
-        prm[1] = prm[0] / ratio
-        cov_i[1, :] = cov_i[0, :] / ratio
-        cov_i[:, 1] = cov_i[:, 0] / ratio
-        cov_i[1, 1] = cov_i[0, 0] / ratio**2
-    model = model.with_params(jnp.asarray(prm))
-    T_he = _se3_matrix(vals[hand_eye_name][0])
+
+    # --- outputs
+    scale_noise = options.noise
+    vals = {k: np.asarray(v) for k, v in sol.values.items()}
+    cameras = {}
+    all_sq = []
+    for k, (cam, cd, s) in enumerate(zip(d.cameras, d.cds, starts)):
+        prm = vals[intr_names[k]][0].copy()
+        cov_i = np.asarray(_covariance(sol, intr_names[k], noise=scale_noise))
+        if s.aspect_flag:
+            prm[1] = prm[0] / s.ratio
+            cov_i[1, :] = cov_i[0, :] / s.ratio
+            cov_i[:, 1] = cov_i[:, 0] / s.ratio
+            cov_i[1, 1] = cov_i[0, 0] / s.ratio**2
+        inlier = weights[k] > 0
+        sq = np.sum(res[k] ** 2, axis=1)
+        total = np.bincount(station_flat[k], weights=sq * inlier, minlength=len(d.station_ids))
+        count = np.bincount(station_flat[k], weights=inlier.astype(np.float64), minlength=len(d.station_ids))
+        all_sq.append(sq[inlier])
+        cameras[cam.name] = HandEyeCamera(
+            camera=cam.name,
+            model=s.model.with_params(jnp.asarray(prm)),
+            intrinsics_covariance=cov_i,
+            hand_eye_name=he_names[k],
+            T_hand_eye=_se3_matrix(vals[he_names[k]][0]),
+            T_hand_eye_covariance=np.asarray(_covariance(sol, he_names[k], noise=scale_noise)),
+            station_ids=[d.station_ids[i] for i in cd.stations],
+            view_rms_px={d.station_ids[i]: float(np.sqrt(total[i] / max(count[i], 1.0))) for i in cd.stations},
+            rms_px=float(np.sqrt(np.mean(sq[inlier]))) if np.any(inlier) else float("nan"),
+            num_residuals=2 * int(np.sum(inlier)),
+            init=inits[k],
+            motion=s.motion,
+        )
     T_tg = _se3_matrix(vals[target_name][0])
-    cov_he = np.asarray(_covariance(sol, hand_eye_name, noise=scale_noise))
     cov_tg = np.asarray(_covariance(sol, target_name, noise=scale_noise))
     if use_pose_model:
         T_bf = np.stack([_se3_matrix(v) for v in vals["T_base_flange"]])
+        robot = _robot_stats(sol, cell, meas, vals["T_base_flange"])
     else:
         T_bf = d.T_base_flange.copy()  # held fixed: the measured poses, without a quaternion round trip
-
-    robot = {}
-    if use_pose_model:
-        robot = _robot_stats(sol, cell, meas, vals["T_base_flange"])
-
-    sq = np.sum(res**2, axis=1)
-    total = np.zeros(n_st)
-    count = np.zeros(n_st)
-    np.add.at(total, station_flat, sq)
-    np.add.at(count, station_flat, 1.0)
-    view_rms = {sid: float(np.sqrt(total[i] / max(count[i], 1.0))) for i, sid in enumerate(d.station_ids)}
+        robot = {}
+    all_sq = np.concatenate(all_sq)
+    first = cameras[d.cameras[0].name]
     return HandEyeCalibration(
         mount=mount,
-        camera=cam_name,
+        camera=first.camera,
         target=d.target_name,
-        model=model,
-        intrinsics_covariance=cov_i,
-        hand_eye_name=hand_eye_name,
-        T_hand_eye=T_he,
-        T_hand_eye_covariance=cov_he,
+        model=first.model,
+        intrinsics_covariance=first.intrinsics_covariance,
+        hand_eye_name=first.hand_eye_name,
+        T_hand_eye=first.T_hand_eye,
+        T_hand_eye_covariance=first.T_hand_eye_covariance,
         target_name=target_name,
         T_target=T_tg,
         T_target_covariance=cov_tg,
@@ -441,15 +766,19 @@ def calibrate_hand_eye(
         T_base_flange_measured=d.T_base_flange,
         T_base_flange=T_bf,
         robot=robot,
-        init=init,
-        view_rms_px=view_rms,
-        rms_px=float(np.sqrt(np.mean(sq))),
+        init=first.init,
+        view_rms_px=first.view_rms_px,
+        rms_px=float(np.sqrt(np.mean(all_sq))),
         sigma_px=float(np.sqrt(sol.sigma2)) * options.sigma_px,
-        num_residuals=int(res.size),
+        num_residuals=2 * int(all_sq.size),
         iterations=sol.iterations,
         status=sol.status.name.lower(),
         sigma2=float(sol.sigma2),
         pose_model=bool(use_pose_model),
+        cameras=cameras,
+        outliers=outliers,
+        unobservable_fixed=unobservable_fixed,
+        warnings=warnings,
         solution=sol,
     )
 
@@ -461,10 +790,9 @@ def _robot_stats(sol, cell: CellSpec, meas: np.ndarray, est: np.ndarray) -> dict
     n = delta.shape[0]
     # Redundancy of the prior residuals r_i = S δ_i: 6 - tr(S Σ_i Sᵀ) per station, Σ_i the
     # (stated-noise) posterior covariance of station i's pose.
-    redundancy = 0.0
-    for i in range(n):
-        C = np.asarray(_covariance(sol, "T_base_flange", index=i, noise="stated"))
-        redundancy += 6.0 - float(np.trace(S @ C @ S.T))
+    C = np.asarray(_covariance(sol, "T_base_flange", noise="stated")).reshape(n, 6, n, 6)
+    C_ii = C[np.arange(n), :, np.arange(n), :]  # (n, 6, 6) per-station blocks
+    redundancy = float(6 * n - np.einsum("ab,nbc,ac->", S, C_ii, S))
     chi2 = float(np.sum((delta @ S.T) ** 2))
     factor = np.sqrt(chi2 / redundancy) if redundancy > 1e-9 else float("nan")
     prior_t = np.asarray(cell.robot.pose_noise_translation_m, np.float64)

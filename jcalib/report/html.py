@@ -99,15 +99,13 @@ def _vec(v, fmt: str) -> str:
 # ------------------------------------------------------------------------------ sections
 
 
-def _warnings_section(stats: Mapping[str, Any]) -> str:
-    warnings = stats.get("warnings") or []
-    status = stats.get("status")
-    items = [f"<li>{_e(w)}</li>" for w in warnings]
-    if status is not None and str(status) != "converged":
-        items.insert(0, f"<li>solver status: <b>{_e(status)}</b> (not converged)</li>")
-    if not items:
+def _warnings_section(warnings: list) -> str:
+    """Warnings, most severe first (:func:`jcalib.report.analysis.analysis_warnings`)."""
+    if not warnings:
         return '<div class="ok">No warnings.</div>'
-    return f'<div class="warn" id="warnings"><h2>Warnings</h2><ul>{"".join(items)}</ul></div>'
+    items = "".join(f"<li>{_e(w.message)}</li>" for w in warnings)
+    return (f'<div class="warn" id="warnings"><h2>Warnings</h2><p class="note">Most severe first.</p>'
+            f"<ol>{items}</ol></div>")
 
 
 def _intrinsics_section(result: ResultFile) -> str:
@@ -232,6 +230,10 @@ def _uncertainty_section(result: ResultFile) -> str:
         if cam.covariance is None:
             out.append(f"<p><code>{_e(name)}</code>: no intrinsics covariance in the result; no map.</p>")
             continue
+        if not np.any(np.diag(np.asarray(cam.covariance)) > 0.0):
+            out.append(f"<p><code>{_e(name)}</code>: intrinsics held fixed (known): they add no projection "
+                       "uncertainty.</p>")
+            continue
         png, summary = plots.projection_sigma_png(name, cam)
         out.append(_figure(
             png, f"projection uncertainty of {name}",
@@ -269,11 +271,9 @@ def _poses_from(result: Any, file: ResultFile) -> dict[str, dict[str, np.ndarray
 
 def _project(cam, p_cam: np.ndarray) -> np.ndarray:
     """Pixels ``(n, 2)`` of camera-frame points ``(n, 3)`` (m) with the result's model."""
-    import jax.numpy as jnp
+    from jcalib.report.analysis import _project as project
 
-    from jcalib.report.plots import _camera_model
-
-    return np.asarray(_camera_model(cam).project(jnp.asarray(p_cam)))
+    return project(cam, p_cam)
 
 
 def _residual_section(result: ResultFile, observations, poses) -> str:
@@ -330,6 +330,154 @@ def _residual_section(result: ResultFile, observations, poses) -> str:
     return "".join(out)
 
 
+# ------------------------------------------------------------------------------ analysis sections
+
+_INCLUDES = (
+    '<p class="note"><b>Includes</b>: the sampling noise of the observations (pixel noise; robot '
+    "pose noise as stated when the robot pose model was on) propagated to first order, scaled by the "
+    "a-posteriori noise level when the solver did so. <b>Excludes</b>: model error (a too-simple lens "
+    "model, unmodelled robot error), a wrong local minimum, nonlinearity beyond first order.</p>"
+)
+
+
+def _task_space_section(file: ResultFile) -> str:
+    from jcalib.report import analysis
+
+    rows = []
+    cameras = set(file.cameras)
+    for name, tr in file.transforms.items():
+        ts = analysis.transform_sigma(tr)
+        if ts is None:
+            continue
+        child = name.split("_", 2)[-1] if name.count("_") >= 2 else name
+        what = ("hand-eye" if child in cameras and name.startswith(("T_flange_", "T_base_")) else
+                "TCP" if name.startswith("T_flange_") and child not in cameras else "pose")
+        rows.append([f"<code>{_e(name)}</code>", _e(what), _vec(ts["rotation_deg"], ".4f"),
+                     _fmt(ts["rotation_total_deg"], 3), _vec(ts["translation_mm"], ".3f"),
+                     _fmt(ts["translation_total_mm"], 3)])
+    if not rows:
+        return ""
+    return ("<h3>Transforms (hand-eye, TCP, poses)</h3>"
+            + _table(["transform", "kind", "σ rotation x y z [deg]", "total [deg]", "σ translation x y z [mm]",
+                      "total [mm]"], rows, {2, 3, 4, 5})
+            + '<p class="note">Per axis of the right-perturbation tangent, in the child frame; total = '
+            "sqrt of the trace of the 3x3 block.</p>")
+
+
+def _correlation_section(file: ResultFile, models: dict) -> str:
+    from jcalib.report import analysis, plots
+
+    sources = []
+    joint = analysis.joint_covariance(file)
+    if joint is not None:
+        sources.append(("joint covariance of the result", [u.label for u in joint[0]], joint[1]))
+    else:
+        for name, m in models.items():
+            sources.append((name, [u.label for u in m.unknowns], m.covariance()))
+        if not models:
+            for name, cam in file.cameras.items():
+                if cam.covariance is not None:
+                    free = [i for i, n in enumerate(cam.param_names) if cam.std.get(n, 1.0) != 0.0]
+                    sources.append((name, [f"{name} {cam.param_names[i]}" for i in free],
+                                    np.asarray(cam.covariance)[np.ix_(free, free)]))
+    out = []
+    for title, labels, C in sources:
+        rho, pairs = analysis.correlations(C, labels, top=8, minimum=0.5)
+        out.append(_figure(plots.correlation_png(labels, rho, f"correlations: {title}"),
+                           f"correlation matrix {title}",
+                           "Correlation between the unknowns (−1 blue … +1 red). Strongly correlated "
+                           "unknowns trade off against each other: the data fix their combination, not each."))
+        if pairs:
+            out.append(_table(["unknown", "unknown", "correlation"],
+                              [[_e(a), _e(b), f"{r:+.3f}"] for a, b, r in pairs], {2}))
+    return "".join(out)
+
+
+def _weak_section(models: dict, tolerances) -> str:
+    from jcalib.report import analysis
+
+    out = []
+    for name, m in models.items():
+        dirs = analysis.weak_directions(m, 3, tolerances)
+        rows = [[str(k + 1), _fmt(d.ratio, 3), _e(d.describe())] for k, d in enumerate(dirs)]
+        out.append(f"<h3><code>{_e(name)}</code></h3>" + _table(["#", "σ / tolerance", "direction (weights)"], rows, {1}))
+    if out:
+        tol = {**analysis.DEFAULT_TOLERANCES, **(tolerances or {})}
+        out.insert(0, '<p class="note">Eigen-directions of the covariance with every unknown divided by '
+                   f"its tolerance (transforms {tol['rotation_deg']:g}° and {tol['translation_mm']:g} mm; an "
+                   f"intrinsic: the change that moves some image point by {tol['edge_px']:g} px). The first "
+                   "is the combination the data determine worst; a ratio above 1 is worse than the tolerance.</p>")
+    return "".join(out)
+
+
+def _help_section(models: dict, tolerances) -> str:
+    from jcalib.report import analysis
+
+    out = []
+    for name, m in models.items():
+        sigma = m.sigma()
+        ratio = sigma / analysis.unknown_tolerances(m, tolerances)
+        order = [i for i in np.argsort(-ratio)][:3]
+        labels = [m.unknowns[i].label for i in order]
+        units = [m.unknowns[i].unit for i in order]
+        sugg = analysis.what_would_help(m, labels)
+        rows = [[_e(s.description)] + [
+            f"{s.sigma_after[lab]:.3g} ({100 * (1 - s.sigma_after[lab] / s.sigma_before[lab]):.0f} % less)"
+            for lab in labels] for s in sugg]
+        head = ["one more station"] + [f"σ {lab} [{u}] now {sigma[i]:.3g}" for lab, u, i in zip(labels, units, order)]
+        out.append(f"<h3><code>{_e(name)}</code></h3>" + _table(head, rows, set(range(1, len(head)))))
+    if out:
+        out.insert(0, '<p class="note">Predicted σ of the worst-determined unknowns (largest σ / tolerance) '
+                   "if one more station of each kind were added: its Jacobian at the current estimate adds "
+                   "its information (its own pose eliminated), best kind first.</p>")
+    return "".join(out)
+
+
+def _diagnostics_table(diags: dict) -> str:
+    rows = []
+    for name, d in diags.items():
+        worst = max(d.view_rms_px.items(), key=lambda kv: kv[1]) if d.view_rms_px else ("–", 0.0)
+        rows.append([f"<code>{_e(name)}</code>", _fmt(d.rms_px, 3), f"{_e(worst[0])}: {worst[1]:.3g}",
+                     _e(len(d.outliers)), f"{d.radial.correlation:+.3f}", f"{d.radial.p_value:.2g}",
+                     _fmt(d.radial.amplitude_px, 3), "yes" if d.radial.flagged else "no"])
+    if not rows:
+        return ""
+    return (_table(["camera", "RMS [px]", "worst view RMS [px]", "outliers (> 5σ̂)", "corr(radial, r)",
+                    "radial trend p", "trend amplitude [px]", "model too simple?"], rows, {1, 3, 4, 5, 6})
+            + '<p class="note">Radial test: a cubic in the radius fitted to the radial residuals; p is the '
+            "F-test p-value against no trend. A significant trend larger than half the noise hints at a "
+            "too-simple lens model.</p>")
+
+
+def _cross_validation_section(cell, observations, options) -> str:
+    from jcalib.errors import BadInputError, NotObservableError
+    from jcalib.report import analysis, plots
+
+    try:
+        cv = analysis.cross_validate(cell, observations, options)
+    except (BadInputError, NotObservableError) as err:
+        return f'<p class="note">Cross-validation not possible: {_e(err)}</p>'
+    out = [(f'<p class="note">Calibrated separately on the even ({len(cv.stations[0])}) and odd '
+           f"({len(cv.stations[1])}) stations. Each pixel's ray from half A is projected by half B after the "
+           "best-fit common rotation (a camera-frame rotation is not a lens difference). A difference much "
+           "larger than expected means the σ are too small (model error); comparable means they are honest.</p>")]
+    for name, (u, v, diff, expected) in cv.maps.items():
+        cam = cv.results[0].file.cameras[name]
+        png = plots.cross_validation_png(name, u, v, diff, expected, cam.image_size)
+        ratio = float(np.nanmedian(diff) / np.nanmedian(expected)) if np.any(np.isfinite(expected)) else float("nan")
+        out.append(_figure(png, f"cross-validation of {name}",
+                           f"<code>{_e(name)}</code>: difference median {np.nanmedian(diff):.3g} px, max "
+                           f"{np.nanmax(diff):.3g} px; expected median {np.nanmedian(expected):.3g} px "
+                           f"(ratio {ratio:.2f})."))
+    rows = [[f"<code>{_e(n)}</code>", _fmt(t["rotation_deg"], 3), _fmt(t.get("rotation_sigma_deg", float("nan")), 3),
+             _fmt(t["translation_mm"], 3), _fmt(t.get("translation_sigma_mm", float("nan")), 3)]
+            for n, t in cv.transforms.items()]
+    if rows:
+        out.append(_table(["transform", "Δ rotation [deg]", "expected σ [deg]", "Δ translation [mm]",
+                           "expected σ [mm]"], rows, {1, 2, 3, 4}))
+    return "".join(out)
+
+
 # ------------------------------------------------------------------------------ public API
 
 
@@ -337,18 +485,27 @@ def render_report(
     result: Any,
     observations: str | os.PathLike | Mapping | Any | None = None,
     title: str | None = None,
+    cell: str | os.PathLike | Mapping | Any | None = None,
+    tolerances: Mapping[str, float] | None = None,
+    options: Any = None,
 ) -> str:
     """The HTML text of the one-page report of a result.
 
     Args:
-        result: a :class:`jcalib.Result` (its ``details`` give the per-view poses for the
-            residual plots), a :class:`~jcalib.io.result.ResultFile`, or a path to ``result.json``.
+        result: a :class:`jcalib.Result` (its ``details`` give the per-view poses, estimated flange
+            poses and rejected corners), a :class:`~jcalib.io.result.ResultFile`, or a path to
+            ``result.json``.
         observations: the ``jcalib.observations/1`` data the result was computed from (path, dict
-            or :class:`~jcalib.io.observations.Observations`), or None: adds the residual vectors
-            over the image and the radial residual plot when the result has per-view poses
-            (``details.T_cam_target`` or the file key :data:`POSES_KEY`), else the detected-corner
-            coverage of each image.
+            or :class:`~jcalib.io.observations.Observations`), or None. With them the report adds the
+            weakest directions, "what would help", correlations across all shared unknowns, residual
+            vectors, residual diagnostics (per-view RMS, outliers, radial test) when the result has
+            per-view poses (``details.T_cam_target``, the file key :data:`POSES_KEY`, or hand-eye
+            transforms), else the detected-corner coverage of each image.
         title: page title (default: "jcalib calibration report").
+        cell: the cell spec (path, dict or ``CellSpec``): with ``observations``, adds the
+            cross-validation (calibrations on the two halves of the stations; two more solves).
+        tolerances: overrides of :data:`jcalib.report.analysis.DEFAULT_TOLERANCES`.
+        options: calibration options for the cross-validation solves (default: the defaults).
 
     Returns:
         The HTML document (UTF-8 text, self-contained).
@@ -356,12 +513,21 @@ def render_report(
     Raises:
         BadInputError: unreadable or invalid result or observations.
     """
+    from jcalib.report import analysis, plots
+
     source = None
     if isinstance(result, (str, os.PathLike)):
         source = str(result)
     file = result.file if hasattr(result, "file") and isinstance(result.file, ResultFile) else None
     file = file or load_result(result)
-    from jcalib.report import plots
+    models, diags = {}, {}
+    if observations is not None:
+        from jcalib.io.observations import load_observations
+
+        observations = load_observations(observations)
+        models = analysis.linear_models(result, observations)
+        diags = analysis.residual_diagnostics(result, observations)
+    warnings = analysis.analysis_warnings(file, models, diags, tolerances)
 
     stats = file.stats
     title = title or "jcalib calibration report"
@@ -372,7 +538,7 @@ def render_report(
         f"{len(file.points)} point(s). Uncertainties (σ) are sampling noise of the observations "
         "propagated to the estimate, not model error.</p>"
         ),
-        _warnings_section(stats),
+        _warnings_section(warnings),
         "<h2>Summary</h2>",
         _stats_section(stats),
         _intrinsics_section(file),
@@ -387,9 +553,18 @@ def render_report(
                     "(<code>camera/station</code>). A view far above the rest is a bad detection "
                     "or a wrong pose start."),
         ]
-    parts += ["<h2>Projection uncertainty</h2>", _uncertainty_section(file)]
+    parts += ["<h2>Task-space uncertainty</h2>", _INCLUDES, _task_space_section(file),
+              "<h3>Projection uncertainty</h3>", _uncertainty_section(file)]
+    parts += ["<h2>Correlations</h2>", _correlation_section(file, models)]
+    if models:
+        parts += ["<h2>Weakest directions</h2>", _weak_section(models, tolerances),
+                  "<h2>What would help</h2>", _help_section(models, tolerances)]
     if observations is not None:
-        parts += ["<h2>Residuals</h2>", _residual_section(file, observations, _poses_from(result, file))]
+        parts += ["<h2>Residuals</h2>", _diagnostics_table(diags),
+                  _residual_section(file, observations,
+                                    _poses_from(result, file) or analysis._camera_poses(result, file, observations))]
+        if cell is not None:
+            parts += ["<h2>Cross-validation</h2>", _cross_validation_section(cell, observations, options)]
     parts += ["<h2>Provenance</h2>", _provenance_section(file, source)]
     body = "\n".join(parts)
     return (
@@ -405,10 +580,13 @@ def write_report(
     out: str | os.PathLike,
     observations: str | os.PathLike | Mapping | Any | None = None,
     title: str | None = None,
+    cell: str | os.PathLike | Mapping | Any | None = None,
+    tolerances: Mapping[str, float] | None = None,
+    options: Any = None,
 ) -> Path:
     """Write :func:`render_report` to ``out`` atomically; returns the path.
 
     Raises:
         BadInputError: unreadable or invalid result or observations.
     """
-    return write_text_atomic(out, render_report(result, observations, title))
+    return write_text_atomic(out, render_report(result, observations, title, cell, tolerances, options))

@@ -1,13 +1,11 @@
 """Figures of the HTML report, each returned as PNG bytes (matplotlib, Agg backend, no display).
 
-The one computation here is :func:`projection_sigma_map`: how far the projection of a point moves
-(1 σ, pixels) because the intrinsics are uncertain, by linear propagation of the intrinsics
-covariance with a JAX Jacobian of the camera model's ``project``.
+The numbers come from :mod:`jcalib.report.analysis` (e.g. :func:`projection_sigma_map`, re-exported
+here); this module only draws.
 """
 
 from __future__ import annotations
 
-import functools
 import io
 from collections.abc import Mapping
 
@@ -16,7 +14,9 @@ import numpy as np
 from jcalib.io.result import CameraResult
 
 __all__ = [
+    "correlation_png",
     "coverage_png",
+    "cross_validation_png",
     "projection_sigma_map",
     "projection_sigma_png",
     "radial_residuals_png",
@@ -44,12 +44,6 @@ def _png(fig) -> bytes:
     fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return buf.getvalue()
-
-
-def _camera_model(cam: CameraResult):
-    from jcalib.geometry.cameras import camera_from_opencv
-
-    return camera_from_opencv(cam.K, cam.dist, cam.image_size, fisheye=cam.model == "fisheye")
 
 
 # ------------------------------------------------------------------------------ per-view RMS
@@ -87,76 +81,8 @@ def view_rms_png(view_rms_px: Mapping[str, float], sigma_px: float | None = None
 
 # ------------------------------------------------------------------------------ uncertainty map
 
-
-@functools.cache
-def _sigma_fn(model_cls: type, image_size: tuple[int, int], skew: bool):
-    """Jitted ``(params (p,), p_cam (n, 3), cov (p, p)) -> (n, 2, 2)`` pixel covariances."""
-    import jax
-
-    def one(params, p_cam, cov):
-        def proj(q):
-            return model_cls.from_params(image_size, q, skew=skew).project(p_cam)
-
-        J = jax.jacfwd(proj)(params)  # (2, p)
-        return J @ cov @ J.T
-
-    @jax.jit
-    def many(params, p_cam, cov):
-        return jax.vmap(one, in_axes=(None, 0, None))(params, p_cam, cov)
-
-    return many
-
-
-def projection_sigma_map(
-    cam: CameraResult, grid: tuple[int, int] = (33, 25)
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """σ (pixels) of the projection of points across the image due to the intrinsics covariance.
-
-    For a grid of pixels, the estimated model unprojects each pixel to a point ``p_cam`` on its ray
-    (held fixed); the Jacobian ``J (2, p)`` of ``project(p_cam)`` w.r.t. the intrinsic vector
-    (order :attr:`CameraResult.param_names`, from JAX) propagates the covariance ``C``:
-    ``Σ = J C Jᵀ (2, 2)``. The value is the worst-direction σ, ``sqrt(λ_max(Σ))`` (mrcal's
-    "worstdirection-stdev").
-
-    Includes: the intrinsics uncertainty caused by pixel noise (as the solver reported it).
-    Excludes: model error (a too-simple lens model) and the uncertainty of the camera and target
-    poses. The lens models are central, so the value does not depend on the depth of the point.
-
-    Args:
-        cam: a camera with a ``covariance``.
-        grid: ``(nx, ny)`` grid points across the image.
-
-    Returns:
-        ``(u, v, sigma)``: pixel coordinates ``(ny, nx)`` each (OpenCV convention) and σ ``(ny, nx)``
-        in pixels; NaN where the pixel has no valid ray (outside a fisheye's valid range).
-    """
-    import jax.numpy as jnp
-
-    if cam.covariance is None:
-        from jcalib.errors import BadInputError
-
-        raise BadInputError(
-            f"cam: the camera ({cam.model}) has no intrinsics covariance; the projection "
-            "uncertainty needs one"
-        )
-    width, height = cam.image_size
-    nx, ny = grid
-    u, v = np.meshgrid(np.linspace(0.0, width - 1.0, nx), np.linspace(0.0, height - 1.0, ny))
-    pixels = np.stack([u.ravel(), v.ravel()], axis=-1)
-    model = _camera_model(cam)
-    rays, valid = model.unproject_valid(jnp.asarray(pixels))
-    rays = np.asarray(rays)
-    valid = np.asarray(valid) & (rays[:, 2] > 1e-6)
-    # A point on each ray (1 m along it); central models make the result independent of this.
-    p_cam = rays
-    fn = _sigma_fn(type(model), tuple(model.image_size), bool(model.has_skew))
-    cov_px = np.asarray(
-        fn(jnp.asarray(cam.params), jnp.asarray(p_cam), jnp.asarray(cam.covariance))
-    )
-    eig = np.linalg.eigvalsh(0.5 * (cov_px + np.swapaxes(cov_px, -1, -2)))
-    sigma = np.sqrt(np.maximum(eig[:, -1], 0.0))
-    sigma = np.where(valid, sigma, np.nan)
-    return u, v, sigma.reshape(ny, nx)
+# The computation lives in :mod:`jcalib.report.analysis`; these names stay importable from here.
+from jcalib.report.analysis import _camera_model, _sigma_fn, projection_sigma_map  # noqa: F401
 
 
 def projection_sigma_png(name: str, cam: CameraResult) -> tuple[bytes, dict[str, float]]:
@@ -284,4 +210,60 @@ def coverage_png(name: str, image_size: tuple[int, int], pixels_per_view: list[n
         ax.scatter(pix[:, 0], pix[:, 1], s=4, color=cmap(i % 20))
     _frame(ax, image_size)
     ax.set_title(f"{name}: detected corners ({len(pixels_per_view)} views)", fontsize=10)
+    return _png(fig)
+
+
+# ------------------------------------------------------------------------------ correlations
+
+
+def correlation_png(labels: list[str], rho: np.ndarray, title: str) -> bytes:
+    """Heat map of a correlation matrix ``rho (n, n)`` with ``labels`` on both axes (blue −1 … red +1)."""
+    plt = _pyplot()
+    n = len(labels)
+    side = min(FIG_WIDTH_IN * 0.7, 2.2 + 0.32 * n)
+    fig, ax = plt.subplots(figsize=(side + 1.2, side))
+    im = ax.imshow(rho, cmap="RdBu_r", vmin=-1.0, vmax=1.0)
+    ax.set_xticks(np.arange(n))
+    ax.set_yticks(np.arange(n))
+    ax.set_xticklabels(labels, rotation=70, ha="right", fontsize=7)
+    ax.set_yticklabels(labels, fontsize=7)
+    if n <= 16:
+        for i in range(n):
+            for j in range(n):
+                if i != j and abs(rho[i, j]) >= 0.5:
+                    ax.text(j, i, f"{rho[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                            color="white" if abs(rho[i, j]) > 0.8 else "black")
+    fig.colorbar(im, ax=ax, label="correlation", fraction=0.046, pad=0.04)
+    ax.set_title(title, fontsize=10)
+    return _png(fig)
+
+
+# ------------------------------------------------------------------------------ cross-validation
+
+
+def cross_validation_png(name: str, u: np.ndarray, v: np.ndarray, diff: np.ndarray, expected: np.ndarray,
+                         image_size: tuple[int, int]) -> bytes:
+    """Two maps side by side: the two halves' projection difference and its expected size (px)."""
+    plt = _pyplot()
+    from matplotlib.colors import BoundaryNorm
+
+    width, height = image_size
+    fig, axes = plt.subplots(1, 2, figsize=(FIG_WIDTH_IN, FIG_WIDTH_IN * 0.5 * height / width + 0.9))
+    finite = np.concatenate([diff[np.isfinite(diff)], expected[np.isfinite(expected)]])
+    lo = max(float(finite.min()) if finite.size else 1e-3, 1e-3)
+    hi = max(float(finite.max()) if finite.size else 1.0, lo * 1.01)
+    levels = np.geomspace(lo, hi, 11)
+    norm = BoundaryNorm(levels, ncolors=256)
+    for ax, data, title in ((axes[0], diff, "difference between the halves"),
+                            (axes[1], expected, "expected: sqrt(σ_A² + σ_B²)")):
+        cs = ax.contourf(u, v, np.clip(data, lo, hi), levels=levels, cmap="magma", norm=norm)
+        ax.set_xlim(-0.5, width - 0.5)
+        ax.set_ylim(height - 0.5, -0.5)
+        ax.set_aspect("equal")
+        ax.set_xlabel("u [px]")
+        ax.set_title(f"{name}: {title}", fontsize=9)
+    axes[0].set_ylabel("v [px]")
+    cbar = fig.colorbar(cs, ax=list(axes), label="[px]", fraction=0.03)
+    cbar.set_ticks(levels[::2])
+    cbar.set_ticklabels([f"{x:.3g}" for x in levels[::2]])
     return _png(fig)

@@ -99,6 +99,9 @@ def retract_all(problem: Problem, values: dict, deltas: dict) -> dict:
     out = {}
     for v in problem.variables:
         x = values[v.name]
+        if v.constant:
+            out[v.name] = x
+            continue
         new = jax.vmap(v.manifold.retract)(x, deltas[v.name])
         normed = jax.vmap(v.manifold.normalize)(new)
         any_free = jnp.any(~v.fixed, axis=-1)
@@ -132,29 +135,45 @@ def _factor_parts(problem: Problem, f):
     return by_name, manifolds, dims
 
 
+def _active_args(problem: Problem, f) -> tuple[int, ...]:
+    """Positions of ``f``'s arguments that are not :attr:`Variable.constant` (differentiated)."""
+    by_name = {v.name: v for v in problem.variables}
+    return tuple(j for j, a in enumerate(f.args) if not by_name[a].constant)
+
+
 def factor_linearization(problem: Problem, values: dict, f, free: dict):
     """Per-observation Gauss–Newton blocks of one factor group (IRLS-reweighted).
+
+    Derivatives are taken with respect to the non-constant arguments only (:func:`_active_args`).
 
     Returns:
         cost: scalar ``½ Σ ρ(s_k)``; H_obs ``(K, D, D)``; g_obs ``(K, D)``;
         r_w ``(K, m)`` whitened, reweighted residuals; J ``(K, m, D)`` reweighted Jacobian;
-        m_eff: number of residual components with nonzero weight. ``D`` = sum of argument dims.
+        m_eff: number of residual components with nonzero weight. ``D`` = sum of the active
+        arguments' tangent dims. For a chunked group (``f.chunk``), ``H_obs`` and ``g_obs`` are
+        per run ``(K / chunk, D, D)``, ``(K / chunk, D)``, summed by one batched product.
     """
     by_name, manifolds, dims = _factor_parts(problem, f)
+    active = _active_args(problem, f)
     r_obs = _obs_residual(f, manifolds, first_order=True)
     rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
-    zeros = tuple(jnp.zeros((f.num_obs, d), jnp.float64) for d in dims)
+    zeros = tuple(jnp.zeros((f.num_obs, dims[j]), jnp.float64) for j in active)
+    n_args = len(f.args)
 
     def value_and_jac(rows_k, deltas_k, obs_k, w_k):
         def g(*ds):
-            r = r_obs(rows_k, ds, obs_k, w_k)
+            full = [jnp.zeros((dims[j],), jnp.float64) for j in range(n_args)]
+            for j, d in zip(active, ds):
+                full[j] = d
+            r = r_obs(rows_k, full, obs_k, w_k)
             return r, r
 
         # reverse mode when the residual has fewer components than the tangent (e.g. 2 pixels vs
-        # 21 tangent directions in camera calibration): m backward passes instead of D forward ones
+        # 15 tangent directions in camera calibration): m backward passes instead of D forward ones
         m = math.prod(jax.eval_shape(g, *deltas_k)[0].shape)
-        jac_fn = jax.jacrev if m < sum(dims) else jax.jacfwd
-        jac, r = jac_fn(g, argnums=tuple(range(len(dims))), has_aux=True)(*deltas_k)
+        D = sum(dims[j] for j in active)
+        jac_fn = jax.jacrev if m < D else jax.jacfwd
+        jac, r = jac_fn(g, argnums=tuple(range(len(active))), has_aux=True)(*deltas_k)
         return r, jnp.concatenate(jac, axis=-1)
 
     r, J = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
@@ -162,10 +181,17 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
     rho, rho1 = f.loss.rho(s)
     sw = jnp.sqrt(rho1)
     r = r * sw[:, None]
-    mask = jnp.concatenate([free[a][i] for a, i in zip(f.args, f.indices)], axis=-1)
+    mask = jnp.concatenate([free[f.args[j]][f.indices[j]] for j in active], axis=-1)
     J = J * (sw[:, None] * mask)[:, None, :]
-    H_obs = jnp.einsum("kmi,kmj->kij", J, J)
-    g_obs = jnp.einsum("kmi,km->ki", J, r)
+    if f.chunk is not None:
+        K, m_, D = J.shape
+        Jc = J.reshape(K // f.chunk, f.chunk * m_, D)
+        rc = r.reshape(K // f.chunk, f.chunk * m_)
+        H_obs = jnp.einsum("cri,crj->cij", Jc, Jc)
+        g_obs = jnp.einsum("cri,cr->ci", Jc, rc)
+    else:
+        H_obs = jnp.einsum("kmi,kmj->kij", J, J)
+        g_obs = jnp.einsum("kmi,km->ki", J, r)
     m_eff = jnp.sum(jnp.where(f.sqrt_weight > 0.0, 1, 0)) * r.shape[-1]
     return 0.5 * jnp.sum(rho), H_obs, g_obs, r, J, m_eff
 
@@ -225,10 +251,11 @@ def _pair_blocks(blocks, idx_a, num_a: int, idx_b, num_b: int):
     return flat.reshape((num_a, num_b) + blocks.shape[1:])
 
 
-def _factor_slots(layout: Layout, f):
-    """Per argument ``(kind, offset or -1, elim slot or -1, num, d, positions in the factor tangent)``."""
+def _factor_slots(layout: Layout, f, active=None):
+    """Per active argument ``(kind, offset or -1, elim slot or -1, num, d, positions in the factor tangent)``."""
     out, pos = [], 0
-    for a in f.args:
+    args = f.args if active is None else tuple(f.args[j] for j in active)
+    for a in args:
         k = layout.kind(a)
         d = layout.dims[k]
         out.append((k, layout.offsets[k], layout.elim_slot[k], layout.nums[k], d, slice(pos, pos + d)))
@@ -236,7 +263,7 @@ def _factor_slots(layout: Layout, f):
     return out
 
 
-def scatter_factor(system: System, layout: Layout, f, H_obs, g_obs) -> System:
+def scatter_factor(system: System, layout: Layout, f, H_obs, g_obs, active=None, chunked: bool = False) -> System:
     """Add one factor group's per-observation blocks into the block system.
 
     When the argument entries have at most ``K`` combinations (e.g. camera calibration: one
@@ -245,18 +272,24 @@ def scatter_factor(system: System, layout: Layout, f, H_obs, g_obs) -> System:
     (argument pair) is summed with its own whole-block ``segment_sum``. Both avoid one scatter
     index per matrix element, which is what makes XLA's CPU scatter slow.
     """
-    slots = _factor_slots(layout, f)
+    active = tuple(range(len(f.args))) if active is None else tuple(active)
+    slots = _factor_slots(layout, f, active)
+    indices = tuple(f.indices[j] for j in active)
+    if chunked:  # one block per run: the run's first index
+        indices = tuple(i[:: f.chunk] for i in indices)
+    if not slots:
+        return system
     nums = tuple(s[3] for s in slots)
-    if math.prod(nums) <= max(f.num_obs, 1):
-        return _scatter_grouped(system, slots, f, H_obs, g_obs)
-    return _scatter_pairs(system, slots, f, H_obs, g_obs)
+    if math.prod(nums) <= max(H_obs.shape[0], 1):
+        return _scatter_grouped(system, slots, indices, H_obs, g_obs)
+    return _scatter_pairs(system, slots, indices, H_obs, g_obs)
 
 
-def _scatter_grouped(system: System, slots, f, H_obs, g_obs) -> System:
+def _scatter_grouped(system: System, slots, indices, H_obs, g_obs) -> System:
     nums = tuple(s[3] for s in slots)
     n_args = len(slots)
-    key = jnp.zeros_like(f.indices[0])
-    for idx, num in zip(f.indices, nums):
+    key = jnp.zeros_like(indices[0])
+    for idx, num in zip(indices, nums):
         key = key * num + idx
     P = math.prod(nums)
     D = H_obs.shape[-1]
@@ -295,20 +328,9 @@ def _scatter_grouped(system: System, slots, f, H_obs, g_obs) -> System:
     return System(H_ss, g_s, tuple(V), tuple(W), tuple(g_e))
 
 
-def _segment_blocks(blocks, idx, num: int):
-    """``out[n] = Σ_{k: idx[k] = n} blocks[k]`` for ``blocks (K, ...)``, ``idx (K,)`` -> ``(num, ...)``."""
-    return jax.ops.segment_sum(blocks, idx, num_segments=num)
-
-
-def _pair_blocks(blocks, idx_a, num_a: int, idx_b, num_b: int):
-    """``out[i, j] = Σ_{k: idx_a[k] = i, idx_b[k] = j} blocks[k]`` -> ``(num_a, num_b, ...)``."""
-    flat = _segment_blocks(blocks, idx_a * num_b + idx_b, num_a * num_b)
-    return flat.reshape((num_a, num_b) + blocks.shape[1:])
-
-
-def _scatter_pairs(system: System, slots, f, H_obs, g_obs) -> System:
+def _scatter_pairs(system: System, slots, indices, H_obs, g_obs) -> System:
     shared, elim = [], None
-    for (_, off, slot, num, d, pos), idx in zip(slots, f.indices):
+    for (_, off, slot, num, d, pos), idx in zip(slots, indices):
         if slot >= 0:
             elim = (slot, num, d, idx, pos)
         else:
@@ -352,7 +374,7 @@ def linearize(problem: Problem, layout: Layout, values: dict, free: dict):
     m_eff = jnp.zeros((), jnp.int32)
     for f in problem.factors:
         c, H_obs, g_obs, _, _, m = factor_linearization(problem, values, f, free)
-        system = scatter_factor(system, layout, f, H_obs, g_obs)
+        system = scatter_factor(system, layout, f, H_obs, g_obs, _active_args(problem, f), f.chunk is not None)
         cost = cost + c
         m_eff = m_eff + m.astype(jnp.int32)
     return cost, add_fixed_identity(system, layout, free), m_eff

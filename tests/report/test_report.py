@@ -86,8 +86,10 @@ def test_page_is_self_contained_with_tables_and_plots(page, result):
     assert result.file.provenance.input_hash in page
     assert f"jcalib {jcalib.__version__}" in page
     images = _images(page)
-    # per-view RMS, uncertainty map, residual vectors, radial residuals
-    assert len(images) == 4 and page.count("<img") == 4
+    # per-view RMS, uncertainty map, correlation heat map, residual vectors, radial residuals
+    assert len(images) == 5 and page.count("<img") == 5
+    for section in ("Task-space uncertainty", "Correlations", "Weakest directions", "What would help"):
+        assert f"<h2>{section}</h2>" in page
     # no figure wider than the page's 1100 px column (less its 2 x 24 px padding): no sideways scroll
     assert all(im is not None and im.shape[1] <= 1052 for im in images), [im.shape for im in images]
     assert "max-width:1100px" in page
@@ -220,7 +222,12 @@ def _console_errors(log: str) -> list[str]:
 
 
 def test_chromium_renders_report_without_console_errors(tmp_path, result, observations):
-    path = write_report(result, tmp_path / "report.html", observations=observations)
+    # the fullest page: with the cell, the cross-validation section and its map are added
+    path = write_report(result, tmp_path / "report.html", observations=observations, cell=CELL)
+    html = path.read_text()
+    _self_contained(html)
+    assert "<h2>Cross-validation</h2>" in html and 'alt="cross-validation of cam0"' in html
+    assert all(im.shape[1] <= 1052 for im in _images(html))  # no figure wider than the column
     png, log = _chromium(path, tmp_path)
     assert _console_errors(log) == []
     shot = cv2.imread(str(png), cv2.IMREAD_COLOR)

@@ -1,0 +1,789 @@
+"""The whole cell as one joint least-squares problem: any mix of flange and fixed cameras, fixed and
+flange targets, tools seen by fixed cameras, one robot with a pose-error model.
+
+Unknowns (names as in the result file):
+
+- ``intrinsics:<cam>``: every camera's intrinsic vector (order ``model.param_names``; ``fix`` in
+  the cell holds entries, ``aspect`` ties ``fy`` to ``fx``);
+- ``T_flange_<cam>`` (camera ``mount: flange``) or ``T_base_<cam>`` (``mount: base``);
+- ``T_base_<target>`` or ``T_flange_<target>``;
+- ``T_flange_<tool>``: the TCP of each tool; only its translation (the tip in the flange frame) is
+  observable from tip pixels, its rotation stays at identity (fixed, zero covariance);
+- ``T_base_flange``: the true flange pose of every station, ``T_meas_i · Exp(δ_i)`` with the robot
+  pose-noise prior of the cell (``robot.pose_noise``), eliminated by Schur complement; exact
+  (fixed) without ``pose_noise``.
+
+Factors: every target corner seen by every camera,
+
+    project_c( inv(T_base_cam_i) · T_base_target_i · p )  −  u          (pixels, σ = ``sigma_px``)
+
+with ``T_base_cam_i = T_base_flange_i · T_flange_cam`` for a flange camera (``T_base_cam`` for a
+fixed one) and likewise for the target; and every tool-tip pixel (observations
+``{"camera": c, "tool": t, "pixel": [u, v]}``, camera fixed on the base),
+
+    project_c( inv(T_base_cam) · T_base_flange_i · p_flange_tip )  −  u   (pixels, σ = ``tip_sigma_px``).
+
+Everything is solved jointly by the engine (:func:`jcalib.solve.solve`), with covariances.
+
+Start (closed forms, order chosen from the spec): intrinsics (the cell's ``intrinsics``, a prior
+result's, else Zhang on the camera's target views), then the poses: known poses from the cell or
+the prior, poses that follow from a known one through a camera–target pair (static pairs: one
+relative pose; moving pairs: averaged per station), and a closed-form hand-eye solve
+(:func:`jcalib.init.handeye.solve_hand_eye`) for a moving pair whose two poses are both unknown;
+then each TCP from the viewing rays of its tip detections (linear least squares).
+
+Priors from a previous result (``prior=``): each named unknown gets a Gaussian prior with the old
+value as mean and the old covariance (pseudo-inverse square root: coordinates with zero variance
+get no prior). The old values are also the start.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry import lie
+from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
+from jcalib.init.handeye import HAND_EYE_METHODS, average_poses, solve_hand_eye
+from jcalib.io.cell import CellSpec
+from jcalib.io.observations import Observations
+from jcalib.problems.camera import (
+    MIN_POINTS_PER_VIEW,
+    _CameraData,
+    _initial_model,
+    _intrinsics_fixed_mask,
+    _reprojection_fn,
+    _se3_matrix,
+    _se3_params,
+)
+from jcalib.problems.tcp import _tip_fn
+from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, solve
+from jcalib.solve.covariance import covariance as _covariance
+
+__all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell"]
+
+
+@dataclass(frozen=True)
+class CellOptions:
+    """Options of :func:`calibrate_cell`.
+
+    Attributes:
+        sigma_px: stated corner noise (pixels); weighs pixels against the robot-pose prior.
+        tip_sigma_px: stated tool-tip detection noise (pixels).
+        noise: covariance scale: ``"a_posteriori"`` (σ̂² from the residuals, default) or ``"stated"``.
+        pose_model: per-station robot-pose corrections: ``None`` = on when the cell has
+            ``robot.pose_noise``; ``False`` = off (poses exact).
+        method: closed-form hand-eye start (a key of :data:`jcalib.init.handeye.HAND_EYE_METHODS`).
+        max_iterations: LM iteration limit.
+    """
+
+    sigma_px: float = 0.25
+    tip_sigma_px: float = 0.25
+    noise: str = "a_posteriori"
+    pose_model: bool | None = None
+    method: str = "park_martin"
+    max_iterations: int = 100
+
+    def __post_init__(self):
+        for name in ("sigma_px", "tip_sigma_px"):
+            if not getattr(self, name) > 0:
+                raise BadInputError(f"{name}: got {getattr(self, name)!r}, expected a positive number of pixels")
+        if self.noise not in ("a_posteriori", "stated"):
+            raise BadInputError(f"noise: got {self.noise!r}, expected 'a_posteriori' or 'stated'")
+        if self.pose_model not in (None, True, False):
+            raise BadInputError(f"pose_model: got {self.pose_model!r}, expected None, True or False")
+        if self.method not in HAND_EYE_METHODS:
+            raise BadInputError(f"method: got {self.method!r}, expected one of {sorted(HAND_EYE_METHODS)}")
+
+    @classmethod
+    def from_options(cls, options) -> CellOptions:
+        """Carry over ``sigma_px``, ``noise``, ``max_iterations`` (and ``pose_model``) from camera or
+        hand-eye options (the CLI parses one set of options for every cell)."""
+        if options is None:
+            return cls()
+        if isinstance(options, CellOptions):
+            return options
+        keep = {k: getattr(options, k) for k in ("sigma_px", "noise", "max_iterations", "pose_model")
+                if hasattr(options, k)}
+        if not keep:
+            raise BadInputError(f"options: got {type(options).__name__}, expected CellOptions for a whole-cell problem")
+        return cls(**keep)
+
+
+@dataclass
+class CellCalibration:
+    """The outcome of :func:`calibrate_cell` (see :class:`jcalib.Result` for the file form).
+
+    Attributes:
+        cameras: camera id -> calibrated model.
+        intrinsics_covariance: camera id -> ``(p, p)`` covariance of ``model.params`` (px², zero where fixed).
+        transforms: name (``T_flange_cam0``, ``T_base_cam1``, ``T_base_board``, ``T_flange_needle``)
+            -> ``(4, 4)``, m.
+        transform_covariance: name -> ``(6, 6)`` right-perturbation covariance (rx..tz; rad², m²).
+        start: name -> ``(4, 4)`` closed-form start of each transform (m).
+        start_method: name -> how it was started (``"cell"``, ``"prior"``, ``"hand_eye:<method>"``,
+            ``"from:<pair>"``, ``"tip_rays"``).
+        station_ids: the stations used, in file order.
+        T_base_flange_measured, T_base_flange: ``(N, 4, 4)`` measured / estimated flange poses, m.
+        rms_px: RMS of the target-corner residual coordinates (pixels). ``tip_rms_px``: of the tip pixels.
+        sigma_px: a-posteriori corner noise (``sqrt(σ̂²)·sigma_px``).
+        num_residuals, iterations, status, sigma2: solver facts.
+        pose_model: whether robot pose corrections were estimated.
+        priors: names of the unknowns that carried a prior.
+        solution: the :class:`jcalib.solve.Solution`.
+    """
+
+    cameras: dict[str, AbstractCameraModel]
+    intrinsics_covariance: dict[str, np.ndarray]
+    transforms: dict[str, np.ndarray]
+    transform_covariance: dict[str, np.ndarray]
+    start: dict[str, np.ndarray]
+    start_method: dict[str, str]
+    station_ids: list[str]
+    T_base_flange_measured: np.ndarray
+    T_base_flange: np.ndarray
+    rms_px: float
+    tip_rms_px: float
+    sigma_px: float
+    num_residuals: int
+    iterations: int
+    status: str
+    sigma2: float
+    pose_model: bool
+    priors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    solution: object = field(default=None, repr=False)
+
+
+def is_cell_problem(cell: CellSpec) -> bool:
+    """Whether :func:`calibrate_cell` handles ``cell``: a robot cell (cameras/targets on the base or
+    flange, or tools) without free-moving cameras or targets and without contact points."""
+    if cell.points:
+        return False
+    mounts = [c.mount for c in cell.cameras.values()] + [t.mount for t in cell.targets.values()]
+    if "free" in mounts:
+        return False
+    return bool(cell.tools) or any(m != "free" for m in mounts)
+
+
+# ------------------------------------------------------------------------------------ residuals
+
+
+@functools.cache
+def _target_fn(model_cls: type, image_size: tuple[int, int], skew: bool, cam_mount: str, target_mount: str):
+    """``(intrinsics, T_<mount>_cam, T_<mount>_target, T_base_flange, obs) -> (2,)`` px residual,
+    ``obs = (p_target (3,), pixel (2,), aspect (2,))``. One function per configuration."""
+    project = _reprojection_fn(model_cls, image_size, skew)
+
+    def fn(intrinsics, X, Y, T_base_flange, obs):
+        T_base_cam = lie.se3_compose(T_base_flange, X) if cam_mount == "flange" else X
+        T_base_target = lie.se3_compose(T_base_flange, Y) if target_mount == "flange" else Y
+        return project(intrinsics, lie.se3_inverse(T_base_cam), T_base_target, obs)
+
+    return fn
+
+
+@functools.cache
+def _residuals_jit(fn):
+    return jax.jit(jax.vmap(fn))
+
+
+# ------------------------------------------------------------------------------------ data
+
+
+@dataclass
+class _Pair:
+    camera: str
+    target: str
+    views: list[int]  # station index per view
+    points: list[np.ndarray]  # (n, 3) per view
+    pixels: list[np.ndarray]  # (n, 2) per view
+    point_index: list[np.ndarray]
+
+
+@dataclass
+class _Tips:
+    camera: str
+    tool: str
+    stations: list[int]
+    pixels: list[np.ndarray]  # (2,) each
+
+
+def _gather(cell: CellSpec, obs: Observations):
+    for c in cell.cameras.values():
+        if c.name not in obs.cameras:
+            raise BadInputError(f"{obs.source}: camera '{c.name}' of the cell has no image size in the observations")
+    pairs: dict[tuple[str, str], _Pair] = {}
+    tips: dict[tuple[str, str], _Tips] = {}
+    ids, poses = [], []
+    for station in obs.stations:
+        used = False
+        k = len(ids)
+        for det in station.detections:
+            if det.camera not in cell.cameras:
+                continue
+            if det.tool is not None:
+                if det.tool not in cell.tools:
+                    continue
+                if cell.cameras[det.camera].mount != "base":
+                    raise BadInputError(
+                        f"{obs.source}: station '{station.id}': tool '{det.tool}' seen by camera '{det.camera}' "
+                        f"(mount {cell.cameras[det.camera].mount}); tool tips are used from fixed cameras (mount: base)"
+                    )
+                t = tips.setdefault((det.camera, det.tool), _Tips(det.camera, det.tool, [], []))
+                t.stations.append(k)
+                t.pixels.append(det.pixels.reshape(2))
+                used = True
+            elif det.target in cell.targets:
+                n = det.point_index.size
+                if n < MIN_POINTS_PER_VIEW:
+                    raise BadInputError(
+                        f"{obs.source}: station '{station.id}', camera '{det.camera}': only {n} points of target "
+                        f"'{det.target}'; a view needs at least {MIN_POINTS_PER_VIEW}. Drop the view or re-detect it"
+                    )
+                if det.target not in obs.targets:
+                    raise BadInputError(f"{obs.source}: the observations have no points for target '{det.target}'")
+                p = pairs.setdefault((det.camera, det.target), _Pair(det.camera, det.target, [], [], [], []))
+                p.views.append(k)
+                p.points.append(obs.targets[det.target][det.point_index])
+                p.pixels.append(det.pixels)
+                p.point_index.append(det.point_index)
+                used = True
+        if not used:
+            continue
+        if station.T_base_flange is None:
+            raise BadInputError(
+                f"{obs.source}: station '{station.id}' has no T_base_flange; a robot cell needs the flange pose "
+                "of every station"
+            )
+        ids.append(station.id)
+        poses.append(np.asarray(station.T_base_flange, np.float64))
+    if not ids:
+        raise BadInputError(f"{obs.source}: no detection of the cell's targets or tools in any station")
+    return pairs, tips, ids, np.stack(poses)
+
+
+def _sqrt_info(cov: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse square root ``S`` (``SᵀS = Σ⁺``) of a covariance; zero rows where Σ has no variance."""
+    cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
+    w, U = np.linalg.eigh(cov)
+    keep = w > max(float(np.max(w)), 0.0) * 1e-12
+    inv = np.where(keep, 1.0 / np.sqrt(np.where(keep, w, 1.0)), 0.0)
+    return inv[:, None] * U.T
+
+
+def _pose_sqrt_info(cell: CellSpec) -> np.ndarray:
+    rot = np.radians(np.asarray(cell.robot.pose_noise_rotation_deg, np.float64))
+    trans = np.asarray(cell.robot.pose_noise_translation_m, np.float64)
+    return np.diag(1.0 / np.concatenate([rot, trans]))
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+# ------------------------------------------------------------------------------------ start
+
+
+def _mount_name(mount: str, name: str) -> str:
+    return f"T_{mount}_{name}"
+
+
+def _start_intrinsics(cell: CellSpec, obs: Observations, pairs, prior) -> tuple[dict, dict]:
+    """Start models and per-view target poses ``{(camera, target): (V, 4, 4)}``."""
+    models, views = {}, {}
+    for cam in cell.cameras.values():
+        cam_pairs = [p for (c, _), p in pairs.items() if c == cam.name]
+        K0, dist0 = cam.K, cam.dist
+        if K0 is None and prior is not None and cam.name in prior.cameras:
+            old = prior.cameras[cam.name]
+            if old.model == cam.model:
+                K0, dist0 = np.asarray(old.K), np.asarray(old.dist)
+        moving = [p for p in cam_pairs if cell.targets[p.target].mount != cam.mount]
+        if K0 is None and not moving:
+            raise BadInputError(
+                f"{cell.source}: camera '{cam.name}' (mount {cam.mount}) sees no moving target, so its views do not "
+                "determine its intrinsics on their own; give intrinsics: {K: [[3x3]], dist: [...]} in the cell "
+                "(e.g. from a camera calibration) or pass a previous result as the prior"
+            )
+        use = cam_pairs if K0 is not None else moving
+        cd = _CameraData(cam.name, cam.model, obs.cameras[cam.name], cam.skew, cam.fix, K0, dist0, [], [], [], [])
+        where = []
+        for p in use:
+            for j, v in enumerate(p.views):
+                cd.stations.append(len(where))
+                cd.points.append(p.points[j])
+                cd.pixels.append(p.pixels[j])
+                cd.point_index.append(p.point_index[j])
+                where.append((p.target, j))
+        model, per_view = _initial_model(cd)
+        models[cam.name] = model
+        for p in use:
+            views[(cam.name, p.target)] = np.stack(
+                [per_view[i] for i, (t, j) in enumerate(where) if t == p.target]
+            )
+        for p in cam_pairs:  # static pairs of a camera started by Zhang: PnP with the start model
+            if (cam.name, p.target) not in views:
+                K, dist = (np.asarray(a, np.float64) for a in model.to_opencv())
+                cd2 = _CameraData(cam.name, cam.model, obs.cameras[cam.name], cam.skew, cam.fix, K, dist,
+                                  list(range(len(p.views))), p.points, p.pixels, p.point_index)
+                _, pv = _initial_model(cd2)
+                views[(cam.name, p.target)] = np.stack([pv[i] for i in range(len(p.views))])
+    return models, views
+
+
+def _start_poses(cell, pairs, views, T_bf, known: dict, method: str, rot_noise: float):
+    """Fill ``known`` (name -> (4, 4)) for every camera and target pose, and say how each started."""
+    how = {name: "known" for name in known}
+
+    def names(p):
+        cm, tm = cell.cameras[p.camera].mount, cell.targets[p.target].mount
+        return _mount_name(cm, p.camera), _mount_name(tm, p.target), cm, tm
+
+    def derive(p) -> bool:
+        X, Y, cm, tm = names(p)
+        T_ct = views[(p.camera, p.target)]
+        Tb = T_bf[np.asarray(p.views)]
+        if X in known and Y not in known:
+            T_base_cam = Tb @ known[X] if cm == "flange" else np.broadcast_to(known[X], T_ct.shape)
+            T_base_target = T_base_cam @ T_ct
+            known[Y] = average_poses(np.linalg.inv(Tb) @ T_base_target if tm == "flange" else T_base_target)
+            how[Y] = f"from:{X}+{p.camera}/{p.target}"
+            return True
+        if Y in known and X not in known:
+            T_base_target = Tb @ known[Y] if tm == "flange" else np.broadcast_to(known[Y], T_ct.shape)
+            T_base_cam = T_base_target @ np.linalg.inv(T_ct)
+            known[X] = average_poses(np.linalg.inv(Tb) @ T_base_cam if cm == "flange" else T_base_cam)
+            how[X] = f"from:{Y}+{p.camera}/{p.target}"
+            return True
+        return False
+
+    plist = sorted(pairs.values(), key=lambda p: -len(p.views))
+    while True:
+        while any(derive(p) for p in plist):
+            pass
+        todo = [p for p in plist if names(p)[2] != names(p)[3] and names(p)[0] not in known and names(p)[1] not in known]
+        if not todo:
+            break
+        p = todo[0]
+        X, Y, cm, _ = names(p)
+        init = solve_hand_eye(T_bf[np.asarray(p.views)], views[(p.camera, p.target)], method=method, mount=cm,
+                              rotation_noise_deg=rot_noise)
+        known[X], known[Y] = init.T, init.T_other
+        how[X] = how[Y] = f"hand_eye:{method}"
+    missing = sorted(
+        {n for p in plist for n in names(p)[:2] if n not in known}
+    )
+    if missing:
+        raise NotObservableError(
+            f"{cell.source}: the poses {missing} are not determined: their cameras and targets are seen only "
+            "together, without a robot motion between them or a known pose; give one of them a pose: [[4x4]] "
+            "in the cell",
+            missing,
+        )
+    return how
+
+
+# ------------------------------------------------------------------------------------ solve
+
+
+def calibrate_cell(
+    cell: CellSpec,
+    obs: Observations,
+    options: CellOptions | None = None,
+    *,
+    prior=None,
+    prior_names=None,
+    start=None,
+) -> CellCalibration:
+    """Calibrate a whole robot cell jointly (see the module docstring for the model).
+
+    Args:
+        cell: a ``jcalib.cell/1`` spec with cameras and targets on the ``base`` or ``flange`` and tools
+            ``observed_by`` fixed cameras; ``robot.pose_noise`` switches the robot pose model on.
+            ``fix`` (intrinsics), ``pose`` + ``fixed`` (known camera / target poses) are honoured.
+        obs: observations with ``T_base_flange`` per station (m): target corners and tool-tip pixels
+            (``{"camera", "tool", "pixel"}``).
+        options: :class:`CellOptions`.
+        prior: an old :class:`jcalib.io.result.ResultFile`: its values start the solve and its
+            covariances become Gaussian priors on the unknowns in ``prior_names``.
+        prior_names: names (camera ids, transform names) that get a prior; ``None`` = every unknown
+            the prior result holds (with a covariance).
+        start: an old result whose values only start the solve (no priors).
+
+    Returns:
+        :class:`CellCalibration`. Covariances are sampling noise (pixel noise and, with the pose model,
+        the stated robot noise, first order, scaled by σ̂² by default) plus the priors, not model error.
+
+    Raises:
+        BadInputError: malformed input (missing poses, too few points, a camera whose intrinsics the
+            data cannot start).
+        NotObservableError: poses or a TCP the data cannot determine, or a rank-deficient problem,
+            naming the unknowns.
+    """
+    options = options or CellOptions()
+    if not is_cell_problem(cell):
+        raise BadInputError(
+            f"{cell.source}: the whole-cell problem takes cameras and targets on the base or flange and tools; "
+            "free-moving cameras/targets and contact points are calibrated by the camera and pivot problems"
+        )
+    pairs, tips, ids, T_bf = _gather(cell, obs)
+    has_noise = cell.robot is not None and cell.robot.pose_noise_translation_m is not None
+    use_pose_model = has_noise if options.pose_model is None else bool(options.pose_model)
+    if use_pose_model and not has_noise:
+        raise BadInputError(f"options.pose_model: got True, but {cell.source} has no robot.pose_noise")
+    rot_noise = 0.02 if not has_noise else max(0.02, float(np.max(cell.robot.pose_noise_rotation_deg)))
+    seed = prior if prior is not None else start
+
+    # --- start: intrinsics, then poses, then TCPs
+    models, views = _start_intrinsics(cell, obs, pairs, seed)
+    known: dict[str, np.ndarray] = {}
+    for c in cell.cameras.values():
+        if c.pose is not None:
+            known[_mount_name(c.mount, c.name)] = np.asarray(c.pose, np.float64)
+    for t in cell.targets.values():
+        if t.pose is not None:
+            known[_mount_name(t.mount, t.name)] = np.asarray(t.pose, np.float64)
+    how_known = {n: "cell" for n in known}
+    if seed is not None:
+        for n, tr in seed.transforms.items():
+            if n not in known:
+                known[n] = np.asarray(tr.matrix, np.float64)
+                how_known[n] = "prior"
+    how = _start_poses(cell, pairs, views, T_bf, known, options.method, rot_noise)
+    how.update(how_known)
+    for tool in cell.tools.values():
+        name = f"T_flange_{tool.name}"
+        tool_tips = [t for (c, tn), t in tips.items() if tn == tool.name]
+        if name in known:
+            continue
+        if not tool_tips:
+            raise NotObservableError(f"{obs.source}: tool '{tool.name}' has no tip detections; {name} is undetermined",
+                                     [name])
+        A_rows, x = [], None
+        for t in tool_tips:
+            cam_name = _mount_name("base", t.camera)
+            if cam_name not in known:
+                raise NotObservableError(
+                    f"{cell.source}: camera '{t.camera}' sees tool '{tool.name}' but its pose {cam_name} is not "
+                    "determined by the targets; give it a pose or let it see a target", [cam_name])
+            A_rows.append((models[t.camera], known[cam_name], T_bf[np.asarray(t.stations)], np.stack(t.pixels)))
+        # all cameras together (one lstsq)
+        As, bs = [], []
+        for model, Tc, Tb, px in A_rows:
+            d = np.asarray(model.unproject(jnp.asarray(px))) @ Tc[:3, :3].T
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+            As.append(np.einsum("nij,njk->nik", P, Tb[:, :3, :3]).reshape(-1, 3))
+            bs.append(np.einsum("nij,nj->ni", P, Tc[:3, 3][None] - Tb[:, :3, 3]).reshape(-1))
+        A, b = np.concatenate(As), np.concatenate(bs)
+        sv = np.linalg.svd(A, compute_uv=False)
+        if sv.size < 3 or sv[2] < 1e-3 * sv[0]:
+            raise NotObservableError(
+                f"{obs.source}: the tip of tool '{tool.name}' is seen along one viewing direction only (the flange "
+                f"orientations barely change); the TCP offset along that ray ({name}) is not determined. Present "
+                "the tool at several orientations", [name])
+        x = np.linalg.lstsq(A, b, rcond=None)[0]
+        T = np.eye(4)
+        T[:3, 3] = x
+        known[name] = T
+        how[name] = "tip_rays"
+
+    # --- problem
+    meas = np.stack([_se3_params(T) for T in T_bf])
+    prior_for = {}
+    if prior is not None:
+        wanted = None if prior_names is None else set(prior_names)
+        for n, tr in prior.transforms.items():
+            if tr.covariance is not None and (wanted is None or n in wanted):
+                prior_for[n] = (_se3_params(tr.matrix), _sqrt_info(tr.covariance))
+        for n, cr in prior.cameras.items():
+            if cr.covariance is not None and (wanted is None or n in wanted) and n in models \
+                    and tuple(cr.param_names) == tuple(models[n].param_names):
+                prior_for[n] = (np.asarray(cr.params, np.float64), _sqrt_info(cr.covariance))
+    used_priors = []
+
+    def var(name, manifold, value, fixed=False, key=None, **kw):
+        key = key or name
+        if key in prior_for:
+            mean, S = prior_for[key]
+            used_priors.append(key)
+            return Variable(name, manifold, value, fixed=fixed, prior_mean=mean, prior_sqrt_info=S, **kw)
+        return Variable(name, manifold, value, fixed=fixed, **kw)
+
+    if use_pose_model:
+        variables = [Variable("T_base_flange", SE3(), meas, prior_mean=meas, prior_sqrt_info=_pose_sqrt_info(cell),
+                              eliminate=True, entry_label="station {i} flange pose")]
+    else:
+        variables = [Variable("T_base_flange", SE3(), meas, fixed=True, eliminate=True,
+                              entry_label="station {i} flange pose")]
+    aspect = {}
+    for cam in cell.cameras.values():
+        model = models[cam.name]
+        fixed = _intrinsics_fixed_mask(model, cam.fix)
+        ratio = float(model.params[0] / model.params[1]) if cam.K is None else float(cam.K[0, 0] / cam.K[1, 1])
+        flag = 1.0 if "aspect" in cam.fix else 0.0
+        aspect[cam.name] = (flag, ratio)
+        variables.append(var(f"intrinsics:{cam.name}", Euclidean(len(model.param_names)),
+                             np.asarray(model.params, np.float64)[None, :], fixed=fixed[None, :], key=cam.name,
+                             coord_names=list(model.param_names), entry_label=cam.name))
+    transform_names = []
+    for spec in list(cell.cameras.values()) + list(cell.targets.values()):
+        name = _mount_name(spec.mount, spec.name)
+        if name not in known:
+            continue
+        fixed = spec.name in cell.fixed or name in cell.fixed
+        if fixed and spec.pose is None:
+            raise BadInputError(f"{cell.source}: fixed lists '{spec.name}' ({name}) but the cell gives it no pose; "
+                                "add pose: [[4x4]] (m) or remove it from fixed")
+        transform_names.append(name)
+        variables.append(var(name, SE3(), _se3_params(known[name]), fixed=fixed))
+    for tool in cell.tools.values():
+        name = f"T_flange_{tool.name}"
+        transform_names.append(name)
+        variables.append(var(name, SE3(), _se3_params(known[name]),
+                             fixed=np.array([True, True, True, name in cell.fixed, name in cell.fixed,
+                                             name in cell.fixed])))
+
+    factors, evals = [], []
+    for p in pairs.values():
+        cam = cell.cameras[p.camera]
+        tm = cell.targets[p.target].mount
+        model = models[p.camera]
+        fn = _target_fn(type(model), tuple(int(v) for v in model.image_size), bool(model.has_skew), cam.mount, tm)
+        st = np.repeat(np.asarray(p.views, np.int32), [x.shape[0] for x in p.points])
+        o = (np.concatenate(p.points), np.concatenate(p.pixels), np.broadcast_to(np.array(aspect[p.camera]),
+                                                                                 (st.shape[0], 2)).copy())
+        args = (f"intrinsics:{p.camera}", _mount_name(cam.mount, p.camera), _mount_name(tm, p.target), "T_base_flange")
+        z = np.zeros_like(st)
+        factors.append(FactorGroup(f"reprojection:{p.camera}/{p.target}", fn, args, (z, z, z, st), o,
+                                   sigma=options.sigma_px))
+        evals.append(("corner", fn, args, st, o))
+    for t in tips.values():
+        model = models[t.camera]
+        fn = _tip_fn(type(model), tuple(int(v) for v in model.image_size), bool(model.has_skew))
+        st = np.asarray(t.stations, np.int32)
+        o = np.stack(t.pixels)
+        args = (f"intrinsics:{t.camera}", _mount_name("base", t.camera), f"T_flange_{t.tool}", "T_base_flange")
+        z = np.zeros_like(st)
+        factors.append(FactorGroup(f"tooltip:{t.camera}/{t.tool}", fn, args, (z, z, z, st), o,
+                                   sigma=options.tip_sigma_px))
+        evals.append(("tip", fn, args, st, o))
+    problem = Problem(variables, factors)
+    sol = solve(problem, options=SolveOptions(max_iterations=options.max_iterations))
+    if options.noise == "a_posteriori" and not sol.sigma2 == sol.sigma2:
+        raise NotObservableError(
+            f"The a-posteriori noise level needs more residuals ({sol.num_residuals}) than free unknowns "
+            f"({sol.num_free}); use noise='stated'.", ["sigma2"])
+
+    # --- outputs
+    vals = {k: np.asarray(v) for k, v in sol.values.items()}
+    sq = {"corner": [], "tip": []}
+    for kind, fn, args, st, o in evals:
+        n = st.shape[0]
+        ins = [jnp.broadcast_to(jnp.asarray(vals[a][0]), (n, vals[a].shape[1])) for a in args[:3]]
+        r = np.asarray(_residuals_jit(fn)(*ins, jnp.asarray(vals["T_base_flange"][st]),
+                                          jax.tree.map(jnp.asarray, o)))
+        sq[kind].append(r.reshape(n, -1) ** 2)
+    corner = np.concatenate(sq["corner"]) if sq["corner"] else np.zeros((0, 2))
+    tip = np.concatenate(sq["tip"]) if sq["tip"] else np.zeros((0, 2))
+    cameras, intr_cov = {}, {}
+    for cam in cell.cameras.values():
+        prm = vals[f"intrinsics:{cam.name}"][0].copy()
+        cov = np.asarray(_covariance(sol, f"intrinsics:{cam.name}", noise=options.noise))
+        flag, ratio = aspect[cam.name]
+        if flag:
+            prm[1] = prm[0] / ratio
+            cov[1, :] = cov[0, :] / ratio
+            cov[:, 1] = cov[:, 0] / ratio
+            cov[1, 1] = cov[0, 0] / ratio**2
+        cameras[cam.name] = models[cam.name].with_params(jnp.asarray(prm))
+        intr_cov[cam.name] = cov
+    transforms = {n: _se3_matrix(vals[n][0]) for n in transform_names}
+    tcov = {n: np.asarray(_covariance(sol, n, noise=options.noise)) for n in transform_names}
+    T_bf_est = np.stack([_se3_matrix(v) for v in vals["T_base_flange"]]) if use_pose_model else T_bf.copy()
+    return CellCalibration(
+        cameras=cameras,
+        intrinsics_covariance=intr_cov,
+        transforms=transforms,
+        transform_covariance=tcov,
+        start={n: known[n] for n in transform_names},
+        start_method={n: how.get(n, "known") for n in transform_names},
+        station_ids=list(ids),
+        T_base_flange_measured=T_bf,
+        T_base_flange=T_bf_est,
+        rms_px=float(np.sqrt(np.mean(corner))) if corner.size else float("nan"),
+        tip_rms_px=float(np.sqrt(np.mean(tip))) if tip.size else float("nan"),
+        sigma_px=float(np.sqrt(sol.sigma2)) * options.sigma_px,
+        num_residuals=int(corner.size + tip.size),
+        iterations=int(sol.iterations),
+        status=sol.status.name.lower(),
+        sigma2=float(sol.sigma2),
+        pose_model=bool(use_pose_model),
+        priors=sorted(set(used_priors)),
+        solution=sol,
+    )
+
+
+# ------------------------------------------------------------------------------------ synthetic cell
+
+#: The synthetic demo cell's cameras: opencv5 ``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` at 1600x1200.
+SYNTH_IMAGE_SIZE = (1600, 1200)
+SYNTH_FLANGE_PARAMS = np.array([1400.0, 1398.0, 801.5, 598.0, -0.12, 0.08, 0.0005, -0.0003, -0.02])
+SYNTH_FIXED_PARAMS = np.array([1800.0, 1801.0, 795.0, 603.0, -0.08, 0.05, 0.0, 0.0, 0.0])
+
+
+def _rot(axis, angle):
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def _look_at(eye, target, up=(0.0, 0.0, 1.0)):
+    """``T_base_cam`` of a camera at ``eye`` whose optical axis (+z) points at ``target``."""
+    z = np.asarray(target, np.float64) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross(z, (1.0, 0.0, 0.0))
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    T[:3, 3] = eye
+    return T
+
+
+def _perturb(T, rng, sigma_m, sigma_deg):
+    if sigma_m <= 0 and sigma_deg <= 0:
+        return T.copy()
+    d = np.concatenate([np.radians(sigma_deg) * rng.normal(size=3), sigma_m * rng.normal(size=3)])
+    return T @ _se3_matrix(np.asarray(lie.se3_exp(jnp.asarray(d))))
+
+
+def synthetic_cell(
+    seed: int = 0,
+    *,
+    num_board_stations: int = 15,
+    num_tool_stations: int = 12,
+    sigma_px: float = 0.2,
+    tip_sigma_px: float = 0.3,
+    robot_m: float = 1e-4,
+    robot_deg: float = 0.01,
+    truth: dict | None = None,
+) -> tuple[dict, dict, dict]:
+    """A synthetic demo cell: flange camera ``cam0``, fixed camera ``cam1`` (intrinsics known from a lab
+    calibration and held fixed), a 9x6 checkerboard ``board`` fixed on the table, a tool ``needle`` whose
+    tip ``cam1`` sees. Pixels come from the true flange poses plus Gaussian noise; the file holds flange
+    poses perturbed by the robot noise (right perturbation, σ per axis), as the cell states.
+
+    Args:
+        seed: random seed (stations and noise).
+        num_board_stations: stations where ``cam0`` (and ``cam1``) see the board.
+        num_tool_stations: stations presenting the tool tip to ``cam1``.
+        sigma_px, tip_sigma_px: corner / tip pixel noise σ.
+        robot_m, robot_deg: robot pose noise σ per axis (m, degrees).
+        truth: override true transforms (``T_flange_cam0``, ``T_base_cam1``, ``T_base_board``,
+            ``T_flange_needle``, (4, 4) m) and intrinsics (``cam0``, ``cam1`` param vectors), e.g. to
+            simulate a bumped camera or a moved TCP with the same geometry.
+
+    Returns:
+        ``(cell dict, observations dict, truth dict)``.
+    """
+    from jcalib.geometry.targets import Checkerboard
+
+    rng = np.random.default_rng(seed)
+    geo = np.random.default_rng(12345)  # the cell's layout is the same for every seed
+    board = Checkerboard(cols=9, rows=6, square=0.03)
+    pts = np.asarray(board.points, np.float64)
+    centre_t = pts.mean(axis=0)
+    T_base_board = np.eye(4)
+    T_base_board[:3, :3] = _rot((1, 0, 0), np.pi)  # printed face (-z) up
+    T_base_board[:3, 3] = [0.7, -0.1, 0.0]
+    centre = T_base_board[:3, :3] @ centre_t + T_base_board[:3, 3]
+    T_flange_cam0 = np.eye(4)
+    T_flange_cam0[:3, :3] = _rot((0.2, 0.1, 1.0), 0.3)
+    T_flange_cam0[:3, 3] = [0.06, -0.03, 0.08]
+    T_base_cam1 = _look_at(np.array([1.2, 0.5, 0.6]), centre + np.array([0.05, 0.1, 0.1]))
+    T_flange_tool = np.eye(4)
+    T_flange_tool[:3, 3] = [0.01, -0.02, 0.18]
+    true = {"T_flange_cam0": T_flange_cam0, "T_base_cam1": T_base_cam1, "T_base_board": T_base_board,
+            "T_flange_needle": T_flange_tool, "cam0": SYNTH_FLANGE_PARAMS.copy(), "cam1": SYNTH_FIXED_PARAMS.copy()}
+    true.update({k: np.asarray(v, np.float64) for k, v in (truth or {}).items()})
+    cams = {c: camera_model_from_name("opencv5", SYNTH_IMAGE_SIZE, true[c]) for c in ("cam0", "cam1")}
+
+    def project(cam, T_cam_x, P):
+        p = P @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
+        u = np.asarray(cams[cam].project(jnp.asarray(p)))
+        w, h = SYNTH_IMAGE_SIZE
+        ok = (p[:, 2] > 0.05) & (u[:, 0] > 5) & (u[:, 0] < w - 6) & (u[:, 1] > 5) & (u[:, 1] < h - 6)
+        return u, ok
+
+    stations = []
+    T_bf_true = []
+    # board stations: cam0 looks at the board from 0.35-0.6 m, tilted up to ~35 deg
+    k = 0
+    while len(T_bf_true) < num_board_stations:
+        k += 1
+        dirn = np.array([geo.uniform(-0.5, 0.5), geo.uniform(-0.5, 0.5), 1.0])
+        eye = centre + geo.uniform(0.35, 0.6) * dirn / np.linalg.norm(dirn)
+        T_base_c = _look_at(eye, centre + geo.normal(scale=0.03, size=3), up=(1.0, 0.0, 0.0))
+        T_base_c[:3, :3] = T_base_c[:3, :3] @ _rot((0, 0, 1), geo.uniform(-0.6, 0.6))
+        T_bf = T_base_c @ _inv(true["T_flange_cam0"])
+        u, ok = project("cam0", _inv(T_bf @ true["T_flange_cam0"]) @ true["T_base_board"], pts)
+        if ok.sum() == len(pts):
+            T_bf_true.append(T_bf)
+    # tool stations: the tip in front of cam1, the tool tilted up to ~40 deg
+    look = true["T_base_cam1"]
+    while len(T_bf_true) < num_board_stations + num_tool_stations:
+        p_cam = np.array([geo.uniform(-0.08, 0.08), geo.uniform(-0.06, 0.06), geo.uniform(0.5, 0.7)])
+        p_base = look[:3, :3] @ p_cam + look[:3, 3]
+        R = _rot((1, 0, 0), np.pi) @ _rot(geo.normal(size=3), geo.uniform(0.1, 0.7))
+        T_bf = np.eye(4)
+        T_bf[:3, :3] = R
+        T_bf[:3, 3] = p_base - R @ true["T_flange_needle"][:3, 3]
+        T_bf_true.append(T_bf)
+    for i, T_bf in enumerate(T_bf_true):
+        dets = []
+        if i < num_board_stations:
+            for cam, T_cam_board in (
+                ("cam0", _inv(T_bf @ true["T_flange_cam0"]) @ true["T_base_board"]),
+                ("cam1", _inv(true["T_base_cam1"]) @ true["T_base_board"]),
+            ):
+                u, ok = project(cam, T_cam_board, pts)
+                idx = np.flatnonzero(ok)
+                if idx.size >= MIN_POINTS_PER_VIEW:
+                    px = u[idx] + sigma_px * rng.normal(size=(idx.size, 2))
+                    dets.append({"camera": cam, "target": "board", "point_index": idx.tolist(), "pixels": px.tolist()})
+        else:
+            tip = T_bf[:3, :3] @ true["T_flange_needle"][:3, 3] + T_bf[:3, 3]
+            u, ok = project("cam1", _inv(true["T_base_cam1"]), tip[None])
+            if ok[0]:
+                dets.append({"camera": "cam1", "tool": "needle",
+                             "pixel": (u[0] + tip_sigma_px * rng.normal(size=2)).tolist()})
+        T_meas = _perturb(T_bf, rng, robot_m, robot_deg)
+        stations.append({"id": f"s{i:03d}", "T_base_flange": T_meas.tolist(), "detections": dets})
+    K1, d1 = cams["cam1"].to_opencv()
+    cell = {
+        "schema": "jcalib.cell/1",
+        "cameras": {
+            "cam0": {"model": "opencv5", "mount": "flange"},
+            "cam1": {"model": "opencv5", "mount": "base",
+                     "fix": ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
+                     "intrinsics": {"K": np.asarray(K1).tolist(), "dist": np.asarray(d1).tolist()}},
+        },
+        "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.03, "mount": "base"}},
+        "tools": {"needle": {"observed_by": ["cam1"]}},
+        "robot": {"pose_noise": {"translation_m": robot_m, "rotation_deg": robot_deg}},
+    }
+    obs = {"schema": "jcalib.observations/1",
+           "cameras": {c: {"image_size": list(SYNTH_IMAGE_SIZE)} for c in ("cam0", "cam1")},
+           "targets": {"board": {"points": pts.tolist()}}, "stations": stations}
+    return cell, obs, true
