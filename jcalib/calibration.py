@@ -62,7 +62,7 @@ def _input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
     return hash_inputs(*parts)
 
 
-def calibrate(cell, observations, options=None) -> Result:
+def calibrate(cell, observations, options=None, *, prior=None) -> Result:
     """Calibrate a cell from observations.
 
     Args:
@@ -73,7 +73,13 @@ def calibrate(cell, observations, options=None) -> Result:
             :class:`~jcalib.problems.camera.CameraCalibrationOptions`; for hand-eye cells, cameras on
             the flange and one target on the base or the reverse, a
             :class:`~jcalib.problems.handeye.HandEyeOptions`, e.g. ``HandEyeOptions(pose_model=False)``
-            to switch the cell's robot pose model off).
+            to switch the cell's robot pose model off; for whole cells, mixed mounts or tools, a
+            :class:`~jcalib.problems.cell.CellOptions`).
+        prior: a previous result (path, :class:`~jcalib.io.result.ResultFile` or :class:`Result`) of the
+            same robot cell: re-optimisation (:func:`jcalib.reoptimise.reoptimise`). The new data are
+            solved on their own, every unknown is compared with the old value by a χ² test on the
+            difference (both covariances), and the final solve keeps the old values as priors for the
+            unknowns that did not move. ``stats["reoptimisation"]`` lists each test and what moved.
 
     Returns:
         :class:`Result`. Uncertainties are sampling noise (pixel noise propagated to the
@@ -85,14 +91,22 @@ def calibrate(cell, observations, options=None) -> Result:
     """
     cell_spec = load_cell(cell)
     obs = load_observations(observations)
+    if prior is not None:
+        from jcalib.reoptimise import reoptimise
+
+        return reoptimise(cell_spec, obs, prior, options, input_hash=_input_hash(cell, observations, cell_spec, obs)).result
     has_robot = any(c.mount != "free" for c in cell_spec.cameras.values()) or any(
         t.mount != "free" for t in cell_spec.targets.values()
     )
     if has_robot:
         from jcalib.problems.handeye import is_hand_eye_cell
 
-        if is_hand_eye_cell(cell_spec):
+        if is_hand_eye_cell(cell_spec) and not isinstance(options, _cell_options_type()):
             return _calibrate_hand_eye(cell, observations, cell_spec, obs, options)
+    from jcalib.problems.cell import is_cell_problem
+
+    if is_cell_problem(cell_spec):
+        return _calibrate_cell(cell_spec, obs, options, _input_hash(cell, observations, cell_spec, obs))
     if has_robot or cell_spec.tools or cell_spec.points:
         raise BadInputError(
             f"{cell_spec.source}: this version calibrates cameras with free-moving targets "
@@ -200,3 +214,53 @@ def _calibrate_hand_eye(cell_arg, obs_arg, cell_spec: CellSpec, obs: Observation
     )
     file = ResultFile(cameras=cameras, transforms=transforms, stats=stats, provenance=provenance)
     return Result(file, cal)
+
+
+def _cell_options_type():
+    from jcalib.problems.cell import CellOptions
+
+    return CellOptions
+
+
+def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats: dict | None = None) -> Result:
+    """The :class:`Result` of a :class:`~jcalib.problems.cell.CellCalibration`."""
+    cameras = {
+        name: CameraResult.from_model(model, covariance=cal.intrinsics_covariance[name])
+        for name, model in cal.cameras.items()
+    }
+    transforms = {n: TransformResult(T, cal.transform_covariance[n]) for n, T in cal.transforms.items()}
+    stats = {
+        "rms_px": cal.rms_px,
+        "num_residuals": cal.num_residuals,
+        "sigma_px": cal.sigma_px,
+        "iterations": cal.iterations,
+        "status": cal.status,
+        "num_stations": len(cal.station_ids),
+        "robot_pose_model": cal.pose_model,
+        "start": dict(cal.start_method),
+        "problem": "cell",
+    }
+    if cal.tip_rms_px == cal.tip_rms_px:
+        stats["tip_rms_px"] = cal.tip_rms_px
+    if cal.priors:
+        stats["priors"] = list(cal.priors)
+    if cal.warnings:
+        stats["warnings"] = list(cal.warnings)
+    stats.update(extra_stats or {})
+    provenance = Provenance.now(input_hash=input_hash, options=asdict(options))
+    extra = {}
+    if cal.joint_covariance:
+        jc = cal.joint_covariance
+        extra["joint_covariance"] = {"names": list(jc["names"]), "dims": [int(d) for d in jc["dims"]],
+                                     "matrix": np.asarray(jc["matrix"]).tolist(),
+                                     "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, tz"}
+    file = ResultFile(cameras=cameras, transforms=transforms, stats=stats, provenance=provenance, extra=extra)
+    return Result(file, cal)
+
+
+def _calibrate_cell(cell_spec: CellSpec, obs: Observations, options, input_hash: str) -> Result:
+    """Whole robot cells: mixed flange/base cameras and targets, tools seen by fixed cameras."""
+    from jcalib.problems.cell import CellOptions, calibrate_cell
+
+    options = CellOptions.from_options(options)
+    return cell_result(calibrate_cell(cell_spec, obs, options), cell_spec, options, input_hash)

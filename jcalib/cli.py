@@ -45,17 +45,35 @@ def _root(
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for images and results.")] = Path(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the session, results, report and exports.")] = Path(
         "demo-output"
     ),
-    views: Annotated[int, typer.Option(help="Number of rendered views.")] = 20,
-    seed: Annotated[int, typer.Option(help="Random seed of the simulated scene.")] = 0,
+    stations: Annotated[int, typer.Option(help="Robot stations to plan and capture.")] = 16,
+    protocol: Annotated[str, typer.Option(help="Simulated robot controller: kuka (KUKAVARPROXY) or abb.")] = "kuka",
+    image_size: Annotated[str, typer.Option(help="Simulated camera resolution WIDTHxHEIGHT.")] = "640x480",
+    seed: Annotated[int, typer.Option(help="Random seed of the simulated cell.")] = 0,
+    camera_only: Annotated[
+        bool, typer.Option(help="Only the rendered single-camera calibration (no robot, no network).")
+    ] = False,
+    views: Annotated[int, typer.Option(help="--camera-only: number of rendered views.")] = 20,
 ) -> None:
-    """Render a simulated calibration, detect the target, calibrate, and compare with ground truth."""
-    enable_compilation_cache()
-    from jcalib.demo import run_demo
+    """Run a whole simulated cell on loopback, calibrate it jointly, compare with the ground truth.
 
-    run_demo(out_dir=out, num_views=views, seed=seed)
+    A simulated robot and two fake GigE cameras (flange, fixed): plan, capture, detect, calibrate,
+    report, export (RAPID, KRL, OpenCV), and a table of every estimate against the truth with its σ.
+
+    The second camera needs its own loopback address, so the demo runs in a private network namespace
+    (`unshare -n`, or `unshare -rn` when not root); nothing is broadcast on real interfaces.
+    """
+    enable_compilation_cache()
+    if camera_only:
+        from jcalib.demo import run_demo
+
+        run_demo(out_dir=out, num_views=views, seed=seed)
+        return
+    from jcalib.demo_cell import demo as run_cell
+
+    run_cell(out, stations=stations, protocol=protocol, image_size=image_size, seed=seed)
 
 
 @app.command()
@@ -336,6 +354,15 @@ def capture(
         f"wrote {out}: {len(res.captured)} stations captured, {len(res.skipped)} skipped, "
         f"{res.already_done} already there ({res.elapsed_s:.1f} s)"
     )
+
+
+def _register_study() -> None:
+    from jcalib.study.cli import study_command
+
+    app.command("study")(study_command)
+
+
+_register_study()
 
 
 def main() -> None:

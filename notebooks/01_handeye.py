@@ -80,7 +80,7 @@ K_TRUE, DIST_TRUE = (np.asarray(a) for a in CAMERA.to_opencv())
 # board points on the target's z = 0 plane, centred; jcalib boards are seen from their -z side
 BOARD = np.column_stack([(np.stack(np.meshgrid(np.arange(9), np.arange(6)), -1).reshape(-1, 2) - [4.0, 2.5]) * 0.025,
                          np.zeros(54)])
-DEFAULT = dict(stations=15, amplitude_deg=40.0, sigma_px=0.2, robot_mm=0.1)
+DEFAULT = {"stations": 15, "amplitude_deg": 40.0, "sigma_px": 0.2, "robot_mm": 0.1}
 DEG_PER_MM = 0.1  # robot rotation noise per mm of translation noise (0.01 deg at 0.1 mm)
 
 
@@ -120,7 +120,7 @@ def design(seed, stations, amplitude_deg):
 
 def simulate(seed, stations, amplitude_deg, sigma_px, robot_mm, noise=True):
     """(cell dict, observations dict, truth) for one trial; ``noise=False``: the same design, exact data."""
-    X, Y, T_bf, T_ct = design(seed, stations, amplitude_deg)
+    X, _Y, T_bf, T_ct = design(seed, stations, amplitude_deg)
     rng = np.random.default_rng([seed, 1])
     s_t, s_r = 1e-3 * robot_mm, DEG_PER_MM * robot_mm
     T_meas = T_bf.copy()
@@ -173,7 +173,7 @@ def trial(seed, stations, amplitude_deg, sigma_px, robot_mm, rng):
     T_ct = []
     for s in obs["stations"]:
         det = s["detections"][0]
-        ok, r, t = cv2.solvePnP(BOARD[det["point_index"]], np.asarray(det["pixels"]), K_TRUE, DIST_TRUE)
+        _ok, r, t = cv2.solvePnP(BOARD[det["point_index"]], np.asarray(det["pixels"]), K_TRUE, DIST_TRUE)
         T_ct.append(pose(cv2.Rodrigues(r)[0], t.ravel()))
     T_ct = np.array(T_ct)
     out, extra = {}, {}
@@ -209,7 +209,7 @@ def trial(seed, stations, amplitude_deg, sigma_px, robot_mm, rng):
 
 # %%
 SWEEPS = {
-    "stations": [5, 10, 20, 40],
+    "stations": [5, 15, 40],
     "amplitude_deg": [5.0, 15.0, 30.0, 60.0],
     "robot_mm": [0.02, 0.1, 0.3],
 }
@@ -251,10 +251,10 @@ with open(OUT / "01_handeye_medians.csv", "w") as f:
 # ## Figures: median errors (log scale), closed forms thin, joint solves bold, bound black
 
 # %%
-STYLE = {"joint, pixels only": dict(color="tab:orange", lw=2.5, marker="s"),
-         "joint + robot pose model": dict(color="tab:red", lw=2.5, marker="D"),
-         "reported: joint + robot pose model": dict(color="tab:red", lw=1.2, ls="--", marker=""),
-         "Cramér–Rao bound": dict(color="black", lw=2.0, ls=":", marker="")}
+STYLE = {"joint, pixels only": {"color": "tab:orange", "lw": 2.5, "marker": "s"},
+         "joint + robot pose model": {"color": "tab:red", "lw": 2.5, "marker": "D"},
+         "reported: joint + robot pose model": {"color": "tab:red", "lw": 1.2, "ls": "--", "marker": ""},
+         "Cramér–Rao bound": {"color": "black", "lw": 2.0, "ls": ":", "marker": ""}}
 
 
 def figure(sweep):
@@ -264,7 +264,7 @@ def figure(sweep):
     for col, (ax, unit) in enumerate(zip(axes, ("rotation error (deg)", "translation error (mm)"))):
         for name in names:
             y = [results[(sweep, v)].get(name, (np.nan, np.nan))[col] for v in values]
-            style = STYLE.get(name, dict(lw=1.0, marker="o", alpha=0.7))
+            style = STYLE.get(name, {"lw": 1.0, "marker": "o", "alpha": 0.7})
             label = name if name in STYLE else f"{name} ({CLOSED_FORMS[name]})"
             ax.plot(values, y, label=label, **style)
         ax.set_yscale("log")

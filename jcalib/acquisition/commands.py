@@ -301,7 +301,8 @@ def run_simulated_cell(
         for k, (name, address) in enumerate(camera_addresses.items()):
             source = scene_frame_source(scene, name, ctrl.true_T_base_flange, seed=seed + 1000 * k)
             size = camera_image_size(scene.cameras[name].model)
-            fake = FakeGigECamera(source, address, sensor_size=size, serial=f"JCALIB-SIM-{name}")
+            # GigE Vision serials hold 15 bytes: index + name, cut
+            fake = FakeGigECamera(source, address, sensor_size=size, serial=f"SIM{k}-{name}"[:15])
             stack.enter_context(fake)
         if info is not None:
             info.update(robot=f"{robot_protocol}://{server.host}:{server.port}",

@@ -62,6 +62,7 @@ from jcalib.problems.camera import (
     _se3_params,
 )
 from jcalib.problems.tcp import _tip_fn
+from jcalib.residuals.priors import gaussian_prior_residual
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, solve
 from jcalib.solve.covariance import covariance as _covariance
 
@@ -135,6 +136,9 @@ class CellCalibration:
         num_residuals, iterations, status, sigma2: solver facts.
         pose_model: whether robot pose corrections were estimated.
         priors: names of the unknowns that carried a prior.
+        joint_covariance: ``{"names": [...], "dims": [...], "matrix": (n, n)}``: the joint covariance
+            of every unknown (camera ids for intrinsics, transform names; tangent coordinates in that
+            order), with the cross terms that the per-unknown blocks leave out.
         solution: the :class:`jcalib.solve.Solution`.
     """
 
@@ -156,6 +160,7 @@ class CellCalibration:
     sigma2: float
     pose_model: bool
     priors: list[str] = field(default_factory=list)
+    joint_covariance: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     solution: object = field(default=None, repr=False)
 
@@ -510,13 +515,22 @@ def calibrate_cell(
                     and tuple(cr.param_names) == tuple(models[n].param_names):
                 prior_for[n] = (np.asarray(cr.params, np.float64), _sqrt_info(cr.covariance))
     used_priors = []
+    prior_factors = []
 
     def var(name, manifold, value, fixed=False, key=None, **kw):
+        # Every unknown gets a prior factor group, weight 0 when there is no prior: problems with and
+        # without priors then share one compiled solver (and a zero weight is not counted in σ̂²).
         key = key or name
+        value = np.asarray(value, np.float64).reshape(1, -1)
         if key in prior_for:
             mean, S = prior_for[key]
             used_priors.append(key)
-            return Variable(name, manifold, value, fixed=fixed, prior_mean=mean, prior_sqrt_info=S, **kw)
+            w = 1.0
+        else:
+            mean, S, w = value[0], np.zeros((manifold.tangent_dim, manifold.tangent_dim)), 0.0
+        prior_factors.append(FactorGroup(
+            f"prior:{name}", gaussian_prior_residual(manifold), (name,), (np.zeros(1, np.int32),),
+            (np.asarray(mean, np.float64)[None], np.asarray(S, np.float64)[None]), sqrt_weight=np.array([w])))
         return Variable(name, manifold, value, fixed=fixed, **kw)
 
     if use_pose_model:
@@ -577,7 +591,7 @@ def calibrate_cell(
         factors.append(FactorGroup(f"tooltip:{t.camera}/{t.tool}", fn, args, (z, z, z, st), o,
                                    sigma=options.tip_sigma_px))
         evals.append(("tip", fn, args, st, o))
-    problem = Problem(variables, factors)
+    problem = Problem(variables, factors + prior_factors)
     sol = solve(problem, options=SolveOptions(max_iterations=options.max_iterations))
     if options.noise == "a_posteriori" and not sol.sigma2 == sol.sigma2:
         raise NotObservableError(
@@ -609,6 +623,16 @@ def calibrate_cell(
         intr_cov[cam.name] = cov
     transforms = {n: _se3_matrix(vals[n][0]) for n in transform_names}
     tcov = {n: np.asarray(_covariance(sol, n, noise=options.noise)) for n in transform_names}
+    joint = _joint_covariance(sol, [(c, f"intrinsics:{c}") for c in cell.cameras] + [(n, n) for n in transform_names],
+                              options.noise)
+    for cam in cell.cameras.values():  # the aspect tie, as in the per-camera block
+        flag, ratio = aspect[cam.name]
+        if flag:
+            o = joint["names"].index(cam.name)
+            o = int(np.sum(joint["dims"][:o]))
+            M = joint["matrix"]
+            M[o + 1, :] = M[o, :] / ratio
+            M[:, o + 1] = M[:, o] / ratio
     T_bf_est = np.stack([_se3_matrix(v) for v in vals["T_base_flange"]]) if use_pose_model else T_bf.copy()
     return CellCalibration(
         cameras=cameras,
@@ -629,8 +653,32 @@ def calibrate_cell(
         sigma2=float(sol.sigma2),
         pose_model=bool(use_pose_model),
         priors=sorted(set(used_priors)),
+        joint_covariance=joint,
         solution=sol,
     )
+
+
+def _joint_covariance(sol, names: list[tuple[str, str]], noise: str) -> dict:
+    """Joint covariance of shared (non-eliminated) variables from the Schur-reduced inverse."""
+    from jcalib.solve.covariance import _inverse_blocks, _scale
+
+    scale = _scale(sol, noise)
+    sigma_ss, _ = _inverse_blocks(sol)
+    sigma_ss = np.asarray(sigma_ss)
+    layout = sol.layout
+    idx, dims = [], []
+    for _, v in names:
+        k = layout.kind(v)
+        d = layout.dims[k]
+        free = ~np.asarray(sol.padded_problem.variable(v).fixed[0])
+        rows = layout.offsets[k] + np.arange(d)
+        idx.append(np.where(free, rows, -1))
+        dims.append(d)
+    idx = np.concatenate(idx)
+    ok = idx >= 0
+    M = np.zeros((idx.size, idx.size))
+    M[np.ix_(ok, ok)] = scale * sigma_ss[np.ix_(idx[ok], idx[ok])]
+    return {"names": [n for n, _ in names], "dims": dims, "matrix": M}
 
 
 # ------------------------------------------------------------------------------------ synthetic cell
@@ -672,9 +720,9 @@ def synthetic_cell(
     seed: int = 0,
     *,
     num_board_stations: int = 15,
-    num_tool_stations: int = 12,
+    num_tool_stations: int = 30,
     sigma_px: float = 0.2,
-    tip_sigma_px: float = 0.3,
+    tip_sigma_px: float = 0.2,
     robot_m: float = 1e-4,
     robot_deg: float = 0.01,
     truth: dict | None = None,

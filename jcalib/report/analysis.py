@@ -17,7 +17,10 @@ unit (px, –, deg, mm).
 
 What every σ here includes: the sampling noise of the observations (pixel noise and, with the robot
 pose model, robot pose noise as stated), propagated to first order and scaled by the a-posteriori
-variance factor when the solver did so. What it does not include: model error (a too-simple lens
+variance factor when the solver did so. With the robot pose model the report scales only the pixel
+information by the pixels' own factor and keeps the robot prior as stated (variance components, see
+:func:`handeye_linear_model`): one factor for both, as the solver applies it, under-states the
+robot-driven hand-eye translation by up to ``sqrt(σ̂²)`` when the corner σ was over-stated. What it does not include: model error (a too-simple lens
 model, unmodelled robot error), a wrong local minimum, nonlinearity beyond first order.
 """
 
@@ -277,7 +280,7 @@ class LinearModel:
 
 def _assemble(J_shared: np.ndarray, J_elim: np.ndarray | None, group: np.ndarray | None,
               num_groups: int, prior_info: np.ndarray | None, weight: np.ndarray,
-              whiten: float) -> tuple[np.ndarray, np.ndarray]:
+              whiten: float, blocks: bool = False):
     """Schur-reduced information ``A − Σ_g W_g V_g⁻¹ W_gᵀ`` and ``diag(A)``.
 
     Args:
@@ -287,13 +290,14 @@ def _assemble(J_shared: np.ndarray, J_elim: np.ndarray | None, group: np.ndarray
         prior_info: ``(6, 6)`` prior information added to every group's block, or None.
         weight: ``(N,)`` 0/1 corner weights (0: outlier).
         whiten: ``1/σ`` of a pixel coordinate.
+        blocks: also return ``W (g, n, 6)`` and ``V (g, 6, 6)`` (prior included).
     """
     w = weight[:, None, None] * whiten
     Js = J_shared * w
     A = np.einsum("kin,kim->nm", Js, Js)
     diag = np.diag(A).copy()
     if J_elim is None:
-        return A, diag
+        return (A, diag, None, None) if blocks else (A, diag)
     Je = J_elim * w
     n = Js.shape[-1]
     W = np.zeros((num_groups, n, 6))
@@ -304,6 +308,8 @@ def _assemble(J_shared: np.ndarray, J_elim: np.ndarray | None, group: np.ndarray
         V = V + prior_info[None]
     Y = np.linalg.solve(V, np.swapaxes(W, 1, 2))  # (g, 6, n) = V⁻¹ Wᵀ
     S = A - np.einsum("gne,gem->nm", W, Y)
+    if blocks:
+        return 0.5 * (S + S.T), diag, W, V
     return 0.5 * (S + S.T), diag
 
 
@@ -376,6 +382,7 @@ def handeye_linear_model(
     sigma_px: float,
     variance_factor: float = 1.0,
     pose_sigma: tuple[np.ndarray, np.ndarray] | None = None,
+    variance_components: bool = False,
 ) -> LinearModel:
     """The :class:`LinearModel` of a hand-eye cell: free intrinsics, hand-eye and target transform.
 
@@ -390,6 +397,15 @@ def handeye_linear_model(
         sigma_px: stated corner noise, px; ``variance_factor`` the solver's σ̂².
         pose_sigma: ``(rotation σ (3,) rad, translation σ (3,) m)`` of the robot-pose prior (the
             robot pose model), or None (poses exact).
+        variance_components: with the robot pose model, scale only the *pixel* information by
+            the pixels' own a-posteriori factor ``χ²_px / r_px`` (the corner residuals' χ² at the
+            stated σ over their redundancy ``r_px = 2N − n_shared − r_prior``, ``r_prior = 6S − Σ_i
+            tr(C_ii P)`` the redundancy of the robot prior over S stations, ``C_ii`` station i's
+            posterior covariance, ``P`` the prior information) and keep the robot prior at its stated σ, instead of scaling everything by
+            the overall ``variance_factor``. One factor for both is right only when both noise
+            levels are off by the same ratio; with the pixel σ mis-stated and the robot σ right it
+            under- or over-states the robot-driven directions (hand-eye translation) by up to
+            ``sqrt(variance_factor)``. Ignored without ``pose_sigma``.
 
     A transform whose covariance is zero (held fixed) is not an unknown.
     """
@@ -418,10 +434,29 @@ def handeye_linear_model(
     prior = None  # whitened prior information of one flange-pose correction, diag(1/σ²)
     if pose_sigma is not None:
         prior = np.diag(1.0 / np.concatenate([pose_sigma[0], pose_sigma[1]]) ** 2)
-    S, diag = _assemble(Js, JB if prior is not None else None, group, len(points), prior, np.ones(N), 1.0 / sigma_px)
+    whiten = 1.0 / sigma_px
+    S, diag, W, V = _assemble(Js, JB if prior is not None else None, group, len(points), prior, np.ones(N), whiten,
+                              blocks=True)
+    pixel_factor = r_prior = None
+    if variance_components and prior is not None:
+        # station i's posterior δ covariance (stated noise): V⁻¹ + V⁻¹ Wᵀ S⁻¹ W V⁻¹
+        Vi = np.linalg.inv(V)
+        G = np.einsum("gde,gne->gdn", Vi, W)  # V⁻¹ Wᵀ
+        d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+        Cs = np.linalg.inv(S * d[:, None] * d[None, :]) * d[:, None] * d[None, :]
+        Cii = Vi + np.einsum("gdn,nm,gem->gde", G, Cs, G)
+        r_prior = 6.0 * len(points) - float(np.einsum("gde,ed->", Cii, prior))
+        r_px = 2.0 * N - Js.shape[-1] - r_prior
+        chi2_px = float(np.sum(((Xpix - proj) * whiten) ** 2))
+        if r_px > 0.0 and chi2_px > 0.0:
+            pixel_factor = chi2_px / r_px
+            whiten = whiten / math.sqrt(pixel_factor)
+            S, diag = _assemble(Js, JB, group, len(points), prior, np.ones(N), whiten)
+            variance_factor = 1.0
     context = {"camera": camera, "cam": cam, "free": free, "points": np.asarray(points[0], np.float64), "mount": mount,
                    "X7": X7, "Y7": Y7, "T_base_flange": np.asarray(T_base_flange, np.float64),
-                   "hand_eye": hand_eye[0], "target": target[0], "whiten": 1.0 / sigma_px,
+                   "hand_eye": hand_eye[0], "target": target[0], "whiten": whiten, "pixel_factor": pixel_factor,
+                   "prior_redundancy": r_prior,
                    "variance_factor": variance_factor, "jacobian_fn": fn, "pose_prior": prior,
                    "blocks": [u.block for u in unknowns], "residuals": Xpix - proj, "pixels": Xpix, "group": group,
                    "weight": np.ones(N)}
@@ -447,13 +482,14 @@ def _hand_eye_layout(file: ResultFile):
             he = f"T_{mount}_{cam}"
             if he not in file.transforms:
                 continue
-            targets = [n for n in file.transforms if n.startswith(f"T_{other}_") and n != he]
+            targets = [n for n in file.transforms if n.startswith(f"T_{other}_") and n != he
+                       and file.transforms[n].extra.get("kind") != "tcp"]  # a TCP is no target
             if len(targets) == 1:
                 return cam, mount, he, targets[0], targets[0][len(f"T_{other}_"):]
     return None
 
 
-def linear_models(result: Any, observations: Any) -> dict[str, LinearModel]:
+def linear_models(result: Any, observations: Any, variance_components: bool = True) -> dict[str, LinearModel]:
     """Linear models of a result: one per camera (camera cells) or one for the hand-eye cell.
 
     Args:
@@ -461,6 +497,10 @@ def linear_models(result: Any, observations: Any) -> dict[str, LinearModel]:
             flange poses and the rejected corners), a :class:`ResultFile` or a path.
         observations: the observations the result was computed from (path, dict or
             :class:`~jcalib.io.observations.Observations`).
+        variance_components: hand-eye cells with the robot pose model and a-posteriori noise: scale
+            the pixel information by the pixels' own variance factor and keep the robot prior as
+            stated (see :func:`handeye_linear_model`); False: one factor for both, exactly as the
+            solver's covariance.
 
     Returns:
         ``{camera id or hand-eye transform name: LinearModel}``; a camera without per-view poses in
@@ -478,6 +518,8 @@ def linear_models(result: Any, observations: Any) -> dict[str, LinearModel]:
     if layout is not None:
         camera, mount, he, tg, target = layout
         dets = _detections(obs, camera, target)
+        if not dets:
+            return {}
         ids = [d[0] for d in dets]
         T_bf = [np.asarray(d[3], np.float64) for d in dets]
         if details is not None and getattr(details, "T_base_flange", None) is not None:
@@ -489,7 +531,8 @@ def linear_models(result: Any, observations: Any) -> dict[str, LinearModel]:
             pose_sigma = (np.radians(np.asarray(robot["prior_sigma_rotation_deg"], np.float64)) * np.ones(3),
                           np.asarray(robot["prior_sigma_translation_m"], np.float64) * np.ones(3))
         m = handeye_linear_model(camera, file.cameras[camera], (he, file.transforms[he]), (tg, file.transforms[tg]),
-                                 mount, [d[1] for d in dets], [d[2] for d in dets], T_bf, stated, factor, pose_sigma)
+                                 mount, [d[1] for d in dets], [d[2] for d in dets], T_bf, stated, factor, pose_sigma,
+                                 variance_components=variance_components and options.get("noise") != "stated")
         return {he: m}
     poses = getattr(details, "T_cam_target", None) or file.extra.get(POSES_KEY)
     if not poses:

@@ -342,6 +342,7 @@ _INCLUDES = (
 
 def _task_space_section(file: ResultFile) -> str:
     from jcalib.report import analysis
+    from jcalib.report.tcp import is_tcp
 
     rows = []
     cameras = set(file.cameras)
@@ -351,7 +352,7 @@ def _task_space_section(file: ResultFile) -> str:
             continue
         child = name.split("_", 2)[-1] if name.count("_") >= 2 else name
         what = ("hand-eye" if child in cameras and name.startswith(("T_flange_", "T_base_")) else
-                "TCP" if name.startswith("T_flange_") and child not in cameras else "pose")
+                "TCP" if is_tcp(name, file) else "pose")
         rows.append([f"<code>{_e(name)}</code>", _e(what), _vec(ts["rotation_deg"], ".4f"),
                      _fmt(ts["rotation_total_deg"], 3), _vec(ts["translation_mm"], ".3f"),
                      _fmt(ts["translation_total_mm"], 3)])
@@ -362,6 +363,52 @@ def _task_space_section(file: ResultFile) -> str:
                       "total [mm]"], rows, {2, 3, 4, 5})
             + '<p class="note">Per axis of the right-perturbation tangent, in the child frame; total = '
             "sqrt of the trace of the 3x3 block.</p>")
+
+
+def _tcp_section(file: ResultFile) -> str:
+    """σ of every TCP per flange axis and of the tool tip / a gripped point in the base frame (mm)."""
+    from jcalib.report import tcp as T
+
+    names = [n for n, tr in file.transforms.items() if T.is_tcp(n, file) and tr.covariance is not None]
+    if not names:
+        return ""
+    ref = file.extra.get(T.GRIP_REFERENCE_KEY)
+    B = np.eye(4) if ref is None else np.asarray(ref, np.float64)
+    robot = T.robot_covariance(file)
+    out = []
+    rows = []
+    for name in names:
+        tr = file.transforms[name]
+        s = T.tcp_std_mm(tr)
+        Cr = np.asarray(tr.covariance)[:3, :3]
+        tilt = float(np.degrees(np.sqrt(max(Cr[0, 0] + Cr[1, 1], 0.0))))
+        rows.append([f"<code>{_e(name)}</code>", _vec(np.asarray(tr.matrix)[:3, 3] * 1e3, ".3f"), _vec(s, ".4f"),
+                     _fmt(float(np.sqrt(np.sum(s**2))), 3),
+                     _fmt(tilt, 3) if tilt > 0.0 else "not estimated (held)"])
+    out.append(_table(["TCP", "position x y z [mm] (flange)", "σ x y z [mm] (flange)", "total σ [mm]",
+                       "σ tool-axis tilt [deg]"], rows, {1, 2, 3, 4}))
+    grip = np.asarray(T.DEFAULT_GRIPPED_POINT_M)
+    rows = []
+    for name in names:
+        tr = file.transforms[name]
+        rot_known = bool(np.any(np.diag(np.asarray(tr.covariance))[:3] > 0.0))
+        points = [("tool tip", np.zeros(3)), (f"gripped point {1e3 * grip[2]:.0f} mm along the tool z", grip)]
+        for label, p in points:
+            for with_robot in ((False, True) if robot is not None else (False,)):
+                C = T.gripped_point_covariance(tr, B, p, robot if with_robot else None)
+                s = 1e3 * np.sqrt(np.maximum(np.diag(C), 0.0))
+                what = label + (" + robot repeatability" if with_robot else "")
+                if not rot_known and p.any():
+                    what += " (orientation error of the TCP not included: not estimated)"
+                rows.append([f"<code>{_e(name)}</code>", _e(what), _vec(s, ".4f"), _fmt(float(np.sqrt(np.sum(s**2))), 3)])
+    out.append("<h3>Tool tip and gripped point in the base frame</h3>"
+               + _table(["TCP", "point", "σ x y z [mm] (base)", "total σ [mm]"], rows, {2, 3}))
+    where = ("at the flange pose <code>" + T.GRIP_REFERENCE_KEY + "</code> of the result" if ref is not None
+             else "with the flange axes parallel to the base axes (the result names no reference pose)")
+    out.append(f'<p class="note">σ per base axis {where}; the total does not depend on the flange orientation. '
+               "Includes the TCP's calibration uncertainty (and, where named, the robot's stated repeatability at "
+               "that pose); excludes model error (tip-detection bias, robot absolute-accuracy error).</p>")
+    return "<h3>TCP</h3>" + "".join(out)
 
 
 def _correlation_section(file: ResultFile, models: dict) -> str:
@@ -382,6 +429,8 @@ def _correlation_section(file: ResultFile, models: dict) -> str:
                                     np.asarray(cam.covariance)[np.ix_(free, free)]))
     out = []
     for title, labels, C in sources:
+        if len(labels) < 2:  # nothing to correlate (e.g. all intrinsics held)
+            continue
         rho, pairs = analysis.correlations(C, labels, top=8, minimum=0.5)
         out.append(_figure(plots.correlation_png(labels, rho, f"correlations: {title}"),
                            f"correlation matrix {title}",
@@ -553,7 +602,7 @@ def render_report(
                     "(<code>camera/station</code>). A view far above the rest is a bad detection "
                     "or a wrong pose start."),
         ]
-    parts += ["<h2>Task-space uncertainty</h2>", _INCLUDES, _task_space_section(file),
+    parts += ["<h2>Task-space uncertainty</h2>", _INCLUDES, _task_space_section(file), _tcp_section(file),
               "<h3>Projection uncertainty</h3>", _uncertainty_section(file)]
     parts += ["<h2>Correlations</h2>", _correlation_section(file, models)]
     if models:

@@ -95,8 +95,7 @@ def _se3_local(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
 def _handeye_errors(row: dict, T_est: np.ndarray, T_true: np.ndarray, cov: np.ndarray | None) -> None:
     delta = _se3_local(T_est, T_true)
     scale = np.array([180.0 / np.pi] * 3 + [1e3] * 3)  # rad -> deg, m -> mm
-    dR = T_est[:3, :3].T @ T_true[:3, :3]
-    row["err_rot_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))))
+    row["err_rot_deg"] = float(np.degrees(np.linalg.norm(delta[:3])))  # the rotation angle, exact near 0
     row["err_trans_mm"] = float(1e3 * np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
     for a, v in zip(_HE_AXES, delta * scale):
         row[f"err_{a}"] = float(v)
@@ -271,7 +270,10 @@ def _camera_rows(scenario: Scenario, trials: list[int], data: list[CameraTrial])
     for est in scenario.estimators:
         if est == "joint":
             from jcalib.io.cell import parse_cell
-            from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras_batch
+            from jcalib.problems.camera import (
+                CameraCalibrationOptions,
+                calibrate_cameras_batch,
+            )
 
             t = scenario.target
             cell = parse_cell({"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": scenario.camera["model"]}},

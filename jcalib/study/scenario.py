@@ -253,6 +253,8 @@ def _stations(data: dict, cell: str, base: Path | None) -> Stations:
     allowed = {"strategy", *defaults}
     if strategy == "file":
         allowed.add("T_target_cam")
+    if cell == "tcp" and strategy == "random":
+        allowed.add("tip_depth_m")
     _check_keys(sec, allowed, "scenario.stations")
     opts = {**defaults, **{k: v for k, v in sec.items() if k != "strategy"}}
     where = "scenario.stations"
@@ -349,12 +351,16 @@ def load_scenario(scenario: str | os.PathLike | dict | Scenario) -> Scenario:
         raise _fail("scenario.camera.image_size", camera["image_size"], "[width, height] in whole pixels")
     params = _numbers(camera["params"], "scenario.camera.params")
     try:
-        model = camera_model_from_name(str(camera["model"]), tuple(int(s) for s in size), np.asarray(params))
+        names = camera_model_from_name(str(camera["model"]), tuple(int(s) for s in size)).param_names
     except (BadInputError, ValueError, TypeError) as err:
-        raise BadInputError(f"scenario.camera: {err}") from None
-    if len(model.param_names) != len(params):
-        raise _fail("scenario.camera.params", camera["params"], f"{len(model.param_names)} values "
-                    f"({', '.join(model.param_names)}) for model {camera['model']!r}")
+        raise _fail("scenario.camera.model", camera["model"], f"a camera model name ({err})") from None
+    if len(names) != len(params):
+        raise _fail("scenario.camera.params", camera["params"],
+                    f"{len(names)} values ({', '.join(names)}) for model {camera['model']!r}")
+    try:
+        camera_model_from_name(str(camera["model"]), tuple(int(s) for s in size), np.asarray(params))
+    except (BadInputError, ValueError, TypeError) as err:
+        raise BadInputError(f"scenario.camera.params: {err}") from None
     camera = {"model": str(camera["model"]), "image_size": [int(s) for s in size], "params": params}
 
     target = _section(data, "target", _DEFAULT_TARGET)

@@ -246,7 +246,7 @@ def simulate_camera(scenario: Scenario, rng: np.random.Generator) -> CameraTrial
     """A camera-calibration trial: the strategy's views of the board, noisy corners."""
     camera, points = camera_model(scenario), board(scenario).points
     T_tc = target_cam_views(scenario, rng, camera, points)
-    keep, idx, pix = _observe(scenario, rng, camera, points, _inv(T_tc))
+    _, idx, pix = _observe(scenario, rng, camera, points, _inv(T_tc))
     return CameraTrial(point_index=idx, pixels=pix, points=points, num_planned=len(T_tc))
 
 

@@ -46,9 +46,9 @@ def weak():
 
 def test_handeye_linear_model_reproduces_the_solvers_covariance(weak):
     """Rebuilt information (hand-eye, target, flange corrections under the prior eliminated) inverts
-    to the engine's covariances of both transforms."""
-    _, result, models = weak
-    m = models["T_flange_cam0"]
+    to the engine's covariances of both transforms (with the engine's single variance factor)."""
+    obs, result, _ = weak
+    m = A.linear_models(result, obs, variance_components=False)["T_flange_cam0"]
     C = m.covariance()
     for k, name in enumerate(("T_flange_cam0", "T_base_board")):
         ref = result.file.transforms[name].covariance
@@ -56,6 +56,30 @@ def test_handeye_linear_model_reproduces_the_solvers_covariance(weak):
         # (a first-order retraction, flange corrections under the prior): agreement ~2e-4, far below
         # anything a σ is quoted to (2-3 digits)
         np.testing.assert_allclose(C[6 * k:6 * k + 6, 6 * k:6 * k + 6], ref, rtol=2e-3, atol=1e-3 * np.abs(ref).max())
+
+
+def test_variance_components_split_the_engines_redundancy(weak):
+    """The pixel / robot-prior split of the a-posteriori factor against the engine's own numbers:
+    the prior's redundancy 6S − Σ tr(C_ii P) equals the engine's (stats.robot.redundancy, from its full
+    covariance), and χ²_px + χ²_prior = σ̂²·(2N − n) with χ²_prior = (robot factor)²·r_prior from
+    the engine's robot statistics and σ̂² its overall variance factor."""
+    _, result, models = weak
+    m = models["T_flange_cam0"]
+    robot = result.file.stats["robot"]
+    r_prior = m.context["prior_redundancy"]
+    # one trace from two linearisations (numpy at the estimate vs the engine's last LM Jacobian with a
+    # first-order retraction, as in the covariance test above): ~2e-6 apart, far below what matters
+    np.testing.assert_allclose(r_prior, robot["redundancy"], rtol=1e-4)
+    n_pix = 2 * m.context["residuals"].shape[0]
+    r_px = n_pix - len(m.unknowns) - r_prior
+    f_robot = robot["a_posteriori_sigma_translation_m"][0] / robot["prior_sigma_translation_m"][0]
+    _, sigma2 = A._variance_factor(result.file)
+    total = sigma2 * (n_pix - len(m.unknowns))
+    # same two linearisations (the redundancies enter): 1e-4
+    np.testing.assert_allclose(m.context["pixel_factor"] * r_px + f_robot**2 * r_prior, total, rtol=1e-4)
+    # ground truth: corners have σ 0.2 px, stated 0.25: the pixel factor estimates 0.64 with relative
+    # s.d. sqrt(2 / r_px) (χ²(r_px) / r_px); 4 s.d.
+    assert abs(m.context["pixel_factor"] / 0.64 - 1.0) < 4.0 * np.sqrt(2.0 / r_px), m.context["pixel_factor"]
 
 
 def test_first_warning_names_weak_translation_and_tilting_station(weak):

@@ -97,7 +97,7 @@ class FakeGigECamera:
         address: IPv4 address of a local interface to serve on (loopback by default).
         sensor_size: ``(width, height)`` of the sensor in pixels (also the initial region);
             the fake supports up to 2048 x 2048 comfortably.
-        serial: device serial number.
+        serial: device serial number, 1..15 bytes.
         loss_ratio: fraction of stream packets dropped (0..1).
         warm_up: render one frame in :meth:`start` before serving. The fill callback runs in the fake's
             only thread, which also answers GVCP: a callback that blocks for seconds (a JAX renderer
@@ -130,6 +130,11 @@ class FakeGigECamera:
         self.frame_source = frame_source
         self.address = address
         self.sensor_size = (w, h)
+        if not serial or len(serial.encode()) >= 16:  # ARV_GVBS_SERIAL_NUMBER_SIZE, NUL included
+            raise BadInputError(
+                f"serial: got {serial!r} ({len(serial.encode())} bytes), expected 1..15 bytes "
+                "(GigE Vision's bootstrap register holds 16 bytes with the terminating NUL)"
+            )
         self.serial = serial
         self._loss_ratio = float(loss_ratio)
         self._gv: int | None = None
