@@ -118,7 +118,7 @@ def amplitude_sweep(args) -> None:
             d_rot, d_t = T._errors(cal.T_hand_eye, X)
             joint["rot"].append(d_rot)
             joint["t"].append(1e3 * d_t)
-            d = rng.multivariate_normal(np.zeros(6), cal.T_hand_eye_covariance / cal.sigma2, size=200)
+            d = rng.multivariate_normal(np.zeros(6), np.asarray(cal.solution.covariance(cal.hand_eye_name, noise="stated")), size=200)
             bound["rot"].extend(np.degrees(np.linalg.norm(d[:, :3], axis=1)).tolist())
             bound["t"].extend((1e3 * np.linalg.norm(d[:, 3:], axis=1)).tolist())
         best_r = min(cf, key=lambda k: np.median(cf[k]["rot"]))
@@ -191,7 +191,7 @@ def main() -> None:
             cal = calibrate_hand_eye(c_fixed, c_obs, HandEyeOptions(sigma_px=args.sigma_px, pose_model=pose_model))
             record("known intrinsics", label, cal.T_hand_eye, X, time.perf_counter() - t0, cal.T_hand_eye_covariance)
             if pose_model:
-                record_bound("known intrinsics", cal.T_hand_eye, cal.T_hand_eye_covariance / cal.sigma2)
+                record_bound("known intrinsics", cal.T_hand_eye, np.asarray(cal.solution.covariance(cal.hand_eye_name, noise="stated")))
                 for k in ("a_posteriori_sigma_translation_m", "a_posteriori_sigma_rotation_deg"):
                     robot.setdefault(k, []).append(float(np.mean(cal.robot[k])))
         if args.no_free_intrinsics:
@@ -207,7 +207,7 @@ def main() -> None:
             record("estimated intrinsics", label, cal.T_hand_eye, X, time.perf_counter() - t0,
                    cal.T_hand_eye_covariance)
             if pose_model:
-                record_bound("estimated intrinsics", cal.T_hand_eye, cal.T_hand_eye_covariance / cal.sigma2)
+                record_bound("estimated intrinsics", cal.T_hand_eye, np.asarray(cal.solution.covariance(cal.hand_eye_name, noise="stated")))
     wall = time.perf_counter() - t_start
 
     print(f"\nEye-in-hand, {args.trials} trials, {args.stations} stations, {args.sigma_px} px, "

@@ -186,6 +186,9 @@ def _calibrate_hand_eye(cell_arg, obs_arg, cell_spec: CellSpec, obs: Observation
         "rms_px": cal.rms_px,
         "num_residuals": cal.num_residuals,
         "sigma_px": cal.sigma_px,
+        # overall a-posteriori variance factor of all residuals (pixels and robot prior together);
+        # with the pose model the covariance uses the pixels' own factor, (sigma_px / stated)^2
+        "variance_factor": cal.sigma2,
         "iterations": cal.iterations,
         "status": cal.status,
         "num_stations": len(cal.station_ids),

@@ -134,6 +134,10 @@ def calibrate(
     unobservable_prior_sigma_m: Annotated[
         float, typer.Option(help="Hand-eye: prior σ (m) of that translation component.")
     ] = 1e-6,
+    prior: Annotated[
+        Optional[Path],
+        typer.Option(help="Previous result.json: re-optimise (reuse what still holds, flag what moved by a χ² test)."),
+    ] = None,
 ) -> None:
     """Calibrate a cell from observations and write result.json."""
     enable_compilation_cache()
@@ -154,7 +158,7 @@ def calibrate(
             options, pose_model=pose_model, fix_unobservable=fix_unobservable,
             unobservable_prior_m=unobservable_prior_m, unobservable_prior_sigma_m=unobservable_prior_sigma_m,
         )
-    result = run(cell, observations, options)
+    result = run(cell, observations, options, prior=prior) if prior is not None else run(cell, observations, options)
     result.to_json(out)
     print_result(result.file)
     typer.echo(f"wrote {out}")

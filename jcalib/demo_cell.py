@@ -42,13 +42,14 @@ robot:
   model: kuka_kr10_r1100_sixx
   pose_noise: {translation_m: 0.0001, rotation_deg: 0.01}
 cameras:
-  cam_hand: {model: opencv5, mount: flange}
+  cam_hand: {model: opencv4, mount: flange}
   cam_fixed:
     model: opencv5
     mount: base
     # a fixed camera that sees a fixed target cannot calibrate its own lens (every view is the same):
     # its intrinsics come from an earlier camera calibration; its pose in the cell is calibrated here
     intrinsics: {K: [[720.0, 0.0, 322.0], [0.0, 718.0, 241.0], [0.0, 0.0, 1.0]], dist: [-0.12, 0.05, 0.0, 0.0, 0.0]}
+    fix: [fx, fy, cx, cy, k1, k2, p1, p2, k3]
 targets:
   board: {type: checkerboard, cols: 8, rows: 6, square: 0.025, mount: base}
 """

@@ -270,7 +270,33 @@ def _gather(cell: CellSpec, obs: Observations):
         poses.append(np.asarray(station.T_base_flange, np.float64))
     if not ids:
         raise BadInputError(f"{obs.source}: no detection of the cell's targets or tools in any station")
+    for (cam_name, target_name), p in pairs.items():
+        if cell.cameras[cam_name].mount == cell.targets[target_name].mount and len(p.views) > 1:
+            pairs[(cam_name, target_name)] = _static_view(p)
     return pairs, tips, ids, np.stack(poses)
+
+
+def _static_view(p: _Pair) -> _Pair:
+    """Repeated images of a static scene (camera and target on the same mount) as one view.
+
+    They are not independent evidence about the geometry: the robot does not move one relative to
+    the other, so only the sensor noise differs between the images (detection biases repeat). Each
+    point seen in every image enters once, at its mean pixel; counting every image would shrink the
+    reported σ of that camera's pose by the square root of the number of stations.
+    """
+    common = set(p.point_index[0].tolist())
+    for idx in p.point_index[1:]:
+        common &= set(idx.tolist())
+    keep = np.array(sorted(common), dtype=p.point_index[0].dtype)
+    if keep.size == 0:
+        return _Pair(p.camera, p.target, p.views[:1], p.points[:1], p.pixels[:1], p.point_index[:1])
+    rows = []
+    for idx, pix in zip(p.point_index, p.pixels):
+        where = {int(v): i for i, v in enumerate(idx.tolist())}
+        rows.append(np.asarray(pix, np.float64)[[where[int(v)] for v in keep]])
+    first = {int(v): i for i, v in enumerate(p.point_index[0].tolist())}
+    points = np.asarray(p.points[0])[[first[int(v)] for v in keep]]
+    return _Pair(p.camera, p.target, p.views[:1], [points], [np.mean(rows, axis=0)], [keep])
 
 
 def _sqrt_info(cov: np.ndarray) -> np.ndarray:

@@ -657,11 +657,11 @@ def calibrate_hand_eye(
         )
     loss = _loss(options)
 
-    def build(weights):
+    def build(weights, sigma_px=options.sigma_px):
         factors = [
             FactorGroup(f"reprojection:{cam.name}", fn, (intr_name, he_name, target_name, "T_base_flange"),
                         (np.zeros_like(st), np.zeros_like(st), np.zeros_like(st), st), o,
-                        sigma=options.sigma_px, sqrt_weight=w, loss=loss)
+                        sigma=sigma_px, sqrt_weight=w, loss=loss)
             for cam, fn, intr_name, he_name, st, o, w in zip(d.cameras, fns, intr_names, he_names, station_flat,
                                                               obs_arrays, weights)
         ]
@@ -708,14 +708,33 @@ def calibrate_hand_eye(
             ["sigma2"],
         )
 
-    # --- outputs
+    # --- covariance scale. Without the pose model one a-posteriori factor σ̂² scales everything. With
+    # it, the pixel noise and the robot prior are two variance components: σ̂² of all residuals
+    # would rescale the robot prior with the pixels' factor (a mis-stated pixel σ would then shrink
+    # or inflate the robot-driven directions). The pixels get their own factor (their χ² over their
+    # redundancy) and the prior stays as stated; the covariance is the stated-noise one of the
+    # problem re-weighted that way, at the solution.
     scale_noise = options.noise
+    cov_sol = sol
+    pixel_factor = float(sol.sigma2)
+    if use_pose_model:
+        robot = _robot_stats(sol, cell, meas, np.asarray(sol.values["T_base_flange"]))
+        if options.noise == "a_posteriori":
+            chi2_px = float(sum(np.sum((r / options.sigma_px) ** 2 * (w > 0)[:, None]) for r, w in zip(res, weights)))
+            redundancy_px = (sol.num_residuals - sol.num_free) - robot["redundancy"]
+            if redundancy_px > 0.5 and chi2_px > 0.0:
+                pixel_factor = chi2_px / redundancy_px
+                cov_sol = solve(build(weights, options.sigma_px * np.sqrt(pixel_factor)), x0=sol.values,
+                                options=SolveOptions(max_iterations=0), raise_on_unobservable=False)
+                scale_noise = "stated"
+
+    # --- outputs
     vals = {k: np.asarray(v) for k, v in sol.values.items()}
     cameras = {}
     all_sq = []
     for k, (cam, cd, s) in enumerate(zip(d.cameras, d.cds, starts)):
         prm = vals[intr_names[k]][0].copy()
-        cov_i = np.asarray(_covariance(sol, intr_names[k], noise=scale_noise))
+        cov_i = np.asarray(_covariance(cov_sol, intr_names[k], noise=scale_noise))
         if s.aspect_flag:
             prm[1] = prm[0] / s.ratio
             cov_i[1, :] = cov_i[0, :] / s.ratio
@@ -732,7 +751,7 @@ def calibrate_hand_eye(
             intrinsics_covariance=cov_i,
             hand_eye_name=he_names[k],
             T_hand_eye=_se3_matrix(vals[he_names[k]][0]),
-            T_hand_eye_covariance=np.asarray(_covariance(sol, he_names[k], noise=scale_noise)),
+            T_hand_eye_covariance=np.asarray(_covariance(cov_sol, he_names[k], noise=scale_noise)),
             station_ids=[d.station_ids[i] for i in cd.stations],
             view_rms_px={d.station_ids[i]: float(np.sqrt(total[i] / max(count[i], 1.0))) for i in cd.stations},
             rms_px=float(np.sqrt(np.mean(sq[inlier]))) if np.any(inlier) else float("nan"),
@@ -741,10 +760,9 @@ def calibrate_hand_eye(
             motion=s.motion,
         )
     T_tg = _se3_matrix(vals[target_name][0])
-    cov_tg = np.asarray(_covariance(sol, target_name, noise=scale_noise))
+    cov_tg = np.asarray(_covariance(cov_sol, target_name, noise=scale_noise))
     if use_pose_model:
         T_bf = np.stack([_se3_matrix(v) for v in vals["T_base_flange"]])
-        robot = _robot_stats(sol, cell, meas, vals["T_base_flange"])
     else:
         T_bf = d.T_base_flange.copy()  # held fixed: the measured poses, without a quaternion round trip
         robot = {}
@@ -769,7 +787,7 @@ def calibrate_hand_eye(
         init=first.init,
         view_rms_px=first.view_rms_px,
         rms_px=float(np.sqrt(np.mean(all_sq))),
-        sigma_px=float(np.sqrt(sol.sigma2)) * options.sigma_px,
+        sigma_px=float(np.sqrt(pixel_factor)) * options.sigma_px,
         num_residuals=2 * int(all_sq.size),
         iterations=sol.iterations,
         status=sol.status.name.lower(),

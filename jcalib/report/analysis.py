@@ -677,6 +677,9 @@ def correlations(covariance: np.ndarray, labels: Sequence[str], top: int = 8, mi
     return rho, pairs
 
 
+_TANGENT_ORDER = _TANGENT
+
+
 def joint_covariance(file: ResultFile) -> tuple[tuple[Unknown, ...], np.ndarray] | None:
     """The file's :data:`JOINT_COVARIANCE_KEY` as ``(unknowns, covariance)``, or None."""
     data = file.extra.get(JOINT_COVARIANCE_KEY)
@@ -685,6 +688,14 @@ def joint_covariance(file: ResultFile) -> tuple[tuple[Unknown, ...], np.ndarray]
     try:
         names = [str(n) for n in data["names"]]
         C = np.asarray(data["matrix"], np.float64)
+        if "dims" in data:  # block form (whole-cell results): one name per unknown block, its dimension
+            full = []
+            for n, d in zip(names, data["dims"], strict=True):
+                coords = file.cameras[n].param_names if n in file.cameras else _TANGENT_ORDER
+                if len(coords) != int(d):
+                    raise ValueError(f"block {n!r} has {d} coordinates, expected {len(coords)}")
+                full += [f"{n}.{c}" for c in coords]
+            names = full
     except (KeyError, TypeError, ValueError) as err:
         raise BadInputError(f"{JOINT_COVARIANCE_KEY}: expected {{names: [...], matrix: n x n}}, got {err}") from None
     if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)):

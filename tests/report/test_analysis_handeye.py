@@ -46,9 +46,10 @@ def weak():
 
 def test_handeye_linear_model_reproduces_the_solvers_covariance(weak):
     """Rebuilt information (hand-eye, target, flange corrections under the prior eliminated) inverts
-    to the engine's covariances of both transforms (with the engine's single variance factor)."""
+    to the engine's covariances of both transforms (pixel and robot-prior variance components: the
+    pixels scaled by their own a-posteriori factor, the prior as stated, in both codes)."""
     obs, result, _ = weak
-    m = A.linear_models(result, obs, variance_components=False)["T_flange_cam0"]
+    m = A.linear_models(result, obs)["T_flange_cam0"]
     C = m.covariance()
     for k, name in enumerate(("T_flange_cam0", "T_base_board")):
         ref = result.file.transforms[name].covariance
@@ -73,8 +74,11 @@ def test_variance_components_split_the_engines_redundancy(weak):
     n_pix = 2 * m.context["residuals"].shape[0]
     r_px = n_pix - len(m.unknowns) - r_prior
     f_robot = robot["a_posteriori_sigma_translation_m"][0] / robot["prior_sigma_translation_m"][0]
-    _, sigma2 = A._variance_factor(result.file)
+    sigma2 = result.file.stats["variance_factor"]  # the engine's overall factor (all residuals)
     total = sigma2 * (n_pix - len(m.unknowns))
+    # and the engine reports the pixels' own factor as its corner noise: sigma_px = stated * sqrt(factor)
+    stated = result.file.provenance.options["sigma_px"]
+    np.testing.assert_allclose((result.file.stats["sigma_px"] / stated) ** 2, m.context["pixel_factor"], rtol=1e-3)
     # same two linearisations (the redundancies enter): 1e-4
     np.testing.assert_allclose(m.context["pixel_factor"] * r_px + f_robot**2 * r_prior, total, rtol=1e-4)
     # ground truth: corners have σ 0.2 px, stated 0.25: the pixel factor estimates 0.64 with relative

@@ -67,6 +67,8 @@ def _theta_d_slope(k: jax.Array, theta: jax.Array) -> jax.Array:
     )
 
 
+# jitted: called outside a trace the loop body (a closure over k) would be re-compiled on every call
+@jax.jit
 def max_theta(k: jax.Array) -> jax.Array:
     """``θ_max`` (radians): the end of the monotonic range of ``θd(θ)``, at most π. Not differentiated."""
     k = jax.lax.stop_gradient(k)
@@ -74,6 +76,12 @@ def max_theta(k: jax.Array) -> jax.Array:
         lambda t: (_theta_d_slope(k, t), jnp.zeros_like(t)), math.pi
     )
     return jnp.minimum(theta_max, math.pi)
+
+
+@jax.jit  # see max_theta
+def _solve_theta(k: jax.Array, theta_d: jax.Array, theta_max: jax.Array) -> jax.Array:
+    """``θ`` with ``θd(θ) = theta_d`` on ``[0, θ_max]`` (bracketed Newton; not differentiated)."""
+    return bracketed_newton(lambda t: _theta_d(k, t), theta_d, theta_max)
 
 
 class Fisheye(AbstractCameraModel):
@@ -203,7 +211,7 @@ class Fisheye(AbstractCameraModel):
         theta_max = max_theta(k)
         k_ng, td_ng = jax.lax.stop_gradient(k), jax.lax.stop_gradient(theta_d)
 
-        theta_s = bracketed_newton(lambda t: _theta_d(k_ng, t), td_ng, theta_max)
+        theta_s = _solve_theta(k_ng, td_ng, theta_max)
         # One differentiable Newton step from the solution gives the implicit derivatives.
         g = _theta_d(k, theta_s) - theta_d
         theta = theta_s - safe_divide(g, _theta_d_slope(k, theta_s))

@@ -153,6 +153,9 @@ def _apply_homography(h: jax.Array, x: jax.Array, y: jax.Array):
     return a, b, w
 
 
+# jitted: called outside a trace (e.g. projecting with a concrete model), the loop's body closes over
+# the parameters and would be re-traced and re-compiled on every call, leaking compiled code
+@jax.jit
 def fold_radius2(c: dict[str, jax.Array]) -> jax.Array:
     """``r²_max``: the squared radius of the disc where the distortion is one-to-one (``inf`` if
     it is up to ``MAX_SEARCH_ANGLE``). See the module docstring for the definition. Not
@@ -195,6 +198,7 @@ def fold_radius2(c: dict[str, jax.Array]) -> jax.Array:
     return jnp.where(jnp.isfinite(theta_max), tan_max * tan_max, jnp.inf)
 
 
+@jax.jit  # see fold_radius2
 def _undistort(
     c: dict[str, jax.Array], xt: jax.Array, yt: jax.Array, r2_max: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
