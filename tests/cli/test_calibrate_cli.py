@@ -85,8 +85,8 @@ def test_bad_input_exit_status_and_message(tmp_path, observations, case, mutate,
 
 
 def test_demo_short_run_matches_truth(tmp_path):
-    """A shortened `jcalib demo`: rendered images -> detection -> calibration within its σ of truth."""
-    proc = run("demo", "--views", "8", "--out", tmp_path / "demo", cwd=tmp_path)
+    """A shortened `jcalib demo --camera-only`: rendered images -> detection -> calibration within its σ of truth."""
+    proc = run("demo", "--camera-only", "--views", "8", "--out", tmp_path / "demo", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     from jcalib.demo import DEMO_DIST, DEMO_K
 
