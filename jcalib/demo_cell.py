@@ -95,7 +95,7 @@ def run_cell_demo(
     Returns:
         ``{quantity: (truth, estimate, σ)}`` in the units printed (px, mm, deg).
     """
-    from jcalib.acquisition.commands import parse_image_size, run_capture, run_plan, run_simulate
+    from jcalib.acquisition.commands import parse_image_size, run_capture, run_plan
     from jcalib.calibration import calibrate
     from jcalib.io.atomic import write_text_atomic
     from jcalib.io.export import export_result
