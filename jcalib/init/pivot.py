@@ -182,8 +182,35 @@ def _check_rotations(R: np.ndarray, min_rotation_deg: float, what: str) -> None:
     )
 
 
+class PivotAccessors:
+    """Derived views shared by pivot results: needs ``p_flange_tip``, ``covariance`` (6x6, tip
+    then pivot) and ``residuals`` (one row per pose)."""
+
+    @property
+    def num_poses(self) -> int:
+        """Number of poses used."""
+        return int(self.residuals.shape[0])
+
+    @property
+    def tip_std(self) -> np.ndarray:
+        """``(3,)`` standard deviations of ``p_flange_tip`` (input unit)."""
+        return np.sqrt(np.diag(self.covariance)[:3])
+
+    @property
+    def pivot_std(self) -> np.ndarray:
+        """``(3,)`` standard deviations of ``p_base_pivot`` (input unit)."""
+        return np.sqrt(np.diag(self.covariance)[3:])
+
+    @property
+    def T_flange_tcp(self) -> np.ndarray:
+        """``(4, 4)`` TCP with the flange's orientation and the tip as origin (a 3-DoF TCP)."""
+        T = np.eye(4)
+        T[:3, 3] = self.p_flange_tip
+        return T
+
+
 @dataclass(frozen=True)
-class PivotResult:
+class PivotResult(PivotAccessors):
     """Tip and pivot point from a pivot (4-point) calibration.
 
     Attributes:
@@ -208,27 +235,6 @@ class PivotResult:
     sigma: float
     rotation_spread_rad: np.ndarray
 
-    @property
-    def num_poses(self) -> int:
-        """Number of poses used."""
-        return int(self.residuals.shape[0])
-
-    @property
-    def tip_std(self) -> np.ndarray:
-        """``(3,)`` standard deviations of ``p_flange_tip`` (input unit)."""
-        return np.sqrt(np.diag(self.covariance)[:3])
-
-    @property
-    def pivot_std(self) -> np.ndarray:
-        """``(3,)`` standard deviations of ``p_base_pivot`` (input unit)."""
-        return np.sqrt(np.diag(self.covariance)[3:])
-
-    @property
-    def T_flange_tcp(self) -> np.ndarray:
-        """``(4, 4)`` TCP with the flange's orientation and the tip as origin (a 3-DoF TCP)."""
-        T = np.eye(4)
-        T[:3, 3] = self.p_flange_tip
-        return T
 
 
 def pivot_calibration(

@@ -43,6 +43,7 @@ import numpy as np
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.init.pivot import (
     DEFAULT_MIN_ROTATION_DEG,
+    PivotAccessors,
     PivotResult,
     as_pose_matrices,
     pivot_calibration,
@@ -79,7 +80,7 @@ def _residuals_jit():
 
 
 @dataclass
-class PivotRefinement:
+class PivotRefinement(PivotAccessors):
     """Result of :func:`refine_pivot` (input length unit throughout).
 
     Attributes:
@@ -118,27 +119,6 @@ class PivotRefinement:
     iterations: int
     status: str
     solution: object = field(default=None, repr=False)
-
-    @property
-    def num_poses(self) -> int:
-        return int(self.residuals.shape[0])
-
-    @property
-    def tip_std(self) -> np.ndarray:
-        """``(3,)`` standard deviations of ``p_flange_tip`` (input unit)."""
-        return np.sqrt(np.diag(self.covariance)[:3])
-
-    @property
-    def pivot_std(self) -> np.ndarray:
-        """``(3,)`` standard deviations of ``p_base_pivot`` (input unit)."""
-        return np.sqrt(np.diag(self.covariance)[3:])
-
-    @property
-    def T_flange_tcp(self) -> np.ndarray:
-        """``(4, 4)`` TCP with the flange's orientation and the tip as origin (a 3-DoF TCP)."""
-        T = np.eye(4)
-        T[:3, 3] = self.p_flange_tip
-        return T
 
 
 def refine_pivot(
