@@ -7,8 +7,9 @@ Prints tables (medians of ``--repeats`` interleaved runs; timings on a shared 2-
    whole ``calibrate_cameras``), OpenCV ``calibrateCamera`` and ``calibrateCameraExtended`` (standard
    deviations) with the same convergence (``COUNT+EPS, 200, 1e-15``: OpenCV's default 30 iterations stop
    early at 400 views), and the ratios;
-2. Monte Carlo: ``--mc`` calibrations at N=25 via ``calibrate_cameras_batch`` (one vmapped solve) vs
-   the same number of sequential ``cv2.calibrateCamera`` calls;
+2. Monte Carlo: ``--mc`` calibrations at N=25 via ``calibrate_cameras_batch`` (vmapped solves in
+   sub-batches of 8) vs sequential ``calibrate_cameras`` calls vs the same number of sequential
+   ``cv2.calibrateCamera`` calls;
 3. ``jcalib calibrate`` CLI wall time in a fresh process, cold and warm persistent compilation cache.
 
     .venv/bin/python benchmarks/bench_calibrate.py [--views 25 100 400] [--repeats 5] [--mc 1000] [--skip-cli]
@@ -109,12 +110,14 @@ def bench_monte_carlo(num, num_views=25):
     obs = [parse_observations(d) for d, _, _ in sets]
     calibrate_cameras_batch(cell, obs[:num])  # compile (same padded shape)
     t_ours, cals = timed(lambda: calibrate_cameras_batch(cell, obs))
+    t_seq, _ = timed(lambda: [calibrate_cameras(cell, o) for o in obs])
     t_cv, _ = timed(lambda: [cv2.calibrateCamera(o, i, SIZE, None, None, criteria=CRITERIA) for _, o, i in sets])
     fx = np.array([c.cameras["cam"].params[0] for c in cals])
     std = np.array([np.sqrt(c.intrinsics_covariance["cam"][0, 0]) for c in cals])
     print(f"\nMonte Carlo: {num} calibrations, N={num_views} views, same poses, fresh 0.2 px noise")
     print(f"{'what':<44} {'total s':>8} {'per calib ms':>13}")
     print(f"{'jcalib calibrate_cameras_batch (vmapped)':<44} {t_ours:>8.2f} {t_ours / num * 1e3:>13.2f}")
+    print(f"{'jcalib calibrate_cameras, sequential':<44} {t_seq:>8.2f} {t_seq / num * 1e3:>13.2f}")
     print(f"{'OpenCV calibrateCamera, sequential':<44} {t_cv:>8.2f} {t_cv / num * 1e3:>13.2f}")
     print(f"speed-up OpenCV / jcalib: {t_cv / t_ours:.2f}x   fx spread {fx.std():.3f} px, "
           f"median stated std {np.median(std):.3f} px")

@@ -6,6 +6,12 @@ complement), and the pose of the reference camera in every other camera (``T_cam
 Residuals: target-corner reprojection errors in pixels. Closed forms start it (Zhang per camera,
 planar PnP per view, rig poses by rotation averaging); jcalib's engine refines it and gives the
 covariance. OpenCV serves nothing but a per-view PnP inside the initialiser.
+
+One camera with unknown intrinsics (not fisheye) starts inside the jitted solve instead:
+:func:`jcalib.init.zhang_jax.zhang_start` computes Zhang's closed form and its checks in the same
+compiled function (one call, and ``vmap``-able for batches). When those checks fail, the host's
+numpy closed form runs and either names the problem (fronto-parallel views, collinear points) or
+starts the solve itself; either way the optimum is the same.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import conversions, lie
 from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
 from jcalib.init import planar_pnp, zhang_init
+from jcalib.init.zhang_jax import zhang_start
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
@@ -324,6 +331,9 @@ class _CameraConfig:
     skew: bool
     coord_names: tuple[str, ...]
     chunk: int  # corners per view in the padded (views x corners) layout
+    # Zhang's closed form inside the jit (one camera, intrinsics not given, not fisheye):
+    # ``(skew, aspect_ratio, principal_point)`` of :func:`jcalib.init.zhang_jax.zhang_start`
+    zhang: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -368,8 +378,38 @@ def _problem_from_arrays(config: _Config, a: dict) -> Problem:
     return Problem(variables, factors)
 
 
+def _zhang_start(config: _Config, a: dict):
+    """Zhang's closed form on the padded layout of the one camera: (intrinsics, poses, ok, spread)."""
+    cc = config.cameras[0]
+    skew, aspect_ratio, principal_point = cc.zhang
+    V = a["pose"].shape[0]
+    K, pose, ok, spread = zhang_start(
+        a["points0"][:, :2].reshape(V, cc.chunk, 2), a["pixels0"].reshape(V, cc.chunk, 2),
+        (a["weight0"] > 0.0).reshape(V, cc.chunk), image_size=cc.image_size, skew=skew,
+        aspect_ratio=aspect_ratio, principal_point=principal_point)
+    values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1],
+              "alpha": K[0, 1] / K[0, 0]}
+    zero = jnp.zeros((), K.dtype)
+    intr = jnp.stack([values.get(n, zero) for n in cc.coord_names])
+    real = ~jnp.all(a["pose_fixed"], axis=-1)  # padded views are fixed copies of view 0
+    pose = jnp.where(real[:, None], pose, pose[:1])
+    return intr, pose, ok, spread
+
+
 def _core(config: _Config, a: dict):
-    """Solve, residuals (pixels, unwhitened) and the inverse Schur complement, in one traced function."""
+    """Start, solve, residuals (pixels, unwhitened) and the inverse Schur complement, in one traced function.
+
+    With ``config.cameras[0].zhang`` set, the start is Zhang's closed form computed here, unless
+    ``a["use_start"]`` asks for the given one (re-solves after a re-seed or outlier rejection);
+    the returned ``start`` is ``(ok, spread)`` of :func:`jcalib.init.zhang_jax.zhang_start`
+    (``ok = False``: the caller re-initialises on the host, which names what is wrong).
+    """
+    start = (jnp.ones((), bool), jnp.zeros((), jnp.float64))
+    if config.cameras[0].zhang is not None:
+        intr, pose, ok, spread = _zhang_start(config, a)
+        given = a["use_start"]
+        a = dict(a, pose=jnp.where(given, a["pose"], pose), intr0=jnp.where(given, a["intr0"], intr))
+        start = (ok | given, spread)
     problem = _problem_from_arrays(config, a)
     raw = lm_solve(problem, config.solve_options)
     residuals = []
@@ -379,7 +419,7 @@ def _core(config: _Config, a: dict):
     S, _ = linear.reduced_system(raw.system, None, None)
     n = S.shape[0]
     sigma_ss = jsl.cho_solve(jsl.cho_factor(S, lower=True), jnp.eye(n, dtype=S.dtype))
-    return raw, tuple(residuals), sigma_ss
+    return raw, tuple(residuals), sigma_ss, start
 
 
 _core_jit = jax.jit(_core, static_argnums=0)
@@ -407,6 +447,7 @@ class _Prepared:
     weights: dict[str, np.ndarray]
     num_views_padded: int = 0
     num_obs_padded: tuple[int, ...] = ()  # per camera: padded number of views (runs of ``chunk`` corners)
+    fast: bool = False  # the start is computed inside the jit (Zhang, :func:`_zhang_start`)
 
     def shape_key(self):
         return (self.num_views_padded, self.num_obs_padded)
@@ -420,14 +461,19 @@ def _pad_rows(x: np.ndarray, n: int) -> np.ndarray:
 
 
 def _arrays(p: _Prepared, pose: np.ndarray, rig: np.ndarray, intr: dict[str, np.ndarray],
-            weights: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Padded input arrays of :func:`_core` (padding: fixed copies of entry 0, zero-weight copies of obs 0)."""
+            weights: dict[str, np.ndarray], use_start: bool = True) -> dict[str, np.ndarray]:
+    """Padded input arrays of :func:`_core` (padding: fixed copies of entry 0, zero-weight copies of obs 0).
+
+    ``use_start=False`` lets the jitted solve start from its own closed form (``p.fast`` data sets).
+    """
     V, Vp = pose.shape[0], p.num_views_padded
     pose_fixed = np.zeros((Vp, 6), bool)
     pose_fixed[V:] = True
     rig_fixed = np.zeros((len(p.data), 6), bool)
     rig_fixed[0] = True  # the reference camera comes first
     a = dict(pose=_pad_rows(pose, Vp), pose_fixed=pose_fixed, rig=rig, rig_fixed=rig_fixed)
+    if p.config.cameras[0].zhang is not None:
+        a["use_start"] = np.asarray(use_start)
     for ci, cd in enumerate(p.data):
         # (views x corners) layout: view v's corners at v * chunk + [0, n_v); padding (short views,
         # extra views) repeats corner 0 of the camera with weight 0, in a run of one station
@@ -462,10 +508,11 @@ class _Outcome:
     num_free: int
     sigma2: float
     arrays: dict
+    start_ok: bool = True
 
 
 def _outcome(p: _Prepared, a: dict, out) -> _Outcome:
-    raw, residuals, sigma_ss = out
+    raw, residuals, sigma_ss, (start_ok, _) = out
     V = p.pose0.shape[0]
     vals = {k: np.asarray(v) for k, v in raw.values.items()}
     vals["T_ref_target"] = vals["T_ref_target"][:V]
@@ -473,7 +520,7 @@ def _outcome(p: _Prepared, a: dict, out) -> _Outcome:
     num_residuals, num_free, cost = int(raw.num_residuals), int(raw.num_free), float(raw.cost)
     dof = num_residuals - num_free
     return _Outcome(raw, vals, res, np.asarray(sigma_ss), cost, int(raw.iterations), Status(int(raw.status)),
-                    num_residuals, num_free, 2.0 * cost / dof if dof > 0 else float("nan"), a)
+                    num_residuals, num_free, 2.0 * cost / dof if dof > 0 else float("nan"), a, bool(start_ok))
 
 
 def _raise_if_unobservable(p: _Prepared, o: _Outcome) -> None:
@@ -500,23 +547,53 @@ def _check_finite_start(p: _Prepared, a: dict) -> None:
             )
 
 
-def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOptions) -> _Prepared:
-    """Validate, initialise (Zhang, poses, rig) and lay out one data set; numpy only."""
+@functools.lru_cache(maxsize=64)
+def _template(model_name: str, image_size: tuple[int, int], skew: bool) -> AbstractCameraModel:
+    return camera_model_from_name(model_name, image_size, skew=skew)
+
+
+def _zhang_options(data: list[_CameraData]) -> tuple | None:
+    """Static options of the in-jit Zhang start, or None where the start needs the host.
+
+    The host start handles several cameras (rig poses by rotation averaging), given intrinsics
+    (planar PnP) and the fisheye model (PnP on unprojected rays).
+    """
+    if len(data) != 1 or data[0].K0 is not None or data[0].model_name == "fisheye":
+        return None
+    cd = data[0]
+    principal_point = None
+    if "cx" in cd.fix and "cy" in cd.fix:
+        principal_point = ((cd.image_size[0] - 1) / 2, (cd.image_size[1] - 1) / 2)
+    return (bool(cd.skew), 1.0 if "aspect" in cd.fix else None, principal_point)
+
+
+def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOptions, fast: bool = True) -> _Prepared:
+    """Validate, initialise (Zhang, poses, rig) and lay out one data set; numpy only.
+
+    With ``fast`` and a camera that :func:`_zhang_options` accepts, the start is left to the jitted
+    solve (:func:`_zhang_start`): the host only validates and lays out the data.
+    """
     data, _, _, station_ids = _gather(cell, obs)
     ref = options.reference_camera or data[0].name
     if ref not in [cd.name for cd in data]:
         raise BadInputError(f"reference_camera: no camera '{ref}' in the cell")
     data.sort(key=lambda cd: cd.name != ref)  # reference first
+    zhang = _zhang_options(data)
+    fast = fast and zhang is not None
 
     models, poses, fixed_masks, aspects = {}, {}, {}, {}
     for cd in data:
-        models[cd.name], poses[cd.name] = _initial_model(cd)
+        if fast:  # placeholders: the jitted solve starts from its own closed form
+            models[cd.name] = _template(cd.model_name, tuple(int(v) for v in cd.image_size), bool(cd.skew))
+            poses[cd.name] = {}
+        else:
+            models[cd.name], poses[cd.name] = _initial_model(cd)
         fixed_masks[cd.name] = _intrinsics_fixed_mask(models[cd.name], cd.fix)
         ratio = 1.0
         if cd.K0 is not None:
             ratio = float(cd.K0[0, 0] / cd.K0[1, 1])
         aspects[cd.name] = (1.0 if "aspect" in cd.fix else 0.0, ratio)
-        if "aspect" in cd.fix:
+        if "aspect" in cd.fix and not fast:
             p = np.asarray(models[cd.name].params).copy()
             p[1] = p[0] / ratio
             models[cd.name] = models[cd.name].with_params(jnp.asarray(p))
@@ -558,16 +635,23 @@ def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOption
         cd.chunk = int(-(-counts.max() // 8) * 8)
         cd.pad_index = (np.repeat(np.arange(len(counts)) * cd.chunk, counts)
                         + np.arange(counts.sum()) - np.repeat(cd.view_starts, counts))
-    T_ref_target = []
-    for k in range(len(used)):
-        for cd in data:
-            if k in poses[cd.name]:
-                T_ref_target.append(np.linalg.inv(T_cam_ref[cd.name]) @ poses[cd.name][k])
-                break
+    identity = np.array([1.0, 0, 0, 0, 0, 0, 0])
+    if fast:  # placeholders (one camera, the rig is its identity)
+        pose0, rig0 = np.tile(identity, (len(used), 1)), identity[None, :].copy()
+    else:
+        T_ref_target = []
+        for k in range(len(used)):
+            for cd in data:
+                if k in poses[cd.name]:
+                    T_ref_target.append(np.linalg.inv(T_cam_ref[cd.name]) @ poses[cd.name][k])
+                    break
+        pose0 = _se3_params_many(np.stack(T_ref_target))
+        rig0 = _se3_params_many(np.stack([T_cam_ref[cd.name] for cd in data]))
     config = _Config(
         cameras=tuple(
             _CameraConfig(cd.name, type(models[cd.name]), tuple(int(s) for s in models[cd.name].image_size),
-                          bool(models[cd.name].has_skew), tuple(models[cd.name].param_names), cd.chunk)
+                          bool(models[cd.name].has_skew), tuple(models[cd.name].param_names), cd.chunk,
+                          zhang)
             for cd in data
         ),
         loss=_loss(options),
@@ -585,11 +669,12 @@ def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOption
         models=models,
         fixed_masks=fixed_masks,
         aspects=aspects,
-        pose0=_se3_params_many(np.stack(T_ref_target)),
-        rig0=_se3_params_many(np.stack([T_cam_ref[cd.name] for cd in data])),
+        pose0=pose0,
+        rig0=rig0,
         weights={cd.name: np.ones(cd.station_flat.shape[0]) for cd in data},
         num_views_padded=bucket_size(len(used)),
         num_obs_padded=tuple(bucket_size(len(cd.stations)) for cd in data),
+        fast=fast,
     )
 
 
@@ -599,8 +684,11 @@ def _se3_params_many(T: np.ndarray) -> np.ndarray:
 
 
 def _start_arrays(p: _Prepared) -> dict:
-    intr = {cd.name: np.asarray(p.models[cd.name].params, np.float64) for cd in p.data}
-    a = _arrays(p, p.pose0, p.rig0, intr, p.weights)
+    if p.fast:  # placeholders: the jitted solve starts from its own closed form
+        intr = {cd.name: np.zeros(len(p.models[cd.name].param_names)) for cd in p.data}
+    else:
+        intr = {cd.name: np.asarray(p.models[cd.name].params, np.float64) for cd in p.data}
+    a = _arrays(p, p.pose0, p.rig0, intr, p.weights, use_start=not p.fast)
     _check_finite_start(p, a)
     return a
 
@@ -725,9 +813,20 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
 
 
 def _run_one(p: _Prepared, a: dict) -> _Outcome:
+    """Solve; an in-jit start that failed its checks (``start_ok`` False) is returned, not raised on."""
     o = _outcome(p, a, jax.device_get(_core_jit(p.config, a)))
-    _raise_if_unobservable(p, o)
+    if o.start_ok:
+        _raise_if_unobservable(p, o)
     return o
+
+
+def _solve_prepared(cell: CellSpec, obs: Observations, options: CameraCalibrationOptions,
+                    p: _Prepared, o: _Outcome) -> CameraCalibration:
+    """Finish a first solve; when its in-jit start was rejected, start again from the host's closed form."""
+    if not o.start_ok:
+        p = _prepare(cell, obs, options, fast=False)  # names what is wrong, or starts it properly
+        o = _run_one(p, _start_arrays(p))
+    return _refine(p, o, options)
 
 
 def _refine(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, run=None) -> CameraCalibration:
@@ -767,8 +866,7 @@ def calibrate_cameras(
             sharing no station with the others), naming them.
     """
     p = _prepare(cell, obs, options)
-    o = _run_one(p, _start_arrays(p))
-    return _refine(p, o, options)
+    return _solve_prepared(cell, obs, options, p, _run_one(p, _start_arrays(p)))
 
 
 _BATCH = 8
@@ -783,8 +881,8 @@ def calibrate_cameras_batch(
 ) -> list[CameraCalibration | Exception]:
     """Calibrate many data sets of one cell (e.g. a Monte-Carlo study) with one vmapped solve.
 
-    Every data set is initialised on the host (cheap Zhang, its poses), padded to the largest
-    bucket of the batch, and all are solved by ``jax.vmap`` of the same jitted function as
+    Every data set is laid out on the host (and initialised there, unless the jitted solve starts
+    it with its own closed form, see the module docstring), padded to the largest bucket of the batch, and all are solved by ``jax.vmap`` of the same jitted function as
     :func:`calibrate_cameras` (one compilation per cell and padded shape). Data sets that need a
     re-seeded view or outlier rejection are re-solved one by one afterwards. Results equal
     :func:`calibrate_cameras` on each data set to solver tolerance.
@@ -836,8 +934,9 @@ def calibrate_cameras_batch(
             try:
                 out = outs[j // _BATCH]
                 o = _outcome(p, a, jax.tree.map(lambda x, j=j % _BATCH: x[j], out))
-                _raise_if_unobservable(p, o)
-                results[i] = _refine(p, o, options)
+                if o.start_ok:
+                    _raise_if_unobservable(p, o)
+                results[i] = _solve_prepared(cell, observations[i], options, p, o)
             except (BadInputError, NotObservableError) as err:
                 if raise_errors:
                     raise

@@ -169,3 +169,29 @@ def test_bad_inputs_name_the_problem():
         calibrate_cameras(make_cell({"cam0": "opencv5"}), parse_observations(obs))
     with pytest.raises(BadInputError, match="nodist"):
         calibrate_cameras(make_cell({"cam0": "opencv5"}, fix=["nodist"]), make_obs({"cam0": cam}, views, rng))
+
+
+@pytest.mark.parametrize("options", [{}, {"skew": True}, {"fix": ["aspect", "k3"]}, {"fix": ["cx", "cy"]}])
+def test_in_jit_start_reaches_the_host_starts_optimum(options):
+    """The jitted solve's own Zhang start (default) and the host's numpy start give one optimum."""
+    from jcalib.problems import camera as C
+
+    rng = np.random.default_rng(17)
+    model = camera_from_opencv(np.array([[900.0, 0, 639.5], [0, 900.0, 479.5], [0, 0, 1]]),
+                               np.array([-0.1, 0.02, 0.0, 0.0, 0.0]), (1280, 960))
+    poses = random_calibration_views(model, BOARD.points, 12, rng=rng)
+    obs = make_obs({"cam": model}, [{"cam": T} for T in poses], rng, sigma_px=0.2)
+    cell = make_cell({"cam": "opencv5"}, **options)
+    opts = CameraCalibrationOptions()
+    fast = C._prepare(cell, obs, opts)
+    host = C._prepare(cell, obs, opts, fast=False)
+    assert fast.fast and not host.fast and fast.config == host.config  # one compiled function
+    o_fast = C._run_one(fast, C._start_arrays(fast))
+    o_host = C._run_one(host, C._start_arrays(host))
+    assert o_fast.start_ok
+    # the two starts differ (h33 = 1 vs homogeneous DLT); the optimum does not (solver tolerance)
+    cal_fast, cal_host = C._refine(fast, o_fast, opts), C._refine(host, o_host, opts)
+    np.testing.assert_allclose(np.asarray(cal_fast.cameras["cam"].params), np.asarray(cal_host.cameras["cam"].params),
+                               rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(cal_fast.intrinsics_covariance["cam"], cal_host.intrinsics_covariance["cam"],
+                               rtol=1e-6, atol=1e-14)
