@@ -12,7 +12,7 @@ import numpy as np
 from jcalib.errors import BadInputError
 from jcalib.io.cell import CellSpec, cell_to_dict, load_cell
 from jcalib.io.observations import Observations, load_observations
-from jcalib.io.result import CameraResult, Provenance, ResultFile, TransformResult, hash_inputs
+from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TransformResult, hash_inputs
 
 
 class Result:
@@ -232,10 +232,9 @@ def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats:
         for name, model in cal.cameras.items()
     }
     transforms = {n: TransformResult(T, cal.transform_covariance[n]) for n, T in cal.transforms.items()}
+    points = {n: PointResult(p, "base", cal.point_covariance[n]) for n, p in getattr(cal, "points", {}).items()}
     stats = {
-        "rms_px": cal.rms_px,
         "num_residuals": cal.num_residuals,
-        "sigma_px": cal.sigma_px,
         "iterations": cal.iterations,
         "status": cal.status,
         "num_stations": len(cal.station_ids),
@@ -243,8 +242,18 @@ def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats:
         "start": dict(cal.start_method),
         "problem": "cell",
     }
+    if cal.rms_px == cal.rms_px:  # a cell calibrated by contacts alone has no pixels
+        stats.update(rms_px=cal.rms_px, sigma_px=cal.sigma_px)
+    if cal.sigma2 == cal.sigma2:
+        stats["variance_factor"] = cal.sigma2
     if cal.tip_rms_px == cal.tip_rms_px:
         stats["tip_rms_px"] = cal.tip_rms_px
+    if getattr(cal, "contact_rms_m", float("nan")) == cal.contact_rms_m:
+        stats["contact_rms_m"] = cal.contact_rms_m
+    if getattr(cal, "outliers", None) is not None:
+        stats["num_outliers"] = len(cal.outliers)
+        if cal.outliers:
+            stats["outliers"] = [f"{who}/{sid}/{idx}" for who, sid, idx in cal.outliers]
     if cal.priors:
         stats["priors"] = list(cal.priors)
     if cal.warnings:
@@ -257,7 +266,8 @@ def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats:
         extra["joint_covariance"] = {"names": list(jc["names"]), "dims": [int(d) for d in jc["dims"]],
                                      "matrix": np.asarray(jc["matrix"]).tolist(),
                                      "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, tz"}
-    file = ResultFile(cameras=cameras, transforms=transforms, stats=stats, provenance=provenance, extra=extra)
+    file = ResultFile(cameras=cameras, transforms=transforms, points=points, stats=stats, provenance=provenance,
+                      extra=extra)
     return Result(file, cal)
 
 

@@ -255,8 +255,9 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
     _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "fixed"}, source)
     cameras_in = data.get("cameras") or {}
-    if not isinstance(cameras_in, dict) or not cameras_in:
-        raise _fail(source, "'cameras' must map camera ids to entries (at least one camera)")
+    if not isinstance(cameras_in, dict) or not (cameras_in or data.get("tools") or data.get("points")):
+        raise _fail(source, "'cameras' must map camera ids to entries (at least one camera, unless the cell "
+                            "is calibrated by tool contacts alone: tools and points)")
     cameras = {str(n): _parse_camera(str(n), e, f"{source}: cameras.{n}") for n, e in cameras_in.items()}
     targets_in = data.get("targets") or {}
     if not isinstance(targets_in, dict):

@@ -1,5 +1,5 @@
 """The whole cell as one joint least-squares problem: any mix of flange and fixed cameras, fixed and
-flange targets, tools seen by fixed cameras, one robot with a pose-error model.
+flange targets, tools seen by fixed cameras and/or touching cell points, one robot with a pose-error model.
 
 Unknowns (names as in the result file):
 
@@ -9,6 +9,8 @@ Unknowns (names as in the result file):
 - ``T_base_<target>`` or ``T_flange_<target>``;
 - ``T_flange_<tool>``: the TCP of each tool; only its translation (the tip in the flange frame) is
   observable from tip pixels, its rotation stays at identity (fixed, zero covariance);
+- ``point:<name>``: each cell point (``points:`` in the spec, e.g. a pivot divot or a work-object
+  reference) in the base frame, m; held at ``position`` when the spec gives one;
 - ``T_base_flange``: the true flange pose of every station, ``T_meas_i · Exp(δ_i)`` with the robot
   pose-noise prior of the cell (``robot.pose_noise``), eliminated by Schur complement; exact
   (fixed) without ``pose_noise``.
@@ -21,7 +23,15 @@ with ``T_base_cam_i = T_base_flange_i · T_flange_cam`` for a flange camera (``T
 fixed one) and likewise for the target; and every tool-tip pixel (observations
 ``{"camera": c, "tool": t, "pixel": [u, v]}``, camera fixed on the base),
 
-    project_c( inv(T_base_cam) · T_base_flange_i · p_flange_tip )  −  u   (pixels, σ = ``tip_sigma_px``).
+    project_c( inv(T_base_cam) · T_base_flange_i · p_flange_tip )  −  u   (pixels, σ = ``tip_sigma_px``);
+
+and every contact (station ``"contacts": [{"tool": t, "point": p}]``: the tip touches the point),
+
+    T_base_flange_i · p_flange_tip  −  p_base                              (m, σ = ``contact_sigma_m``),
+
+which covers pivot calibration, the robot 4-point TCP method and touched work-object points.
+Corners and tip pixels beyond ``outlier_threshold`` a-posteriori σ are rejected and the problem
+re-solved.
 
 Everything is solved jointly by the engine (:func:`jcalib.solve.solve`), with covariances.
 
@@ -30,7 +40,8 @@ result's, else Zhang on the camera's target views), then the poses: known poses 
 the prior, poses that follow from a known one through a camera–target pair (static pairs: one
 relative pose; moving pairs: averaged per station), and a closed-form hand-eye solve
 (:func:`jcalib.init.handeye.solve_hand_eye`) for a moving pair whose two poses are both unknown;
-then each TCP from the viewing rays of its tip detections (linear least squares).
+then each TCP from its contacts (pivot / 4-point linear least squares, with the points it touches) or
+else from the viewing rays of its tip detections (linear least squares), then the remaining points.
 
 Priors from a previous result (``prior=``): each named unknown gets a Gaussian prior with the old
 value as mean and the old covariance (pseudo-inverse square root: coordinates with zero variance
@@ -50,6 +61,7 @@ from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import lie
 from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
 from jcalib.init.handeye import HAND_EYE_METHODS, average_poses, solve_hand_eye
+from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, _check_rotations
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 from jcalib.problems.camera import (
@@ -68,6 +80,9 @@ from jcalib.solve.covariance import covariance as _covariance
 
 __all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell"]
 
+#: Rounds of outlier rejection (each re-solves once; stops early when nothing new is rejected).
+MAX_OUTLIER_ROUNDS = 5
+
 
 @dataclass(frozen=True)
 class CellOptions:
@@ -81,6 +96,11 @@ class CellOptions:
             ``robot.pose_noise``; ``False`` = off (poses exact).
         method: closed-form hand-eye start (a key of :data:`jcalib.init.handeye.HAND_EYE_METHODS`).
         max_iterations: LM iteration limit.
+        contact_sigma_m: stated accuracy of a tool-tip contact with a cell point (per axis, m): how
+            well the tip sits in the divot, on top of the robot pose noise.
+        outlier_threshold: target corners and tip pixels whose residual exceeds this many
+            a-posteriori σ are rejected after the solve and the problem re-solved (up to
+            :data:`MAX_OUTLIER_ROUNDS` times); ``None`` keeps all.
     """
 
     sigma_px: float = 0.25
@@ -89,11 +109,18 @@ class CellOptions:
     pose_model: bool | None = None
     method: str = "park_martin"
     max_iterations: int = 100
+    contact_sigma_m: float = 5e-5
+    outlier_threshold: float | None = 5.0
 
     def __post_init__(self):
         for name in ("sigma_px", "tip_sigma_px"):
             if not getattr(self, name) > 0:
                 raise BadInputError(f"{name}: got {getattr(self, name)!r}, expected a positive number of pixels")
+        if not self.contact_sigma_m > 0:
+            raise BadInputError(f"contact_sigma_m: got {self.contact_sigma_m!r}, expected a positive length in m")
+        if self.outlier_threshold is not None and not self.outlier_threshold > 0:
+            raise BadInputError(f"outlier_threshold: got {self.outlier_threshold!r}, expected a positive number "
+                                "of σ or None")
         if self.noise not in ("a_posteriori", "stated"):
             raise BadInputError(f"noise: got {self.noise!r}, expected 'a_posteriori' or 'stated'")
         if self.pose_model not in (None, True, False):
@@ -109,8 +136,8 @@ class CellOptions:
             return cls()
         if isinstance(options, CellOptions):
             return options
-        keep = {k: getattr(options, k) for k in ("sigma_px", "noise", "max_iterations", "pose_model")
-                if hasattr(options, k)}
+        keep = {k: getattr(options, k) for k in ("sigma_px", "noise", "max_iterations", "pose_model",
+                                                 "outlier_threshold") if hasattr(options, k)}
         if not keep:
             raise BadInputError(f"options: got {type(options).__name__}, expected CellOptions for a whole-cell problem")
         return cls(**keep)
@@ -139,6 +166,10 @@ class CellCalibration:
         joint_covariance: ``{"names": [...], "dims": [...], "matrix": (n, n)}``: the joint covariance
             of every unknown (camera ids for intrinsics, transform names; tangent coordinates in that
             order), with the cross terms that the per-unknown blocks leave out.
+        points: cell point name -> ``(3,)`` position in the base frame (m), estimated from tool-tip
+            contacts (or as given); ``point_covariance``: name -> ``(3, 3)`` m² (zero when given).
+        contact_rms_m: RMS of the contact residual coordinates (m), nan without contacts.
+        outliers: rejected measurements ``(camera/tool, station id, point index or -1 for a tip)``.
         solution: the :class:`jcalib.solve.Solution`.
     """
 
@@ -162,18 +193,20 @@ class CellCalibration:
     priors: list[str] = field(default_factory=list)
     joint_covariance: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    points: dict[str, np.ndarray] = field(default_factory=dict)
+    point_covariance: dict[str, np.ndarray] = field(default_factory=dict)
+    contact_rms_m: float = float("nan")
+    outliers: list[tuple[str, str, int]] = field(default_factory=list)
     solution: object = field(default=None, repr=False)
 
 
 def is_cell_problem(cell: CellSpec) -> bool:
     """Whether :func:`calibrate_cell` handles ``cell``: a robot cell (cameras/targets on the base or
-    flange, or tools) without free-moving cameras or targets and without contact points."""
-    if cell.points:
-        return False
+    flange, tools, cell points touched by tools) without free-moving cameras or targets."""
     mounts = [c.mount for c in cell.cameras.values()] + [t.mount for t in cell.targets.values()]
     if "free" in mounts:
         return False
-    return bool(cell.tools) or any(m != "free" for m in mounts)
+    return bool(cell.tools) or bool(cell.points) or any(m != "free" for m in mounts)
 
 
 # ------------------------------------------------------------------------------------ residuals
@@ -191,6 +224,11 @@ def _target_fn(model_cls: type, image_size: tuple[int, int], skew: bool, cam_mou
         return project(intrinsics, lie.se3_inverse(T_base_cam), T_base_target, obs)
 
     return fn
+
+
+def _contact_fn(T_flange_tool, point, T_base_flange, obs):
+    """Tool tip at the station's flange pose minus the touched cell point, base frame (m), (3,)."""
+    return lie.se3_apply(T_base_flange, T_flange_tool[4:]) - point
 
 
 @functools.cache
@@ -219,16 +257,33 @@ class _Tips:
     pixels: list[np.ndarray]  # (2,) each
 
 
+@dataclass
+class _Contacts:
+    tool: str
+    point: str
+    stations: list[int]
+
+
 def _gather(cell: CellSpec, obs: Observations):
     for c in cell.cameras.values():
         if c.name not in obs.cameras:
             raise BadInputError(f"{obs.source}: camera '{c.name}' of the cell has no image size in the observations")
     pairs: dict[tuple[str, str], _Pair] = {}
     tips: dict[tuple[str, str], _Tips] = {}
+    contacts: dict[tuple[str, str], _Contacts] = {}
     ids, poses = [], []
     for station in obs.stations:
         used = False
         k = len(ids)
+        for c in station.contacts:
+            if c.tool not in cell.tools:
+                raise BadInputError(f"{obs.source}: station '{station.id}': contact of tool '{c.tool}', which is not "
+                                    f"in the cell's tools ({', '.join(cell.tools) or 'none'})")
+            if c.point not in cell.points:
+                raise BadInputError(f"{obs.source}: station '{station.id}': contact with point '{c.point}', which is "
+                                    f"not in the cell's points ({', '.join(cell.points) or 'none'})")
+            contacts.setdefault((c.tool, c.point), _Contacts(c.tool, c.point, [])).stations.append(k)
+            used = True
         for det in station.detections:
             if det.camera not in cell.cameras:
                 continue
@@ -269,11 +324,11 @@ def _gather(cell: CellSpec, obs: Observations):
         ids.append(station.id)
         poses.append(np.asarray(station.T_base_flange, np.float64))
     if not ids:
-        raise BadInputError(f"{obs.source}: no detection of the cell's targets or tools in any station")
+        raise BadInputError(f"{obs.source}: no detection of the cell's targets or tools, and no contact, in any station")
     for (cam_name, target_name), p in pairs.items():
         if cell.cameras[cam_name].mount == cell.targets[target_name].mount and len(p.views) > 1:
             pairs[(cam_name, target_name)] = _static_view(p)
-    return pairs, tips, ids, np.stack(poses)
+    return pairs, tips, contacts, ids, np.stack(poses)
 
 
 def _static_view(p: _Pair) -> _Pair:
@@ -371,6 +426,52 @@ def _start_intrinsics(cell: CellSpec, obs: Observations, pairs, prior) -> tuple[
     return models, views
 
 
+def _contact_start(tool: str, tool_contacts: list, T_bf: np.ndarray, point_start: dict, source: str):
+    """TCP translation (and the unknown points it touches) from contacts, by linear least squares.
+
+    Each contact at station k says ``R_k · tip + t_k = p``: unknowns ``tip`` (flange frame) and
+    every touched point not given in the cell (base frame); given points enter as constants. This is
+    the pivot calibration (one point, many orientations) and the robot's 4-point TCP method, and it
+    fills ``point_start`` with the points it solves. Returns ``(T_flange_tool, how)``.
+    """
+    unknown = sorted({c.point for c in tool_contacts if c.point not in point_start})
+    name = f"T_flange_{tool}"
+    if unknown:  # a pivot: the tip along an axis the flange never turns away from stays undetermined
+        R = T_bf[np.asarray([k for c in tool_contacts if c.point in unknown for k in c.stations]), :3, :3]
+        try:
+            _check_rotations(R, DEFAULT_MIN_ROTATION_DEG, f"tool '{tool}' touching {unknown}")
+        except NotObservableError as err:
+            raise NotObservableError(f"{source}: {err} ({name} and the touched points)",
+                                     [name] + [f"point:{p}" for p in unknown]) from None
+    col = {p: 3 + 3 * i for i, p in enumerate(unknown)}
+    rows, rhs = [], []
+    for c in tool_contacts:
+        for k in c.stations:
+            A = np.zeros((3, 3 + 3 * len(unknown)))
+            A[:, :3] = T_bf[k, :3, :3]
+            b = -T_bf[k, :3, 3]
+            if c.point in col:
+                A[:, col[c.point]:col[c.point] + 3] = -np.eye(3)
+            else:
+                b = b + point_start[c.point]
+            rows.append(A)
+            rhs.append(b)
+    A, b = np.concatenate(rows), np.concatenate(rhs)
+    sv = np.linalg.svd(A, compute_uv=False)
+    if A.shape[0] < A.shape[1] or sv[-1] < 1e-6 * sv[0]:
+        raise NotObservableError(
+            f"{source}: the contacts of tool '{tool}' do not determine its tip ({name}) and the touched points "
+            f"{unknown}: the flange orientations at each point must differ by rotations about at least two axes "
+            "(a pivot needs the tool tilted in different directions; the 4-point method four distinct orientations)",
+            [name] + [f"point:{p}" for p in unknown])
+    x = np.linalg.lstsq(A, b, rcond=None)[0]
+    for p in unknown:
+        point_start[p] = x[col[p]:col[p] + 3]
+    T = np.eye(4)
+    T[:3, 3] = x[:3]
+    return T, "contacts"
+
+
 def _start_poses(cell, pairs, views, T_bf, known: dict, method: str, rot_noise: float):
     """Fill ``known`` (name -> (4, 4)) for every camera and target pose, and say how each started."""
     how = {name: "known" for name in known}
@@ -466,7 +567,7 @@ def calibrate_cell(
             f"{cell.source}: the whole-cell problem takes cameras and targets on the base or flange and tools; "
             "free-moving cameras/targets and contact points are calibrated by the camera and pivot problems"
         )
-    pairs, tips, ids, T_bf = _gather(cell, obs)
+    pairs, tips, contacts, ids, T_bf = _gather(cell, obs)
     has_noise = cell.robot is not None and cell.robot.pose_noise_translation_m is not None
     use_pose_model = has_noise if options.pose_model is None else bool(options.pose_model)
     if use_pose_model and not has_noise:
@@ -491,14 +592,20 @@ def calibrate_cell(
                 how_known[n] = "prior"
     how = _start_poses(cell, pairs, views, T_bf, known, options.method, rot_noise)
     how.update(how_known)
+    point_start: dict[str, np.ndarray] = {n: np.asarray(pt.position, np.float64) for n, pt in cell.points.items()
+                                          if pt.position is not None}
     for tool in cell.tools.values():
         name = f"T_flange_{tool.name}"
         tool_tips = [t for (c, tn), t in tips.items() if tn == tool.name]
+        tool_contacts = [c for (tn, _), c in contacts.items() if tn == tool.name]
         if name in known:
             continue
+        if tool_contacts:
+            known[name], how[name] = _contact_start(tool.name, tool_contacts, T_bf, point_start, obs.source)
+            continue
         if not tool_tips:
-            raise NotObservableError(f"{obs.source}: tool '{tool.name}' has no tip detections; {name} is undetermined",
-                                     [name])
+            raise NotObservableError(f"{obs.source}: tool '{tool.name}' has no tip detections and no contacts; {name} "
+                                     "is undetermined", [name])
         A_rows, x = [], None
         for t in tool_tips:
             cam_name = _mount_name("base", t.camera)
@@ -527,6 +634,16 @@ def calibrate_cell(
         T[:3, 3] = x
         known[name] = T
         how[name] = "tip_rays"
+    for point in cell.points:
+        if point in point_start:
+            continue
+        touches = [c for (_, pn), c in contacts.items() if pn == point]
+        if not touches:
+            raise NotObservableError(f"{obs.source}: cell point '{point}' is touched in no station (no contacts); its "
+                                     "position is undetermined. Touch it with a tool or give its position", [f"point:{point}"])
+        tips_base = [T_bf[k, :3, :3] @ known[f"T_flange_{c.tool}"][:3, 3] + T_bf[k, :3, 3] for c in touches
+                     for k in c.stations]
+        point_start[point] = np.mean(tips_base, axis=0)
 
     # --- problem
     meas = np.stack([_se3_params(T) for T in T_bf])
@@ -593,6 +710,14 @@ def calibrate_cell(
                              fixed=np.array([True, True, True, name in cell.fixed, name in cell.fixed,
                                              name in cell.fixed])))
 
+    for point, spec in cell.points.items():
+        fixed = spec.position is not None or point in cell.fixed
+        if point in cell.fixed and spec.position is None:
+            raise BadInputError(f"{cell.source}: fixed lists point '{point}' but the cell gives it no position; add "
+                                "position: [x, y, z] (m) or remove it from fixed")
+        variables.append(Variable(f"point:{point}", Euclidean(3), point_start[point][None, :],
+                                  fixed=np.full((1, 3), fixed), entry_label=f"point {point}"))
+
     factors, evals = [], []
     for p in pairs.values():
         cam = cell.cameras[p.camera]
@@ -606,7 +731,7 @@ def calibrate_cell(
         z = np.zeros_like(st)
         factors.append(FactorGroup(f"reprojection:{p.camera}/{p.target}", fn, args, (z, z, z, st), o,
                                    sigma=options.sigma_px))
-        evals.append(("corner", fn, args, st, o))
+        evals.append(("corner", fn, args, st, o, (p.camera, np.concatenate(p.point_index))))
     for t in tips.values():
         model = models[t.camera]
         fn = _tip_fn(type(model), tuple(int(v) for v in model.image_size), bool(model.has_skew))
@@ -616,9 +741,53 @@ def calibrate_cell(
         z = np.zeros_like(st)
         factors.append(FactorGroup(f"tooltip:{t.camera}/{t.tool}", fn, args, (z, z, z, st), o,
                                    sigma=options.tip_sigma_px))
-        evals.append(("tip", fn, args, st, o))
-    problem = Problem(variables, factors + prior_factors)
-    sol = solve(problem, options=SolveOptions(max_iterations=options.max_iterations))
+        evals.append(("tip", fn, args, st, o, (f"{t.camera}/{t.tool}", np.full(st.shape, -1))))
+    for c in contacts.values():
+        st = np.asarray(c.stations, np.int32)
+        z = np.zeros_like(st)
+        args = (f"T_flange_{c.tool}", f"point:{c.point}", "T_base_flange")
+        o = np.zeros((st.shape[0], 1))
+        factors.append(FactorGroup(f"contact:{c.tool}/{c.point}", _contact_fn, args, (z, z, st), o,
+                                   sigma=options.contact_sigma_m))
+        evals.append(("contact", _contact_fn, args, st, o, None))
+
+    def residuals(values):
+        out = []
+        for kind, fn, args, st, o, _ in evals:
+            n = st.shape[0]
+            ins = [jnp.broadcast_to(jnp.asarray(values[a][0]), (n, values[a].shape[1])) for a in args[:-1]]
+            out.append(np.asarray(_residuals_jit(fn)(*ins, jnp.asarray(values["T_base_flange"][st]),
+                                                     jax.tree.map(jnp.asarray, o))).reshape(n, -1))
+        return out
+
+    def build(weights):
+        fs = [FactorGroup(f.name, f.fn, f.args, f.indices, f.observations, sigma=f.sigma, sqrt_weight=w)
+              for f, w in zip(factors, weights)]
+        return Problem(variables, fs + prior_factors)
+
+    # Solve; reject pixels (corners, tips) beyond the threshold and re-solve from the last solution.
+    weights = [np.ones(e[3].shape[0]) for e in evals]
+    solve_options = SolveOptions(max_iterations=options.max_iterations)
+    sol = solve(build(weights), options=solve_options)
+    res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
+    outliers: list[tuple[str, str, int]] = []
+    for _ in range(MAX_OUTLIER_ROUNDS if options.outlier_threshold is not None else 0):
+        changed = False
+        for k, ((kind, _, _, st, _, label), r) in enumerate(zip(evals, res)):
+            if kind == "contact":
+                continue
+            sigma = (options.sigma_px if kind == "corner" else options.tip_sigma_px) * (
+                float(np.sqrt(sol.sigma2)) if options.noise == "a_posteriori" else 1.0)
+            bad = (np.linalg.norm(r, axis=1) > options.outlier_threshold * sigma) & (weights[k] > 0)
+            if np.any(bad):
+                changed = True
+                weights[k] = np.where(bad, 0.0, weights[k])
+                who, index = label
+                outliers += [(who, ids[int(st[j])], int(index[j])) for j in np.flatnonzero(bad)]
+        if not changed:
+            break
+        sol = solve(build(weights), x0=sol.values, options=solve_options)
+        res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
     if options.noise == "a_posteriori" and not sol.sigma2 == sol.sigma2:
         raise NotObservableError(
             f"The a-posteriori noise level needs more residuals ({sol.num_residuals}) than free unknowns "
@@ -626,15 +795,14 @@ def calibrate_cell(
 
     # --- outputs
     vals = {k: np.asarray(v) for k, v in sol.values.items()}
-    sq = {"corner": [], "tip": []}
-    for kind, fn, args, st, o in evals:
-        n = st.shape[0]
-        ins = [jnp.broadcast_to(jnp.asarray(vals[a][0]), (n, vals[a].shape[1])) for a in args[:3]]
-        r = np.asarray(_residuals_jit(fn)(*ins, jnp.asarray(vals["T_base_flange"][st]),
-                                          jax.tree.map(jnp.asarray, o)))
-        sq[kind].append(r.reshape(n, -1) ** 2)
+    sq = {"corner": [], "tip": [], "contact": []}
+    for (kind, *_), r, w in zip(evals, res, weights):
+        sq[kind].append(r[w > 0] ** 2)
     corner = np.concatenate(sq["corner"]) if sq["corner"] else np.zeros((0, 2))
     tip = np.concatenate(sq["tip"]) if sq["tip"] else np.zeros((0, 2))
+    contact = np.concatenate(sq["contact"]) if sq["contact"] else np.zeros((0, 3))
+    points = {n: vals[f"point:{n}"][0].copy() for n in cell.points}
+    point_cov = {n: np.asarray(_covariance(sol, f"point:{n}", noise=options.noise)) for n in cell.points}
     cameras, intr_cov = {}, {}
     for cam in cell.cameras.values():
         prm = vals[f"intrinsics:{cam.name}"][0].copy()
@@ -672,8 +840,12 @@ def calibrate_cell(
         T_base_flange=T_bf_est,
         rms_px=float(np.sqrt(np.mean(corner))) if corner.size else float("nan"),
         tip_rms_px=float(np.sqrt(np.mean(tip))) if tip.size else float("nan"),
+        contact_rms_m=float(np.sqrt(np.mean(contact))) if contact.size else float("nan"),
+        points=points,
+        point_covariance=point_cov,
+        outliers=outliers,
         sigma_px=float(np.sqrt(sol.sigma2)) * options.sigma_px,
-        num_residuals=int(corner.size + tip.size),
+        num_residuals=int(corner.size + tip.size + contact.size),
         iterations=int(sol.iterations),
         status=sol.status.name.lower(),
         sigma2=float(sol.sigma2),
