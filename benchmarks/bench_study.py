@@ -9,14 +9,19 @@ One trial = simulate + all seven estimators.
 
 Rows (compilation excluded everywhere: each process solves one warm-up study first, timed apart):
 - sequential loop: ``run_study(batch_size=1)`` in this process, one trial at a time;
-- local batched: ``run_study(batch_size=B)`` in this process (hand-eye has no batched/vmapped
-  solver API, so a batch is a loop: expect the same rate as the sequential row);
+- local batched: ``run_study(batch_size=B)`` in this process: each joint estimator solves the batch
+  with one ``calibrate_hand_eye_batch`` call (host preparation per trial, then the B main solves in
+  one vmapped jitted call and the B covariance systems of the pose model in another);
 - Dask: ``run_study(backend="dask")`` on a ``LocalCluster(2 workers, 1 thread each, 127.0.0.1)``,
-  one task per batch (workers warmed up first; their warm-up time is printed);
+  one task per batch (workers warmed up first with one batch of B each; their warm-up time is printed);
 - OpenCV closed forms alone: ``cv2.calibrateHandEye`` with its five methods on precomputed PnP poses
   (the scale of a closed-form-only study).
 With ``--camera`` also the camera study (12 random views, jcalib joint + OpenCV): sequential vs
 vmapped batches of ``calibrate_cameras_batch``.
+
+Then where a joint hand-eye solve spends its time (``joint_pose_model`` on the same trials, ms per
+trial): the host preparation alone (gather, Zhang/PnP starts, closed form, problem), the per-trial
+``calibrate_hand_eye`` loop and ``calibrate_hand_eye_batch`` in sub-batches of B.
 
 Timings on shared CPUs move by ±30-50 % between runs: compare rows of one run.
 """
@@ -76,6 +81,31 @@ def _opencv_closed_forms(scenario, trials: int, seed: int) -> float:
     return time.perf_counter() - t0
 
 
+def _breakdown(scenario, trials: int, seed: int, B: int) -> list[tuple[str, float]]:
+    """ms per trial of the joint solve with the pose model: host preparation, loop, batched."""
+    from jcalib.io.cell import load_cell
+    from jcalib.io.observations import load_observations
+    from jcalib.problems import handeye
+    from jcalib.study import load_scenario, simulate_trial
+    from jcalib.study.estimators import _handeye_cell, _handeye_obs
+
+    sc = load_scenario(scenario)
+    cell = load_cell(_handeye_cell(sc, True))
+    obs = [load_observations(_handeye_obs(sc, simulate_trial(sc, seed, k))) for k in range(trials)]
+    opt = handeye.HandEyeOptions(sigma_px=sc.noise.pixel_sigma_px, pose_model=True)
+    handeye.calibrate_hand_eye_batch(cell, obs[:B], opt)  # warm (compiled by the study already)
+    for o in obs:  # warm: the single-solve path compiles per padded shape
+        handeye.calibrate_hand_eye(cell, o, opt)
+    out = []
+    dt, _ = _timed(lambda: [handeye._prepare(cell, o, opt) for o in obs])
+    out.append(("host preparation only (gather, starts, closed form)", dt))
+    dt, _ = _timed(lambda: [handeye.calibrate_hand_eye(cell, o, opt) for o in obs])
+    out.append(("calibrate_hand_eye, loop", dt))
+    dt, _ = _timed(lambda: [handeye.calibrate_hand_eye_batch(cell, obs[s:s + B], opt) for s in range(0, trials, B)])
+    out.append((f"calibrate_hand_eye_batch, batches of {B}", dt))
+    return [(name, 1e3 * t / trials) for name, t in out]
+
+
 def _medians(table) -> dict:
     rows = table.to_dict("records") if hasattr(table, "to_dict") else table
     out = {}
@@ -102,7 +132,9 @@ def main() -> None:
     sc = _handeye_scenario(args.stations)
     n, B = args.trials, args.batch_size
     rows = []
-    warm, _ = _timed(lambda: run_study(sc, 1, seed=10_000 + args.seed, progress=False))
+    # warm-up: compile the solves for a batch of 1 (the sequential row) and of B (the batched rows)
+    warm, _ = _timed(lambda: (run_study(sc, 1, seed=10_000 + args.seed, batch_size=1, progress=False),
+                              run_study(sc, B, seed=10_001 + args.seed, batch_size=B, progress=False)))
     dt, seq = _timed(lambda: run_study(sc, n, seed=args.seed, batch_size=1, progress=False))
     rows.append(("hand-eye", "sequential loop (this process)", n, dt))
     dt, _ = _timed(lambda: run_study(sc, n, seed=args.seed, batch_size=B, progress=False))
@@ -113,8 +145,8 @@ def main() -> None:
 
         with LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None) as cluster, \
                 Client(cluster) as client:
-            dask_warm, _ = _timed(lambda: run_study(sc, 2, seed=20_000 + args.seed, backend="dask", batch_size=1,
-                                                    client=client, progress=False))
+            dask_warm, _ = _timed(lambda: run_study(sc, 2 * B, seed=20_000 + args.seed, backend="dask",
+                                                    batch_size=B, client=client, progress=False))
             dt, _ = _timed(lambda: run_study(sc, n, seed=args.seed, backend="dask", batch_size=B, client=client,
                                              progress=False))
             rows.append(("hand-eye", f"Dask LocalCluster, 2 workers (batch {B})", n, dt))
@@ -135,6 +167,9 @@ def main() -> None:
     print(f"{'study':9s} {'backend':48s} {'trials':>6s} {'wall s':>8s} {'trials/s':>9s}")
     for study, name, k, dt in rows:
         print(f"{study:9s} {name:48s} {k:6d} {dt:8.2f} {k / dt:9.2f}")
+    print(f"\nJoint hand-eye with the pose model, ms per trial ({n} trials):")
+    for name, ms in _breakdown(sc, n, args.seed, B):
+        print(f"  {name:55s} {ms:8.2f}")
     print("\nHand-eye medians (sequential run): estimator, rotation deg, translation mm, runtime ms")
     for e, (r, t, ms) in _medians(seq).items():
         print(f"  {e:18s} {r:8.4f} {t:8.4f} {ms:8.2f}")
