@@ -2,12 +2,17 @@
 
 The chain is the one a cell integrator runs on hardware, with simulators standing in for it:
 
-1. plan stations for the cell (:func:`jcalib.acquisition.commands.run_plan`);
+1. plan stations for the cell (:func:`jcalib.acquisition.planner.plan_cell`): hand-eye stations
+   (``cam_hand`` over the board), then tool stations (``tcp``: the tip of the tool ``torch`` held in
+   front of ``cam_fixed``, the tool turned about two axes), appended to one plan (ids ``s…``, ``t…``);
 2. serve a simulated robot controller (KUKAVARPROXY or ABB line protocol) and two fake GigE Vision
    cameras — ``cam_hand`` on the flange, ``cam_fixed`` on the base — rendering the scene at the
-   robot's *true* pose (repeatability noise included);
+   robot's *true* pose (repeatability noise included); ``cam_fixed`` shows the tool's silhouette on a
+   backlight while the tip is in its tool zone (:mod:`jcalib.acquisition.simcell`), the board otherwise;
 3. capture the session through the real drivers (Aravis over GVCP/GVSP, the robot protocol over TCP);
-4. detect the target in every image; 5. calibrate the cell jointly (:func:`jcalib.calibrate`);
+4. detect the board in every image, and the tool tip in ``cam_fixed`` images without a board
+   (:mod:`jcalib.session_detect`); 5. calibrate the cell jointly (:func:`jcalib.calibrate`): both
+   cameras, both poses, the board and the TCP ``T_flange_torch`` in one least-squares problem;
 6. write ``result.json``, the HTML report and the RAPID / KRL / OpenCV exports, and print every
    estimate next to the simulator's ground truth and its σ.
 
@@ -36,7 +41,8 @@ from rich.table import Table
 
 from jcalib.errors import BadInputError, DeviceError
 
-#: The demo cell: an eye-in-hand camera, a fixed camera, a checkerboard on the table.
+#: The demo cell: an eye-in-hand camera, a fixed camera, a checkerboard on the table, a tool whose TCP
+#: the fixed camera measures (its tip held in front of it, seen in silhouette).
 DEMO_CELL = """schema: jcalib.cell/1
 robot:
   model: kuka_kr10_r1100_sixx
@@ -52,7 +58,11 @@ cameras:
     fix: [fx, fy, cx, cy, k1, k2, p1, p2, k3]
 targets:
   board: {type: checkerboard, cols: 8, rows: 6, square: 0.025, mount: base}
+tools:
+  torch: {observed_by: [cam_fixed]}
 """
+#: Tool stations appended to the hand-eye plan (``tcp`` planner).
+TOOL_STATIONS = 7
 ADDRESSES = {"cam_hand": "127.0.0.1", "cam_fixed": "127.0.0.2"}
 _NETNS_ENV = "JCALIB_DEMO_IN_NETNS"
 
@@ -85,6 +95,7 @@ def run_cell_demo(
     out_dir: Path,
     *,
     stations: int = 16,
+    tool_stations: int = TOOL_STATIONS,
     protocol: str = "kuka",
     image_size: str = "640x480",
     seed: int = 0,
@@ -92,10 +103,17 @@ def run_cell_demo(
 ) -> dict:
     """Run the whole-cell demo (inside a private network namespace); returns the comparison rows.
 
+    Args:
+        out_dir: folder for the plan, session, observations, result, report and exports.
+        stations: hand-eye stations to plan (unreachable ones are dropped).
+        tool_stations: tool (``tcp``) stations appended to them.
+        protocol: simulated controller, "kuka" or "abb".  image_size: "WIDTHxHEIGHT", px.
+        seed: noise seed of the simulated cell.
+
     Returns:
         ``{quantity: (truth, estimate, σ)}`` in the units printed (px, mm, deg).
     """
-    from jcalib.acquisition.commands import parse_image_size, run_capture, run_plan
+    from jcalib.acquisition.commands import parse_image_size, run_capture
     from jcalib.calibration import calibrate
     from jcalib.io.atomic import write_text_atomic
     from jcalib.io.export import export_result
@@ -114,10 +132,10 @@ def run_cell_demo(
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    planned = run_plan(cell_path, "handeye", out_dir / "plan.json", robot=robot, num_stations=stations,
-                       image_size=size)  # fmt: skip
+    num_handeye, num_tool = plan_demo(cell_path, out_dir / "plan.json", robot=robot, stations=stations,
+                                      tool_stations=tool_stations, image_size=size)  # fmt: skip
     timings["plan"] = time.perf_counter() - t0
-    console.print(f"planned {len(planned.plan.stations)} stations for {robot}", highlight=False)
+    console.print(f"planned {num_handeye} hand-eye + {num_tool} tool stations for {robot}", highlight=False)
 
     # The simulator runs as its own process (`jcalib simulate`), like the real controller and
     # cameras: Aravis' fake cameras and its client do not share one process reliably.
@@ -149,7 +167,9 @@ def run_cell_demo(
     obs, failures = detect_session_to_file(out_dir / "session", cell_path, out_dir / "observations.json")
     timings["detect"] = time.perf_counter() - t0
     if failures:
-        console.print(f"[yellow]{len(failures)} image(s) without a usable target view (skipped)[/]")
+        console.print(f"[yellow]{len(failures)} image(s) without a usable board or tool-tip view (skipped)[/]")
+    num_tips = sum(d.tool is not None for st in obs.stations for d in st.detections)
+    console.print(f"tool tip found in {num_tips} of {num_tool} tool stations", highlight=False)
 
     t0 = time.perf_counter()
     with console.status("calibrating the whole cell (closed forms, then one joint least-squares problem)"):
@@ -170,7 +190,8 @@ def run_cell_demo(
 
     truth = json.loads((out_dir / "truth.json").read_text())
     rows = compare_with_truth(result.file, truth)
-    table = Table(title=f"jcalib demo: whole cell from {len(obs.stations)} stations ({protocol} robot, 2 GigE cameras)")
+    table = Table(title=f"jcalib demo: whole cell from {len(obs.stations)} stations ({protocol} robot, 2 GigE "
+                        "cameras, 1 tool)")  # fmt: skip
     for col in ("unknown", "truth", "estimate", "σ", "error", "error / σ"):
         table.add_column(col, justify="left" if col == "unknown" else "right")
     for name, (t, e, s) in rows.items():
@@ -188,6 +209,36 @@ def run_cell_demo(
     return rows
 
 
+def plan_demo(
+    cell_path: Path,
+    out: Path,
+    *,
+    robot: str,
+    stations: int,
+    tool_stations: int,
+    image_size: tuple[int, int] | None,
+) -> tuple[int, int]:
+    """Plan the demo: ``handeye`` stations (ids ``s000…``) then ``tcp`` stations (ids ``t000…``), one plan.
+
+    Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key per part). Returns the number of
+    hand-eye and tool stations kept (reachable, in view).
+    """
+    from jcalib.acquisition.layout import cell_layout
+    from jcalib.acquisition.plan import make_plan
+    from jcalib.acquisition.planner import plan_cell
+    from jcalib.io.atomic import write_json_atomic
+
+    layout = cell_layout(cell_path, robot=robot, image_size=image_size)
+    handeye = plan_cell(layout, "handeye", num_stations=stations)
+    tool = plan_cell(layout, "tcp", num_stations=tool_stations)
+    poses = [s.T_base_flange for s in handeye.plan.stations] + [s.T_base_flange for s in tool.plan.stations]
+    ids = [f"s{k:03d}" for k in range(len(handeye.plan))] + [f"t{k:03d}" for k in range(len(tool.plan))]
+    plan = make_plan(poses, ids)
+    write_json_atomic(out, {**plan.to_json(), "planner": [handeye.to_json(layout)["planner"],
+                                                          tool.to_json(layout)["planner"]]})  # fmt: skip
+    return len(handeye.plan), len(tool.plan)
+
+
 def _rotation_error_deg(R_true: np.ndarray, R_est: np.ndarray) -> np.ndarray:
     """Small rotation ``R_true⁻¹ R_est`` as a rotation vector (deg) in the frame of the right perturbation."""
     from jcalib.geometry.conversions import matrix_to_rvec
@@ -199,7 +250,9 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
     """``{quantity: (truth, estimate, σ)}``: intrinsics (px / -), transforms (mm, deg about the axes of *b*).
 
     Rotation rows give the error rotation ``Log(R_true⁻¹ R_est)`` per axis (truth 0), in the frame in
-    which the covariance is stated (right perturbation), so error / σ is meaningful per axis.
+    which the covariance is stated (right perturbation), so error / σ is meaningful per axis. A tool's
+    TCP ``T_flange_<tool>`` gives translation rows only: tip pixels determine the tip, not the tool's
+    orientation (held at identity by the solve, σ 0).
     """
     rows: dict[str, tuple[float, float, float]] = {}
     for name, cam in result.cameras.items():
@@ -217,8 +270,10 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
         wanted[f"T_{c['mount']}_{name}"] = np.asarray(c[f"T_{c['mount']}_{name}"])
     for name, tg in truth["targets"].items():
         wanted[f"T_{tg['mount']}_{name}"] = np.asarray(tg[f"T_{tg['mount']}_{name}"])
+    tcps = set()
     for name, tool in truth.get("tools", {}).items():
         wanted[f"T_flange_{name}"] = np.asarray(tool[f"T_flange_{name}"])
+        tcps.add(f"T_flange_{name}")
     for key, T_true in wanted.items():
         entry = result.transforms.get(key)
         if entry is None:
@@ -230,6 +285,8 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
         d_r = _rotation_error_deg(T_true[:3, :3], T[:3, :3])
         for i, ax in enumerate("xyz"):
             rows[f"{key} t{ax} (mm, frame b)"] = (0.0, float(d_t[i] * 1e3), float(std[3 + i] * 1e3))
+        if key in tcps:
+            continue
         for i, ax in enumerate("xyz"):
             rows[f"{key} r{ax} (deg)"] = (0.0, float(d_r[i]), float(np.degrees(std[i])))
     return rows

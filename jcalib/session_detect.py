@@ -5,6 +5,15 @@ target(s) in every image of every finished station, and writes ``observations.js
 ``jcalib.observations/1`` format: per station its measured ``T_base_flange`` and one detection per
 (camera, target) found. Nothing stops the batch: skipped stations, missing or unreadable images and
 images without the target are reported as :class:`SessionFailure` records.
+
+**Tool tips.** Nothing in a session says which stations present a tool: a backlit tool image simply
+shows no target. So an image of a camera that observes a tool (``tools.<tool>.observed_by`` in the
+cell) in which *no* target is found (every target ``not_found``) is searched for the tool's tip
+(:func:`jcalib.vision.tooltip.detect_tool_tip`; with the camera's ``intrinsics`` from the cell, the
+cone edges are undistorted first). A tip found gives a ``{"camera", "tool", "pixel"}`` detection and
+replaces that image's target failures; otherwise the tool's failure is listed as well. An image gives
+target corners or a tool tip, never both. A camera that observes several tools cannot tell which one
+was on the flange: pass ``tool=`` to say it.
 """
 
 from __future__ import annotations
@@ -24,9 +33,10 @@ class SessionFailure:
     """Why a station, or one camera's image of it, gave no detection.
 
     Attributes:
-        station: station id.  camera: camera id (None: the whole station).  target: target id or None.
+        station: station id.  camera: camera id (None: the whole station).
+        target: target id, tool id (a tool-tip search), or None.
         reason: short keyword ("skipped", "missing_image", "not_found", "partially_visible",
-            "too_blurred", "unreadable").
+            "too_blurred", "unreadable"; for a tool also "tip_outside_image", "ambiguous").
         message: the full explanation.
     """
 
@@ -46,25 +56,30 @@ def detect_session(
     cell: Any = None,
     *,
     target: str | None = None,
+    tool: str | None = None,
+    tools: bool = True,
     progress: bool = True,
 ):
-    """Detect the cell's targets in every station image of a capture session.
+    """Detect the cell's targets (and tool tips) in every station image of a capture session.
 
     Args:
         session_dir: the session folder.
         cell: cell spec (path, mapping or :class:`jcalib.io.cell.CellSpec`); default: the one stored
             in ``session.json`` by the capture.
         target: detect only this target (default: every target of the cell).
+        tool: the tool on the flange during the capture (default: for each camera, the one tool it
+            observes; images of a camera observing several tools then get an "ambiguous" failure).
+        tools: search images without a target for tool tips (module docstring).
         progress: show a progress bar on stderr.
 
     Returns:
         ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
         per station that has at least one detection (ids and ``T_base_flange`` in m from the session,
-        pixels in the OpenCV convention) and the list of :class:`SessionFailure`.
+        pixels in the OpenCV convention; a tool tip is one pixel) and the list of :class:`SessionFailure`.
 
     Raises:
-        BadInputError: not a session, no cell spec, an unknown target, a station image naming a
-            camera the cell lacks, or images of one camera with different sizes.
+        BadInputError: not a session, no cell spec, an unknown target or tool, a station image naming
+            a camera the cell lacks, or images of one camera with different sizes.
     """
     from jcalib.acquisition.session import read_session
     from jcalib.io.cell import load_cell
@@ -83,8 +98,11 @@ def detect_session(
             )
     spec = load_cell(cell)
     targets = [spec.target(target)] if target is not None else list(spec.targets.values())
-    if not targets:
-        raise BadInputError(f"{spec.source}: the cell has no target to detect")
+    if tool is not None and tool not in spec.tools:
+        raise BadInputError(f"tool: no tool {tool!r} in the cell {spec.source} (has {', '.join(spec.tools) or 'none'})")
+    tool_of = _tool_per_camera(spec, tool) if tools else {}
+    if not targets and not tool_of:
+        raise BadInputError(f"{spec.source}: the cell has no target (and no tool seen by a camera) to detect")
     geometries = {t.name: t.geometry() for t in targets}
 
     failures: list[SessionFailure] = []
@@ -109,19 +127,43 @@ def detect_session(
 
     found: dict[tuple[str, str, str], Any] = {}
     sizes: dict[str, tuple[int, int]] = {}
+    image_failures: dict[tuple[str, str], list[SessionFailure]] = {}
+
+    def check_size(cam: str, path: Path, size: tuple[int, int]) -> None:
+        if sizes.setdefault(cam, size) != size:
+            raise BadInputError(
+                f"session {d}: {path} is {size[0]}x{size[1]} px but other images of camera {cam!r} "
+                f"are {sizes[cam][0]}x{sizes[cam][1]}; one camera must keep one image size"
+            )
+
     for tname, geom in geometries.items():
         results = detect_many([p for _, _, p in jobs], geom, progress=progress)
         for (sid, cam, path), res in zip(jobs, results, strict=True):
             if isinstance(res, DetectionError):
-                failures.append(SessionFailure(sid, cam, tname, res.reason, str(res)))
+                image_failures.setdefault((sid, cam), []).append(SessionFailure(sid, cam, tname, res.reason, str(res)))
                 continue
-            size = (int(res.image_size[0]), int(res.image_size[1]))
-            if sizes.setdefault(cam, size) != size:
-                raise BadInputError(
-                    f"session {d}: {path} is {size[0]}x{size[1]} px but other images of camera {cam!r} "
-                    f"are {sizes[cam][0]}x{sizes[cam][1]}; one camera must keep one image size"
-                )
+            check_size(cam, path, (int(res.image_size[0]), int(res.image_size[1])))
             found[(sid, cam, tname)] = res
+
+    # tool tips: images of a camera observing a tool in which no target was found at all
+    tips: dict[tuple[str, str], tuple[str, np.ndarray]] = {}
+    for sid, cam, path in jobs:
+        fails = image_failures.get((sid, cam), [])
+        if cam not in tool_of or any(f.reason != "not_found" for f in fails) or len(fails) < len(geometries):
+            continue
+        tname, message = tool_of[cam]
+        if message:
+            fails.append(SessionFailure(sid, cam, None, "ambiguous", message))
+            continue
+        res = _detect_tip(path, spec.cameras[cam])
+        if isinstance(res, DetectionError):
+            fails.append(SessionFailure(sid, cam, tname, res.reason, str(res)))
+            continue
+        check_size(cam, path, res.image_size)
+        tips[(sid, cam)] = (tname, np.asarray(res.pixel, dtype=np.float64).reshape(1, 2))
+        image_failures[(sid, cam)] = []  # a tool image: its targets were not expected
+    for sid, cam, _ in jobs:
+        failures.extend(image_failures.get((sid, cam), []))
 
     stations = []
     for rec in records:
@@ -131,6 +173,7 @@ def detect_session(
                       pixels=np.asarray(r.pixels, dtype=np.float64))
             for (s, cam, tname), r in found.items() if s == sid
         ]  # fmt: skip
+        dets += [Detection(camera=cam, pixels=px, tool=tname) for (s, cam), (tname, px) in tips.items() if s == sid]
         if not dets:
             continue
         T = rec.get("T_base_flange")
@@ -150,6 +193,50 @@ def detect_session(
         source=str(d),
     )
     return obs, failures
+
+
+def _tool_per_camera(spec: Any, tool: str | None) -> dict[str, tuple[str, str]]:
+    """For each camera observing a tool: ``(tool name, "")``, or ``(tool names, why it is ambiguous)``."""
+    seen: dict[str, list[str]] = {}
+    for t in spec.tools.values():
+        if tool is not None and t.name != tool:
+            continue
+        for cam in t.observed_by:
+            seen.setdefault(cam, []).append(t.name)
+    out = {}
+    for cam, names in seen.items():
+        if len(names) == 1:
+            out[cam] = (names[0], "")
+        else:
+            why = (f"camera {cam!r} observes the tools {', '.join(names)}; which one was on the flange is not "
+                   "recorded: name it (detect_session(tool=...))")  # fmt: skip
+            out[cam] = (", ".join(names), why)
+    return out
+
+
+def _detect_tip(path: Path, cam_spec: Any):
+    """The tool tip in one image (a :class:`~jcalib.vision.tooltip.ToolTipDetection`) or the
+    :class:`DetectionError` saying why not; the camera's cell intrinsics undistort the edges when given."""
+    import cv2
+
+    from jcalib.vision.tooltip import detect_tool_tip
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return DetectionError(f"{path}: cannot read the image", "unreadable")
+    camera = None
+    if cam_spec.K is not None:
+        from jcalib.geometry.cameras.factory import camera_from_opencv
+
+        dist = np.zeros(0) if cam_spec.dist is None else np.asarray(cam_spec.dist, dtype=np.float64)
+        camera = camera_from_opencv(np.asarray(cam_spec.K, dtype=np.float64), dist, (img.shape[1], img.shape[0]),
+                                    fisheye=cam_spec.model == "fisheye")  # fmt: skip
+    try:
+        return detect_tool_tip(img, camera=camera, name=str(path))
+    except DetectionError as e:
+        return e
+    except BadInputError as e:
+        return DetectionError(f"{path}: {e}", "unreadable")
 
 
 def detect_session_to_file(

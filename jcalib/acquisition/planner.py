@@ -17,8 +17,12 @@ target's, looking at ``c``.
   target (the rotation axis passes through ``c``), in three groups Z, Y, X: large rotations about
   non-parallel axes make the hand-eye rotation and translation observable.
 - ``tcp``: the tool tip (nominal TCP) held at one point while the tool turns about two horizontal
-  base axes (x, then y) by up to ``amplitude`` (default 30 deg) from pointing straight down; the
-  point is 0.35 m in front of the first base camera observing the tool, else 0.1 m above the work point.
+  base axes (x, then y) by up to ``amplitude`` (default 30 deg) from its start orientation. With a
+  base camera observing the tool, the point is 0.35 m (:data:`TOOL_VIEW_DISTANCE_M`) in front of the
+  first such camera and the tool starts *side-on* to it, pointing as far down as it can while
+  perpendicular to the optical axis (:func:`side_on_direction`: a silhouette with the tip's cone
+  edges in view, not the tool seen end-on); otherwise the point is 0.1 m above the work point and the
+  tool starts pointing straight down.
 
 Angles are spread evenly: group members alternate in sign with growing magnitude up to the amplitude.
 """
@@ -37,6 +41,9 @@ from jcalib.errors import BadInputError
 KINDS = ("viewsets", "handeye", "tcp")
 DEFAULT_STATIONS = {"viewsets": 14, "handeye": 19, "tcp": 13}
 DEFAULT_AMPLITUDE_DEG = {"viewsets": 30.0, "handeye": 30.0, "tcp": 30.0}
+#: ``tcp`` plans hold the tool tip this far in front of the base camera observing the tool, m (the
+#: simulated cell's backlit tool zone is centred there too: :mod:`jcalib.acquisition.simcell`).
+TOOL_VIEW_DISTANCE_M = 0.35
 
 
 @dataclass
@@ -75,6 +82,35 @@ def _about(axis: np.ndarray, angle: float, point: np.ndarray) -> np.ndarray:
     """(4, 4) rotation by ``angle`` rad about the line through ``point`` along ``axis``."""
     R = exp_so3(np.asarray(axis, dtype=np.float64) * angle)
     return make_pose(R, point - R @ point)
+
+
+def side_on_direction(T_base_cam: np.ndarray) -> np.ndarray:
+    """(3,) unit base-frame direction for a tool seen side-on by a base camera, pointing as far down as it can.
+
+    The base ``-z`` axis with its component along the camera's optical axis removed (a straight tool
+    along it has the longest silhouette and shows its tip's cone edges); the camera's image-down
+    axis (``+y``) when the camera looks within 10 deg of vertically.
+
+    Args:
+        T_base_cam: (4, 4) camera pose in the base, m.
+    """
+    o = T_base_cam[:3, 2]
+    down = np.array([0.0, 0.0, -1.0])
+    w = down - np.dot(down, o) * o
+    n = float(np.linalg.norm(w))
+    return w / n if n > np.sin(np.radians(10.0)) else T_base_cam[:3, 1] / np.linalg.norm(T_base_cam[:3, 1])
+
+
+def _turn_onto(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(3, 3) smallest rotation taking unit vector ``v`` onto unit vector ``w`` (half a turn when opposite)."""
+    axis = np.cross(v, w)
+    s, c = float(np.linalg.norm(axis)), float(np.dot(v, w))
+    if s > 1e-12:
+        return exp_so3(axis / s * np.arctan2(s, c))
+    if c > 0:
+        return np.eye(3)
+    perp = np.cross(v, np.eye(3)[int(np.argmin(np.abs(v)))])
+    return exp_so3(perp / np.linalg.norm(perp) * np.pi)
 
 
 def _pick_pair(layout: CellLayout, camera: str | None, target: str | None) -> tuple[str, str]:
@@ -214,16 +250,16 @@ def plan_cell(
         observers = [c for c in layout.cell.tools[tool_name].observed_by if layout.cameras[c].mount == "base"]
         if observers:
             T_base_cam = layout.cameras[observers[0]].pose
-            p_tip = T_base_cam[:3, 3] + 0.35 * T_base_cam[:3, 2]
+            p_tip = T_base_cam[:3, 3] + TOOL_VIEW_DISTANCE_M * T_base_cam[:3, 2]
+            w = side_on_direction(T_base_cam)
+            start = "tool pointing down, across the view of " + observers[0]
         else:
             p_tip = layout.work_point + np.array([0.0, 0.0, 0.1])
+            w, start = np.array([0.0, 0.0, -1.0]), "tool pointing down"
         R_h = layout.T_base_flange_home[:3, :3]
-        v, w = R_h @ layout.tool_axis, np.array([0.0, 0.0, -1.0])
-        axis = np.cross(v, w)
-        s, cth = np.linalg.norm(axis), float(np.dot(v, w))
-        R0 = (exp_so3(axis / s * np.arctan2(s, cth)) if s > 1e-12 else np.eye(3)) @ R_h
+        R0 = _turn_onto(R_h @ layout.tool_axis, w) @ R_h
         T_tool0 = make_pose(R0, p_tip)
-        cands.append(("tool pointing down", T_tool0 @ invert(T_flange_tool)))
+        cands.append((start, T_tool0 @ invert(T_flange_tool)))
         m = n - 1
         for ax, name, count in ((np.eye(3)[0], "x", m - m // 2), (np.eye(3)[1], "y", m // 2)):
             for ang in _spread(count, amp):

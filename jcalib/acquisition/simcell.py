@@ -4,19 +4,34 @@
 (where the flange really is) with the image renderer of :mod:`jcalib.sim.render` (imported on first
 use: it needs JAX). The result plugs into :class:`~jcalib.acquisition.cameras.FakeGigECamera` (frames
 over real GigE Vision) or :class:`~jcalib.acquisition.cameras.SimulatedCamera` (in-process).
+
+**Tools.** A cell's tool (``tools: {torch: {observed_by: [cam1]}}``) is simulated the way a backlit
+tool camera sees it: each base camera that observes the tool has a *tool zone*, a ball of radius
+``zone_radius_m`` (default 0.05 m) centred ``zone_distance_m`` in front of it on its optical axis
+(default :data:`jcalib.acquisition.planner.TOOL_VIEW_DISTANCE_M`, where the ``tcp`` planner holds the
+tip). While the tool tip (the true TCP) is inside the zone, the camera renders the tool's silhouette on
+a backlight (:func:`jcalib.sim.tool.render_tool_image`; the backlight hides the rest of the scene);
+otherwise it renders the targets as usual. The tool is a :class:`jcalib.sim.tool.SymmetricTool`
+running straight from the tip towards the flange origin. The robot arm and flange are never drawn.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from jcalib.acquisition.cameras.base import FrameRequest, FrameSource
-from jcalib.acquisition.robots.poses import check_pose, invert
+from jcalib.acquisition.planner import TOOL_VIEW_DISTANCE_M
+from jcalib.acquisition.robots.poses import check_pose, invert, make_pose
 from jcalib.errors import BadInputError
+
+#: Shape of a simulated tool: (shaft radius m, cone half-angle deg); its length runs to the flange.
+DEFAULT_TOOL_SHAPE = (0.005, 15.0)
+#: Radius of a camera's tool zone (see the module docstring), m.
+DEFAULT_TOOL_ZONE_RADIUS_M = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +101,143 @@ def robot_scene_source(
     return source
 
 
+@dataclasses.dataclass(frozen=True)
+class SceneTool:
+    """A tool on the flange of a simulated cell, seen in silhouette by the base cameras observing it.
+
+    Attributes:
+        geometry: its shape, a :class:`jcalib.sim.tool.SymmetricTool` (tip at the TCP, axis pointing
+            from the tip towards the flange origin).
+        T_flange_tool: (4, 4) the true TCP ``T_flange_<tool>``, m; its translation must not be zero.
+        observed_by: names of the base cameras that show it.
+        zone_distance_m: centre of each observing camera's tool zone on its optical axis, m.
+        zone_radius_m: radius of the tool zone, m.
+    """
+
+    geometry: Any
+    T_flange_tool: np.ndarray
+    observed_by: tuple[str, ...] = ()
+    zone_distance_m: float = TOOL_VIEW_DISTANCE_M
+    zone_radius_m: float = DEFAULT_TOOL_ZONE_RADIUS_M
+
+    def __post_init__(self) -> None:
+        T = check_pose(np.asarray(self.T_flange_tool, dtype=np.float64), "SceneTool.T_flange_tool")
+        object.__setattr__(self, "T_flange_tool", T)
+        object.__setattr__(self, "observed_by", tuple(str(c) for c in self.observed_by))
+        if float(np.linalg.norm(T[:3, 3])) < 1e-6:
+            raise BadInputError(
+                "SceneTool.T_flange_tool: the tip is at the flange origin; expected a tool that sticks out "
+                "(translation > 1 um, m)"
+            )
+        for name in ("zone_distance_m", "zone_radius_m"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise BadInputError(f"SceneTool.{name}: got {value!r}, expected a positive distance (m)")
+
+    @property
+    def T_tool_solid(self) -> np.ndarray:
+        """(4, 4) pose of the silhouette solid's frame in the TCP frame: same origin (the tip), z
+        towards the flange origin (:class:`jcalib.sim.tool.SymmetricTool` runs along its +z)."""
+        T = np.asarray(self.T_flange_tool, dtype=np.float64)
+        z = -T[:3, :3].T @ T[:3, 3]
+        z = z / np.linalg.norm(z)
+        x = np.eye(3)[int(np.argmin(np.abs(z)))]
+        x = x - np.dot(x, z) * z
+        x /= np.linalg.norm(x)
+        return make_pose(np.stack([x, np.cross(z, x), z], axis=1), np.zeros(3))
+
+    def in_zone(self, T_cam_flange: np.ndarray) -> bool:
+        """Whether the tip lies in the tool zone of a camera at ``T_cam_flange`` (4, 4), m."""
+        tip = T_cam_flange[:3, :3] @ self.T_flange_tool[:3, 3] + T_cam_flange[:3, 3]
+        return float(np.linalg.norm(tip - np.array([0.0, 0.0, self.zone_distance_m]))) <= self.zone_radius_m
+
+
+@dataclasses.dataclass(frozen=True)
+class CellScene:
+    """A simulated robot cell: a :class:`jcalib.sim.scene.Scene` (cameras, targets) plus its tools.
+
+    ``cameras``, ``targets`` and ``views`` are the scene's, so a ``CellScene`` serves wherever a
+    scene's cameras are listed (:func:`jcalib.acquisition.commands.run_simulated_cell`).
+
+    Attributes:
+        scene: cameras and targets on "base" / "flange" (views unused).
+        tools: tool name -> :class:`SceneTool`.
+    """
+
+    scene: Any
+    tools: Mapping[str, SceneTool] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, tool in self.tools.items():
+            for cam in tool.observed_by:
+                if cam not in self.scene.cameras:
+                    raise BadInputError(f"tools[{name!r}].observed_by: camera {cam!r} is not in the scene")
+                if self.scene.cameras[cam].mount != "base":
+                    raise BadInputError(
+                        f"tools[{name!r}].observed_by: camera {cam!r} has mount "
+                        f"{self.scene.cameras[cam].mount!r}; expected a base camera"
+                    )
+
+    @property
+    def cameras(self) -> Mapping[str, Any]:
+        return self.scene.cameras
+
+    @property
+    def targets(self) -> Mapping[str, Any]:
+        return self.scene.targets
+
+    @property
+    def views(self) -> Sequence[Any]:
+        return self.scene.views
+
+    def tool_in_view(self, camera: str, T_base_flange: np.ndarray) -> str | None:
+        """The tool whose tip is in ``camera``'s tool zone at ``T_base_flange`` (4, 4, m), or None."""
+        cam = self.scene.cameras[camera]
+        if cam.mount != "base":
+            return None
+        T_cam_flange = invert(np.asarray(cam.pose, dtype=np.float64)) @ T_base_flange
+        for name, tool in self.tools.items():
+            if camera in tool.observed_by and tool.in_zone(T_cam_flange):
+                return name
+        return None
+
+    def warm_up(self, camera: str) -> None:
+        """Render each tool that ``camera`` observes once (side-on at its zone centre, result dropped), so
+        the renderer's JAX code is compiled before frames are due: a fake GigE camera must answer within
+        about a second (:class:`jcalib.acquisition.cameras.FakeGigECamera`), a first tool frame takes longer."""
+        from jcalib.sim.tool import render_tool_image
+
+        cam = self.scene.cameras[camera]
+        for tool in self.tools.values():
+            if camera in tool.observed_by:
+                side_on = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # solid z = camera x
+                render_tool_image(cam.model, make_pose(side_on, np.array([0.0, 0.0, tool.zone_distance_m])),
+                                  tool.geometry)  # fmt: skip
+
+    def render(self, camera: str, T_base_flange: np.ndarray, options: Any = None, rng: Any = 0) -> np.ndarray:
+        """The image ``camera`` takes with the flange at ``T_base_flange`` (4, 4, m): the tool's silhouette
+        on the backlight when its tip is in the camera's tool zone, else the targets (module docstring).
+
+        Args:
+            options: :class:`jcalib.sim.render.RenderOptions` (None: defaults).
+            rng: sensor-noise seed or generator.
+        """
+        T_base_flange = np.asarray(T_base_flange, dtype=np.float64)
+        tool_name = self.tool_in_view(camera, T_base_flange)
+        cam = self.scene.cameras[camera]
+        if tool_name is not None:
+            from jcalib.sim.tool import render_tool_image
+
+            tool = self.tools[tool_name]
+            T_cam_solid = invert(np.asarray(cam.pose, dtype=np.float64)) @ T_base_flange @ tool.T_flange_tool
+            T_cam_solid = T_cam_solid @ tool.T_tool_solid
+            return render_tool_image(cam.model, T_cam_solid, tool.geometry, options, rng).image
+        from jcalib.sim.scene import View, render_view
+
+        live = dataclasses.replace(self.scene, views=[View(id="live", T_base_flange=T_base_flange)])
+        return render_view(live, 0, camera, options, rng)
+
+
 def scene_frame_source(
     scene: Any,
     camera: str,
@@ -95,45 +247,55 @@ def scene_frame_source(
     reference_exposure_us: float = 10000.0,
     seed: int = 0,
 ) -> FrameSource:
-    """A frame source rendering camera ``camera`` of a :class:`jcalib.sim.scene.Scene` at the robot's pose.
+    """A frame source rendering camera ``camera`` of a simulated cell at the robot's pose.
 
     Args:
-        scene: the synthetic cell (its cameras and targets mounted on "base" / "flange"; views unused).
+        scene: a :class:`CellScene` (targets, and tools shown in their cameras' tool zones) or a
+            :class:`jcalib.sim.scene.Scene` (targets only); cameras and targets mounted on "base" /
+            "flange", views unused.
         camera: camera name in ``scene.cameras``.
         pose_of_flange: callable returning the true ``T_base_flange`` (4, 4), m.
         options: :class:`jcalib.sim.render.RenderOptions`; brightness follows the requested exposure.
         reference_exposure_us: exposure at which ``options`` applies unchanged, us.
         seed: sensor-noise seed; frame ``k`` uses ``seed + k``.
+
+    A camera that observes a tool renders it once here (:meth:`CellScene.warm_up`).
     """
     if camera not in scene.cameras:
         raise BadInputError(f"camera: {camera!r} is not in the scene (has {', '.join(scene.cameras)})")
+    cell = scene if isinstance(scene, CellScene) else CellScene(scene)
+    cell.warm_up(camera)
 
     def source(req: FrameRequest) -> np.ndarray:
         from jcalib.sim.render import RenderOptions
-        from jcalib.sim.scene import View, render_view
 
-        view = View(id=f"live{req.index}", T_base_flange=np.asarray(pose_of_flange(), dtype=np.float64))
-        live = dataclasses.replace(scene, views=[view])
         opts = options if options is not None else RenderOptions()
         scale = float(req.exposure_us) / reference_exposure_us
         if scale != 1.0:
             opts = dataclasses.replace(opts, white_electrons=opts.white_electrons * scale)
-        return render_view(live, 0, camera, opts, rng=seed + req.index)
+        return cell.render(camera, np.asarray(pose_of_flange(), dtype=np.float64), opts, rng=seed + req.index)
 
     return source
 
 
-def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> Any:
-    """The :class:`jcalib.sim.scene.Scene` of a nominal cell layout (the simulated cell's ground truth).
+def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> CellScene:
+    """The simulated cell of a nominal cell layout (its ground truth): cameras, targets and tools.
+
+    Each tool is a :class:`jcalib.sim.tool.SymmetricTool` of :data:`DEFAULT_TOOL_SHAPE` from its
+    nominal TCP to the flange, shown by the base cameras of its ``observed_by`` (module docstring).
 
     Args:
         layout: a :class:`jcalib.acquisition.layout.CellLayout`.
         texture_px_per_square: resolution of the printed targets, texels per grid spacing.
+
+    Returns:
+        :class:`CellScene` (``.scene`` is the :class:`jcalib.sim.scene.Scene` of cameras and targets).
     """
     from jcalib.geometry.cameras.factory import camera_from_opencv
     from jcalib.sim.scene import Scene, SceneCamera
     from jcalib.sim.scene import SceneTarget as SimTarget
     from jcalib.sim.textures import target_texture
+    from jcalib.sim.tool import SymmetricTool
 
     cameras = {
         name: SceneCamera(camera_from_opencv(c.K, c.dist, c.image_size, fisheye=c.model == "fisheye"), c.mount, c.pose)
@@ -146,7 +308,14 @@ def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> An
         spacing = float(np.min(d[d > 1e-9])) if np.any(d > 1e-9) else 0.01
         tex = target_texture(t.geometry, spacing / texture_px_per_square)
         targets[name] = SimTarget(t.geometry, tex, t.mount, t.pose)
-    return Scene(cameras=cameras, targets=targets, views=[])
+    tools = {}
+    for name, T_flange_tool in layout.tools.items():
+        observers = tuple(c for c in layout.cell.tools[name].observed_by if layout.cameras[c].mount == "base")
+        length = float(np.linalg.norm(np.asarray(T_flange_tool)[:3, 3]))
+        shape = SymmetricTool(shaft_radius_m=DEFAULT_TOOL_SHAPE[0], cone_half_angle_deg=DEFAULT_TOOL_SHAPE[1],
+                              length_m=length)  # fmt: skip
+        tools[name] = SceneTool(shape, np.asarray(T_flange_tool, dtype=np.float64), observers)
+    return CellScene(Scene(cameras=cameras, targets=targets, views=[]), tools)
 
 
 def layout_truth(layout: Any, **controller: Any) -> dict:

@@ -1,8 +1,9 @@
 """The README's main command, shortened: ``jcalib demo`` runs the whole simulated cell on loopback.
 
-Plan → simulated robot + two fake GigE cameras (a private network namespace the demo creates) →
-capture → detect → joint calibration → report and exports; the estimates are checked against the
-simulator's ground truth with the reported σ (not against numbers the demo printed).
+Plan (hand-eye + tool stations) → simulated robot + two fake GigE cameras (a private network namespace
+the demo creates; the fixed one shows the tool in silhouette at tool stations) → capture → detect
+(board corners, tool tips) → joint calibration → report and exports; the estimates, the TCP included,
+are checked against the simulator's ground truth (not against numbers the demo printed).
 """
 
 from __future__ import annotations
@@ -38,8 +39,22 @@ def test_demo_runs_the_whole_cell_and_its_estimates_agree_with_the_truth(aravis,
     truth = json.loads((out / "truth.json").read_text())
     rows = compare_with_truth(result, truth)
     # every calibrated transform of the cell is there, with its σ
-    for key in ("T_flange_cam_hand", "T_base_cam_fixed", "T_base_board"):
+    for key in ("T_flange_cam_hand", "T_base_cam_fixed", "T_base_board", "T_flange_torch"):
         assert any(k.startswith(key + " ") for k in rows), (key, sorted(rows))
+    # the tool stations reached the solve: one tip per tool station, seen by the fixed camera
+    plan = json.loads((out / "plan.json").read_text())
+    tool_ids = {s["id"] for s in plan["stations"] if s["id"].startswith("t")}
+    obs = json.loads((out / "observations.json").read_text())
+    tips = {s["id"] for s in obs["stations"] for d in s["detections"] if d.get("tool") == "torch"}
+    assert len(tool_ids) >= 5 and tips == tool_ids, (sorted(tool_ids), sorted(tips))
+    # TCP: the tip in the flange frame, against the simulator's true T_flange_torch. It is measured
+    # through cam_fixed, so it carries that camera's pose error (the board at ~0.8 m fixes it to
+    # ~0.1-0.3 mm here) plus the tip detection (~0.1 px; 1 px is ~0.5 mm at the 0.35 m tool zone):
+    # 0.5 mm per axis is ~2x what the chain shows, and the accuracy a torch / dispenser TCP needs.
+    # A wrong tool frame, flipped axis or mismatched station would be off by centimetres.
+    for ax in "xyz":
+        t, e, s = rows[f"T_flange_torch t{ax} (mm, frame b)"]
+        assert abs(e - t) < 0.5 and 0.0 < s < 0.5, (ax, e - t, s)
     # absolute accuracy of the whole chain (render -> GigE -> detect -> joint solve) against the truth:
     # sub-millimetre / sub-0.1 degree poses and the focal length within 1 %. (In units of the reported
     # σ the rendered chain shows a systematic ~0.05 px corner bias that σ does not include: see the

@@ -1,10 +1,10 @@
-"""Session → observations: detections checked against OpenCV projections of the ground truth; failures
-(skipped station, target not found, missing image) are reported without stopping the batch."""
+"""Session → observations: detections (board corners, tool tips) checked against OpenCV projections of the
+ground truth; failures (skipped station, target not found, missing image, no tool tip) are reported without
+stopping the batch."""
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import io
 import json
 import sys
@@ -30,8 +30,6 @@ CELL = {
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    from jcalib.sim.scene import View, render_view
-
     layout = cell_layout(CELL, image_size=(320, 240))
     plan = plan_cell(layout, "viewsets", num_stations=4).plan
     scene = scene_from_layout(layout)
@@ -42,10 +40,9 @@ def session(tmp_path_factory):
             w.append_station({"id": st.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(), "images": {},
                               "status": "skipped: unreachable: test"})  # fmt: skip
             continue
-        live = dataclasses.replace(scene, views=[View(st.id, st.T_base_flange)])
         images = {}
         for cam in ("cam0", "cam1"):
-            img = render_view(live, 0, cam, rng=k)
+            img = scene.render(cam, st.T_base_flange, rng=k)
             if k == 1 and cam == "cam0":
                 img = np.full_like(img, 128)  # nothing to find
             images[cam] = w.write_image(cam, st.id, img)
@@ -111,3 +108,77 @@ def test_cli_detect_session_and_bad_input(session, tmp_path):
         detect_session(bare, progress=False)
     with pytest.raises(BadInputError, match="no target 'plate'"):
         detect_session(d, CELL, target="plate", progress=False)
+
+
+TOOL_CELL = {**CELL, "tools": {"needle": {"observed_by": ["cam1"]}}}
+
+
+@pytest.fixture(scope="module")
+def tool_session(tmp_path_factory):
+    """3 board stations then 4 tool stations (the tcp planner), rendered by the simulated cell: cam1
+    shows the tool's silhouette while the tip is in its tool zone. One tool image is lost to a flat frame."""
+    layout = cell_layout(TOOL_CELL, image_size=(320, 240))
+    board = plan_cell(layout, "viewsets", num_stations=3).plan.stations
+    tool = plan_cell(layout, "tcp", num_stations=4).plan.stations
+    scene = scene_from_layout(layout)
+    d = tmp_path_factory.mktemp("tool") / "session"
+    w = SessionWriter.create(d, cell=TOOL_CELL)
+    stations = [(f"b{k}", st.T_base_flange) for k, st in enumerate(board)]
+    stations += [(f"t{k}", st.T_base_flange) for k, st in enumerate(tool)]
+    for k, (sid, T) in enumerate(stations):
+        images = {}
+        for cam in ("cam0", "cam1"):
+            img = scene.render(cam, T, rng=k)
+            if sid == "t3" and cam == "cam1":
+                img = np.full_like(img, 200)  # the backlight alone: no tool in view
+            images[cam] = w.write_image(cam, sid, img)
+        w.append_station({"id": sid, "T_base_flange": T.tolist(), "joints_deg": [0.0] * 6, "time": utc_now(),
+                          "images": images, "status": "ok"})  # fmt: skip
+    w.close()
+    return d, layout, dict(stations)
+
+
+def test_tool_tips_are_detected_where_the_board_is_not(tool_session):
+    d, layout, poses = tool_session
+    obs, failures = detect_session(d, progress=False)
+    by_id = {s.id: s for s in obs.stations}
+    cam = layout.cameras["cam1"]
+    T_flange_tool = layout.tools["needle"]
+    for sid in ("t0", "t1", "t2"):
+        dets = by_id[sid].detections
+        tips = [det for det in dets if det.camera == "cam1"]
+        assert len(tips) == 1 and tips[0].tool == "needle" and tips[0].target is None, (sid, dets)
+        p_cam = invert(cam.pose) @ poses[sid] @ T_flange_tool[:, 3]
+        ref, _ = cv2.projectPoints(p_cam[None, :3], np.zeros(3), np.zeros(3), cam.K, cam.dist)
+        # rendered noisy 320x240 silhouette, ~11 px wide shaft: a sub-pixel tip (measured 0.06-0.3 px)
+        assert np.linalg.norm(tips[0].pixels.reshape(2) - ref.ravel()) < 0.5, sid
+    for sid in ("b0", "b1", "b2"):  # board stations: corners only, no tool search
+        assert {(det.camera, det.target, det.tool) for det in by_id[sid].detections} == {
+            ("cam0", "board", None), ("cam1", "board", None)}, sid
+    cam1_failures = {(f.station, f.target, f.reason) for f in failures if f.camera == "cam1"}
+    # a tool image found needs no board: the only cam1 failures are those of the flat frame
+    assert cam1_failures == {("t3", "board", "not_found"), ("t3", "needle", "not_found")}
+    assert obs.cameras["cam1"] == (320, 240)
+    # the observations file round-trips the tips ({"camera", "tool", "pixel"})
+    from jcalib.io.observations import load_observations, save_observations
+
+    save_observations(d.parent / "obs.json", obs)
+    again = load_observations(d.parent / "obs.json")
+    tip = next(det for s in again.stations if s.id == "t0" for det in s.detections if det.tool)
+    np.testing.assert_array_equal(tip.pixels.reshape(2), next(
+        det for det in by_id["t0"].detections if det.tool).pixels.reshape(2))
+
+
+def test_tool_search_off_and_a_camera_observing_two_tools(tool_session):
+    d, _, _ = tool_session
+    obs, failures = detect_session(d, progress=False, tools=False)
+    assert not any(det.tool for s in obs.stations for det in s.detections)
+    assert ("t0", "cam1", "board", "not_found") in {(f.station, f.camera, f.target, f.reason) for f in failures}
+    two = {**TOOL_CELL, "tools": {"needle": {"observed_by": ["cam1"]}, "torch": {"observed_by": ["cam1"]}}}
+    obs, failures = detect_session(d, two, progress=False)
+    assert not any(det.tool for s in obs.stations for det in s.detections)
+    assert any(f.station == "t0" and f.reason == "ambiguous" and "tool=" in f.message for f in failures)
+    obs, _ = detect_session(d, two, tool="torch", progress=False)
+    assert {det.tool for s in obs.stations for det in s.detections if det.tool} == {"torch"}
+    with pytest.raises(BadInputError, match="no tool 'drill'"):
+        detect_session(d, two, tool="drill", progress=False)
