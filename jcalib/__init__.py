@@ -33,6 +33,7 @@ _LAZY = {
     "calibrate_cameras": "jcalib.problems.camera",
     "CameraCalibrationOptions": "jcalib.problems.camera",
     "calibrate_hand_eye": "jcalib.problems.handeye",
+    "calibrate_hand_eye_batch": "jcalib.problems.handeye",
     "HandEyeOptions": "jcalib.problems.handeye",
     "HandEyeCalibration": "jcalib.problems.handeye",
     "calibrate_hand_eye_pairs": "jcalib.problems.handeye_pairs",

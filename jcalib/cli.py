@@ -59,8 +59,9 @@ def demo(
 ) -> None:
     """Run a whole simulated cell on loopback, calibrate it jointly, compare with the ground truth.
 
-    A simulated robot and two fake GigE cameras (flange, fixed): plan, capture, detect, calibrate,
-    report, export (RAPID, KRL, OpenCV), and a table of every estimate against the truth with its σ.
+    A simulated robot, two fake GigE cameras (flange, fixed) and a torch the fixed camera sees: plan,
+    capture, detect (board, tool tip), calibrate, report, export (RAPID, KRL, OpenCV), and a table of
+    every estimate against the truth with its σ.
 
     The second camera needs its own loopback address, so the demo runs in a private network namespace
     (`unshare -n`, or `unshare -rn` when not root); nothing is broadcast on real interfaces.

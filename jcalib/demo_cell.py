@@ -180,9 +180,12 @@ def run_cell_demo(
     t0 = time.perf_counter()
     write_report(out_dir / "result.json", out_dir / "report.html", observations=out_dir / "observations.json")
     written = ["result.json", "report.html"]
-    for fmt, name in (("opencv", "cameras_opencv.yaml"), ("rapid", "jcalib_cell.mod"), ("krl", "jcalib_cell.dat")):
+    # one OpenCV file per camera: the flange camera moves relative to the fixed one (no stereo pair)
+    exports = [("opencv", f"{cam}_opencv.yaml", {"cameras": cam}) for cam in result.file.cameras]
+    exports += [("rapid", "jcalib_cell.mod", {}), ("krl", "jcalib_cell.dat", {})]
+    for fmt, name, names in exports:
         try:
-            export_result(out_dir / "result.json", fmt, out_dir / name)
+            export_result(out_dir / "result.json", fmt, out_dir / name, **names)
             written.append(name)
         except BadInputError as e:
             console.print(f"[yellow]no {fmt} export:[/] {e}", highlight=False)

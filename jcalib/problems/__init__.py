@@ -6,7 +6,7 @@ from jcalib.problems.camera import (
     calibrate_cameras,
     calibrate_cameras_batch,
 )
-from jcalib.problems.handeye import HandEyeCalibration, HandEyeOptions, calibrate_hand_eye
+from jcalib.problems.handeye import HandEyeCalibration, HandEyeOptions, calibrate_hand_eye, calibrate_hand_eye_batch
 from jcalib.problems.handeye_pairs import HandEyePairsCalibration, PoseNoise, calibrate_hand_eye_pairs
 from jcalib.problems.pivot import PivotRefinement, refine_pivot
 from jcalib.problems.tcp import TCPCalibration, calibrate_tcp
@@ -23,6 +23,7 @@ __all__ = [
     "calibrate_cameras",
     "calibrate_cameras_batch",
     "calibrate_hand_eye",
+    "calibrate_hand_eye_batch",
     "calibrate_hand_eye_pairs",
     "calibrate_tcp",
     "refine_pivot",
