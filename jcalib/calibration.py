@@ -246,6 +246,8 @@ def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats:
         stats.update(rms_px=cal.rms_px, sigma_px=cal.sigma_px)
     if cal.sigma2 == cal.sigma2:
         stats["variance_factor"] = cal.sigma2
+    if getattr(cal, "variance_components", None):
+        stats["variance_components"] = {k: float(v) for k, v in cal.variance_components.items()}
     if cal.tip_rms_px == cal.tip_rms_px:
         stats["tip_rms_px"] = cal.tip_rms_px
     if getattr(cal, "contact_rms_m", float("nan")) == cal.contact_rms_m:

@@ -170,6 +170,8 @@ class CellCalibration:
             contacts (or as given); ``point_covariance``: name -> ``(3, 3)`` m² (zero when given).
         contact_rms_m: RMS of the contact residual coordinates (m), nan without contacts.
         outliers: rejected measurements ``(camera/tool, station id, point index or -1 for a tip)``.
+        variance_components: residual kind (``corner``, ``tip``, ``contact``) -> a-posteriori variance
+            factor on its stated σ² that the covariances use (empty: one factor σ̂² for everything).
         solution: the :class:`jcalib.solve.Solution`.
     """
 
@@ -197,6 +199,7 @@ class CellCalibration:
     point_covariance: dict[str, np.ndarray] = field(default_factory=dict)
     contact_rms_m: float = float("nan")
     outliers: list[tuple[str, str, int]] = field(default_factory=list)
+    variance_components: dict[str, float] = field(default_factory=dict)
     solution: object = field(default=None, repr=False)
 
 
@@ -760,9 +763,12 @@ def calibrate_cell(
                                                      jax.tree.map(jnp.asarray, o))).reshape(n, -1))
         return out
 
-    def build(weights):
-        fs = [FactorGroup(f.name, f.fn, f.args, f.indices, f.observations, sigma=f.sigma, sqrt_weight=w)
-              for f, w in zip(factors, weights)]
+    def build(weights, scale=None):
+        # scale: residual kind -> factor on its stated σ (variance components); None = as stated
+        fs = [FactorGroup(f.name, f.fn, f.args, f.indices, f.observations,
+                          sigma=f.sigma * (1.0 if scale is None else float(np.sqrt(scale.get(e[0], 1.0)))),
+                          sqrt_weight=w)
+              for f, e, w in zip(factors, evals, weights)]
         return Problem(variables, fs + prior_factors)
 
     # Solve; reject pixels (corners, tips) beyond the threshold and re-solve from the last solution.
@@ -770,28 +776,45 @@ def calibrate_cell(
     solve_options = SolveOptions(max_iterations=options.max_iterations)
     sol = solve(build(weights), options=solve_options)
     res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
-    outliers: list[tuple[str, str, int]] = []
     for _ in range(MAX_OUTLIER_ROUNDS if options.outlier_threshold is not None else 0):
-        changed = False
-        for k, ((kind, _, _, st, _, label), r) in enumerate(zip(evals, res)):
-            if kind == "contact":
-                continue
-            sigma = (options.sigma_px if kind == "corner" else options.tip_sigma_px) * (
-                float(np.sqrt(sol.sigma2)) if options.noise == "a_posteriori" else 1.0)
-            bad = (np.linalg.norm(r, axis=1) > options.outlier_threshold * sigma) & (weights[k] > 0)
-            if np.any(bad):
-                changed = True
-                weights[k] = np.where(bad, 0.0, weights[k])
-                who, index = label
-                outliers += [(who, ids[int(st[j])], int(index[j])) for j in np.flatnonzero(bad)]
-        if not changed:
+        # each kind's own noise level: corners and tips come from different detectors (the demo's
+        # corners are 10x more precise than its tips); a-posteriori: a robust scale (1.4826 MAD) of
+        # that kind's inlier residual coordinates, so the outliers themselves do not inflate it.
+        # Every round re-decides every measurement, so one pulled along by an outlier comes back.
+        scale = {}
+        for kind, stated in (("corner", options.sigma_px), ("tip", options.tip_sigma_px)):
+            coords = [r[w > 0].reshape(-1) for (kd, *_), r, w in zip(evals, res, weights) if kd == kind]
+            coords = np.concatenate(coords) if coords else np.zeros(0)
+            scale[kind] = (1.4826 * float(np.median(np.abs(coords))) if coords.size >= 10
+                           and options.noise == "a_posteriori" else stated)
+        new = [w if kind == "contact" else
+               np.where(np.linalg.norm(r, axis=1) > options.outlier_threshold * scale[kind], 0.0, 1.0)
+               for (kind, *_), r, w in zip(evals, res, weights)]
+        if all(np.array_equal(a, b) for a, b in zip(new, weights)):
             break
+        weights = new
         sol = solve(build(weights), x0=sol.values, options=solve_options)
         res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
+    outliers: list[tuple[str, str, int]] = []
+    for (kind, _, _, st, _, label), w in zip(evals, weights):
+        if kind != "contact":
+            who, index = label
+            outliers += [(who, ids[int(st[j])], int(index[j])) for j in np.flatnonzero(w == 0)]
     if options.noise == "a_posteriori" and not sol.sigma2 == sol.sigma2:
         raise NotObservableError(
             f"The a-posteriori noise level needs more residuals ({sol.num_residuals}) than free unknowns "
             f"({sol.num_free}); use noise='stated'.", ["sigma2"])
+
+    # --- covariance scale: one variance factor per residual kind (see _variance_components)
+    cov_noise = options.noise
+    components = {}
+    if options.noise == "a_posteriori":
+        sol, res, components = _variance_components(sol, build, residuals, evals, factors, weights,
+                                                    _pose_sqrt_info(cell) if use_pose_model else None, solve_options)
+        if components:
+            cov_noise = "stated"
+    cov_sol = sol
+    corner_factor = components.get("corner", float(sol.sigma2))
 
     # --- outputs
     vals = {k: np.asarray(v) for k, v in sol.values.items()}
@@ -802,11 +825,11 @@ def calibrate_cell(
     tip = np.concatenate(sq["tip"]) if sq["tip"] else np.zeros((0, 2))
     contact = np.concatenate(sq["contact"]) if sq["contact"] else np.zeros((0, 3))
     points = {n: vals[f"point:{n}"][0].copy() for n in cell.points}
-    point_cov = {n: np.asarray(_covariance(sol, f"point:{n}", noise=options.noise)) for n in cell.points}
+    point_cov = {n: np.asarray(_covariance(cov_sol, f"point:{n}", noise=cov_noise)) for n in cell.points}
     cameras, intr_cov = {}, {}
     for cam in cell.cameras.values():
         prm = vals[f"intrinsics:{cam.name}"][0].copy()
-        cov = np.asarray(_covariance(sol, f"intrinsics:{cam.name}", noise=options.noise))
+        cov = np.asarray(_covariance(cov_sol, f"intrinsics:{cam.name}", noise=cov_noise))
         flag, ratio = aspect[cam.name]
         if flag:
             prm[1] = prm[0] / ratio
@@ -816,9 +839,9 @@ def calibrate_cell(
         cameras[cam.name] = models[cam.name].with_params(jnp.asarray(prm))
         intr_cov[cam.name] = cov
     transforms = {n: _se3_matrix(vals[n][0]) for n in transform_names}
-    tcov = {n: np.asarray(_covariance(sol, n, noise=options.noise)) for n in transform_names}
-    joint = _joint_covariance(sol, [(c, f"intrinsics:{c}") for c in cell.cameras] + [(n, n) for n in transform_names],
-                              options.noise)
+    tcov = {n: np.asarray(_covariance(cov_sol, n, noise=cov_noise)) for n in transform_names}
+    joint = _joint_covariance(cov_sol, [(c, f"intrinsics:{c}") for c in cell.cameras] + [(n, n) for n in transform_names],
+                              cov_noise)
     for cam in cell.cameras.values():  # the aspect tie, as in the per-camera block
         flag, ratio = aspect[cam.name]
         if flag:
@@ -844,7 +867,8 @@ def calibrate_cell(
         points=points,
         point_covariance=point_cov,
         outliers=outliers,
-        sigma_px=float(np.sqrt(sol.sigma2)) * options.sigma_px,
+        variance_components=components,
+        sigma_px=float(np.sqrt(corner_factor)) * options.sigma_px,
         num_residuals=int(corner.size + tip.size + contact.size),
         iterations=int(sol.iterations),
         status=sol.status.name.lower(),
@@ -854,6 +878,89 @@ def calibrate_cell(
         joint_covariance=joint,
         solution=sol,
     )
+
+
+#: Iterations of the variance-component estimation (each re-solves from the previous solution).
+VARIANCE_COMPONENT_ITERATIONS = 25
+#: A residual kind estimates its own noise factor only with at least this redundancy (and a quarter
+#: of its count); below, χ² has too few degrees of freedom (e.g. tool tips whose 2 coordinates per
+#: station the station's 6-dof robot pose correction can absorb) and the kind keeps its stated σ.
+MIN_REDUNDANCY = 5.0
+
+
+def _variance_components(sol, build, residuals, evals, factors, weights, pose_sqrt_info, solve_options):
+    """A-posteriori variance factors per residual kind, and the solution weighted by them.
+
+    Corner pixels, tool-tip pixels and contacts come from different sensors and detectors: one
+    σ̂² of all residuals lets the most numerous kind (corners) set the noise of the others (the demo's
+    corners are 0.011 px, its tips ~0.1 px). With the robot pose model, the prior on the flange poses
+    keeps its stated σ too (as in the hand-eye problem). Each kind ``g`` gets its own factor
+    ``f_g = χ²_g / r_g`` (Helmert's estimator), ``r_g = m_g − tr(J_g H⁻¹ J_gᵀ)`` its redundancy at the
+    current weights (:meth:`Solution.propagate` of its residuals); the robot prior's redundancy is
+    ``Σ_k 6 − tr(S Σ_k Sᵀ)``; the most numerous kind takes the rest, so the redundancies add up to
+    ``m − n``. The weights are updated and the problem re-solved until every update is within 1 % of
+    1 (the estimate is biased while the weights are wrong: a too-trusted kind pushes its errors into
+    the robot poses). A kind with too little redundancy to estimate its noise (:data:`MIN_REDUNDANCY`)
+    keeps its stated σ.
+
+    Returns:
+        ``(solution, residuals, {kind: factor on its stated σ²})``; the factors are ``{}`` (and the
+        solution unchanged) when one common factor serves (a single kind, no pose model).
+    """
+    kinds = sorted({e[0] for e in evals})
+    if len(kinds) < 2 and pose_sqrt_info is None:
+        return sol, residuals({k: np.asarray(v) for k, v in sol.values.items()}), {}
+    count = dict.fromkeys(kinds, 0)
+    for (kind, *_), w in zip(evals, weights):
+        count[kind] += int(np.sum(w > 0)) * (2 if kind != "contact" else 3)
+    main = max(kinds, key=lambda k: count[k])
+    raw_of = {}
+    for kind in kinds:
+        if kind == main:
+            continue
+        groups = [(e, f, w) for e, f, w in zip(evals, factors, weights) if e[0] == kind]
+
+        def raw(values, groups=groups):  # this kind's residuals in stated-σ units (one compilation)
+            out = []
+            for (_, fn, args, st, o, _), f, w in groups:
+                n = st.shape[0]
+                ins = [jnp.broadcast_to(values[a][0], (n, values[a].shape[1])) for a in args[:-1]]
+                r = jax.vmap(fn)(*ins, values["T_base_flange"][st], jax.tree.map(jnp.asarray, o))
+                out.append((r / f.sigma)[np.flatnonzero(w > 0)].reshape(-1))
+            return jnp.concatenate(out)
+
+        raw_of[kind] = raw
+    scale = dict.fromkeys(kinds, 1.0)
+    use = {}
+    for _ in range(VARIANCE_COMPONENT_ITERATIONS):
+        if use:
+            sol = solve(build(weights, scale).with_values(sol.values), options=solve_options)
+        res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
+        chi2 = dict.fromkeys(kinds, 0.0)
+        for (kind, *_), f, r, w in zip(evals, factors, res, weights):
+            chi2[kind] += float(np.sum((r[w > 0] / f.sigma) ** 2)) / scale[kind]
+        redundancy = {k: count[k] - float(np.trace(np.asarray(sol.propagate(raw_of[k], noise="stated")))) / scale[k]
+                      for k in raw_of}
+        prior = 0.0
+        if pose_sqrt_info is not None:
+            S = np.asarray(pose_sqrt_info)
+            n = sol.problem.variable("T_base_flange").num
+            cov = np.asarray(sol.covariance("T_base_flange", noise="stated")).reshape(n, 6, n, 6)
+            prior = float(sum(6.0 - np.trace(S @ cov[k, :, k, :] @ S.T) for k in range(n)))
+        redundancy[main] = (sol.num_residuals - sol.num_free) - prior - sum(redundancy.values())
+        use = {k: chi2[k] / redundancy[k] for k in kinds
+               if redundancy[k] >= max(MIN_REDUNDANCY, 0.25 * count[k]) and chi2[k] > 0.0}
+        if not use:
+            break
+        for k in use:
+            scale[k] *= use[k]
+        if all(abs(v - 1.0) < 0.01 for v in use.values()):
+            break
+    else:
+        sol = solve(build(weights, scale).with_values(sol.values), options=solve_options)
+        res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
+    # the factors the final solve's weights carry (a kind left at its stated σ is not listed)
+    return sol, res, {k: v for k, v in scale.items() if v != 1.0}
 
 
 def _joint_covariance(sol, names: list[tuple[str, str]], noise: str) -> dict:

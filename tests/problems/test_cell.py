@@ -206,3 +206,23 @@ def test_outlying_corners_and_tips_are_rejected():
         d = cal.transforms[name][:3, 3] - clean.transforms[name][:3, 3]
         cov = clean.transform_covariance[name][3:, 3:]
         assert float(d @ np.linalg.pinv(cov) @ d) < 0.25, name
+
+
+def test_each_residual_kind_gets_its_own_noise_factor():
+    """Corners at 0.05 px and tips at 0.5 px, both stated as 0.25 px: the variance components
+    recover (0.05/0.25)² and (0.5/0.25)² (Helmert; tips: ~37 redundant coordinates, ±25 % at 1σ),
+    and the TCP covariance follows the tips' own noise rather than the corners'."""
+    cell, obs, truth = synthetic_cell(9, sigma_px=0.05, tip_sigma_px=0.5, **SIZES)
+    cal = calibrate_cell(load_cell(cell), load_observations(obs), CellOptions(sigma_px=0.25, tip_sigma_px=0.25))
+    comp = cal.variance_components
+    assert 0.9 * 0.04 < comp["corner"] < 1.1 * 0.04
+    assert 0.45 * 4.0 < comp["tip"] < 1.8 * 4.0
+    assert cal.sigma_px == pytest.approx(0.25 * np.sqrt(comp["corner"]))
+    # one common factor (the corners', they are the many) puts the tips at the corners' 0.05 px: the
+    # TCP σ would come out too small (measured 1.5-1.7x here; the robot pose prior, which both keep as
+    # stated, carries the rest of the TCP's uncertainty)
+    one = calibrate_cell(load_cell(cell), load_observations(obs), CellOptions(sigma_px=0.05, tip_sigma_px=0.05,
+                                                                                noise="stated"))
+    ratio = np.sqrt(np.diag(cal.transform_covariance["T_flange_needle"])[3:]
+                    / np.diag(one.transform_covariance["T_flange_needle"])[3:])
+    assert np.all(ratio > 1.25)
