@@ -53,6 +53,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -75,7 +76,7 @@ from jcalib.problems.camera import (
 )
 from jcalib.problems.tcp import _tip_fn
 from jcalib.residuals.priors import gaussian_prior_residual
-from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, solve
+from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, linear, solve
 from jcalib.solve.covariance import covariance as _covariance
 
 __all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell"]
@@ -880,6 +881,40 @@ def calibrate_cell(
     )
 
 
+@eqx.filter_jit
+def _information(problem: Problem, values: dict) -> linear.System:
+    """Gauss–Newton information ``JᵀJ`` of ``problem``'s factors at ``values`` (no fixed-coordinate identity)."""
+    layout = linear.make_layout(problem)
+    free = linear.free_masks(problem)
+    system = linear.empty_system(layout)
+    for f in problem.factors:
+        _, H_obs, g_obs, _, _, _ = linear.factor_linearization(problem, values, f, free)
+        system = linear.scatter_factor(system, layout, f, H_obs, g_obs, linear._active_args(problem, f),
+                                       f.chunk is not None)
+    return system
+
+
+def _hat_trace(sol, group: list) -> float:
+    """``tr(H_g H⁻¹)`` for the factor groups ``group`` of the solved problem (same variables): the
+    number of "parameters" their residuals use up. ``H⁻¹`` from the Schur-reduced inverse and the
+    eliminated blocks (``Σ_ee = V⁻¹ + V⁻¹Wᵀ Σ_ss W V⁻¹``, ``Σ_es = −V⁻¹Wᵀ Σ_ss``); no dense inverse.
+    The factor functions are cached per configuration, so one compilation serves every call."""
+    from jcalib.solve.covariance import _inverse_blocks
+
+    Hg = _information(Problem(sol.padded_problem.variables, group), sol.raw.values)
+    sigma_ss, Vinvs = (np.asarray(a) if not isinstance(a, tuple) else tuple(np.asarray(b) for b in a)
+                       for a in _inverse_blocks(sol))
+    total = float(np.sum(np.asarray(Hg.H_ss) * sigma_ss))  # tr(A B) for symmetric A, B
+    for slot, (Vg, Wg) in enumerate(zip(Hg.V, Hg.W)):
+        W, Vinv = np.asarray(sol.raw.system.W[slot]), Vinvs[slot]
+        Y = np.einsum("nde,nse->nds", Vinv, W)  # V⁻¹ Wᵀ
+        sigma_ee = Vinv + np.einsum("nds,st,nxt->ndx", Y, sigma_ss, Y)
+        sigma_es = -np.einsum("nds,st->ndt", Y, sigma_ss)
+        total += float(np.einsum("nde,ned->", np.asarray(Vg), sigma_ee))
+        total += 2.0 * float(np.einsum("nsd,nds->", np.asarray(Wg), sigma_es))
+    return total
+
+
 #: Iterations of the variance-component estimation (each re-solves from the previous solution).
 VARIANCE_COMPONENT_ITERATIONS = 25
 #: A residual kind estimates its own noise factor only with at least this redundancy (and a quarter
@@ -895,8 +930,8 @@ def _variance_components(sol, build, residuals, evals, factors, weights, pose_sq
     σ̂² of all residuals lets the most numerous kind (corners) set the noise of the others (the demo's
     corners are 0.011 px, its tips ~0.1 px). With the robot pose model, the prior on the flange poses
     keeps its stated σ too (as in the hand-eye problem). Each kind ``g`` gets its own factor
-    ``f_g = χ²_g / r_g`` (Helmert's estimator), ``r_g = m_g − tr(J_g H⁻¹ J_gᵀ)`` its redundancy at the
-    current weights (:meth:`Solution.propagate` of its residuals); the robot prior's redundancy is
+    ``f_g = χ²_g / r_g`` (Helmert's estimator), ``r_g = m_g − tr(H_g H⁻¹)`` its redundancy at the
+    current weights (:func:`_hat_trace`); the robot prior's redundancy is
     ``Σ_k 6 − tr(S Σ_k Sᵀ)``; the most numerous kind takes the rest, so the redundancies add up to
     ``m − n``. The weights are updated and the problem re-solved until every update is within 1 % of
     1 (the estimate is biased while the weights are wrong: a too-trusted kind pushes its errors into
@@ -914,22 +949,6 @@ def _variance_components(sol, build, residuals, evals, factors, weights, pose_sq
     for (kind, *_), w in zip(evals, weights):
         count[kind] += int(np.sum(w > 0)) * (2 if kind != "contact" else 3)
     main = max(kinds, key=lambda k: count[k])
-    raw_of = {}
-    for kind in kinds:
-        if kind == main:
-            continue
-        groups = [(e, f, w) for e, f, w in zip(evals, factors, weights) if e[0] == kind]
-
-        def raw(values, groups=groups):  # this kind's residuals in stated-σ units (one compilation)
-            out = []
-            for (_, fn, args, st, o, _), f, w in groups:
-                n = st.shape[0]
-                ins = [jnp.broadcast_to(values[a][0], (n, values[a].shape[1])) for a in args[:-1]]
-                r = jax.vmap(fn)(*ins, values["T_base_flange"][st], jax.tree.map(jnp.asarray, o))
-                out.append((r / f.sigma)[np.flatnonzero(w > 0)].reshape(-1))
-            return jnp.concatenate(out)
-
-        raw_of[kind] = raw
     scale = dict.fromkeys(kinds, 1.0)
     use = {}
     for _ in range(VARIANCE_COMPONENT_ITERATIONS):
@@ -939,8 +958,13 @@ def _variance_components(sol, build, residuals, evals, factors, weights, pose_sq
         chi2 = dict.fromkeys(kinds, 0.0)
         for (kind, *_), f, r, w in zip(evals, factors, res, weights):
             chi2[kind] += float(np.sum((r[w > 0] / f.sigma) ** 2)) / scale[kind]
-        redundancy = {k: count[k] - float(np.trace(np.asarray(sol.propagate(raw_of[k], noise="stated")))) / scale[k]
-                      for k in raw_of}
+        redundancy = {}
+        for k in kinds:
+            if k != main:
+                group = [FactorGroup(f.name, f.fn, f.args, f.indices, f.observations,
+                                     sigma=f.sigma * float(np.sqrt(scale[k])), sqrt_weight=w)
+                         for e, f, w in zip(evals, factors, weights) if e[0] == k]
+                redundancy[k] = count[k] - _hat_trace(sol, group)
         prior = 0.0
         if pose_sqrt_info is not None:
             S = np.asarray(pose_sqrt_info)

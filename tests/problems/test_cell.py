@@ -226,3 +226,17 @@ def test_each_residual_kind_gets_its_own_noise_factor():
     ratio = np.sqrt(np.diag(cal.transform_covariance["T_flange_needle"])[3:]
                     / np.diag(one.transform_covariance["T_flange_needle"])[3:])
     assert np.all(ratio > 1.25)
+
+
+def test_hat_traces_add_up_to_the_number_of_unknowns():
+    """tr(H_g H⁻¹) summed over every factor group (priors included) is tr(I) = the free unknowns:
+    an identity that checks the Schur-block assembly of the redundancies."""
+    from jcalib.problems.cell import _hat_trace
+
+    cell, obs, _ = synthetic_cell(4, **SIZES)
+    sol = calibrate_cell(load_cell(cell), load_observations(obs), CellOptions(sigma_px=0.2, tip_sigma_px=0.2)).solution
+    groups = list(sol.padded_problem.factors)
+    assert _hat_trace(sol, groups) == pytest.approx(sol.num_free, rel=1e-9)
+    parts = [_hat_trace(sol, [g]) for g in groups]
+    assert sum(parts) == pytest.approx(sol.num_free, rel=1e-9)
+    assert all(p >= -1e-9 for p in parts)
