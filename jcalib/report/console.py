@@ -59,19 +59,36 @@ def transforms_table(result: ResultFile) -> Table | None:
     return table
 
 
+def points_table(result: ResultFile) -> Table | None:
+    """One row per estimated point: position (mm) in its frame with σ."""
+    if not result.points:
+        return None
+    table = Table(title="Points")
+    for col in ("point", "frame", "position [mm]", "σ [mm]"):
+        table.add_column(col)
+    for name, pt in result.points.items():
+        cov = pt.covariance
+        std = "–" if cov is None else " ".join(f"{v:.3f}" for v in np.sqrt(np.maximum(np.diag(cov), 0.0)) * 1e3)
+        table.add_row(name, pt.frame, " ".join(f"{v:.3f}" for v in np.asarray(pt.position) * 1e3), std)
+    return table
+
+
 def print_result(result: ResultFile, console: Console | None = None, truth=None) -> None:
     """Print the result's tables and fit statistics."""
     console = console or Console()
-    console.print(intrinsics_table(result, truth))
-    t = transforms_table(result)
-    if t is not None:
-        console.print(t)
+    if result.cameras:
+        console.print(intrinsics_table(result, truth))
+    for t in (transforms_table(result), points_table(result)):
+        if t is not None:
+            console.print(t)
     s = result.stats
-    console.print(
-        f"RMS {s.get('rms_px', float('nan')):.4f} px · a-posteriori σ {s.get('sigma_px', float('nan')):.4f} px · "
-        f"{s.get('num_residuals', 0)} residuals · {s.get('iterations', '?')} iterations · "
-        f"status {s.get('status', '?')} · {s.get('num_outliers', 0)} outliers rejected",
-        highlight=False,
-    )
+    parts = []
+    if "rms_px" in s:
+        parts.append(f"RMS {s['rms_px']:.4f} px · a-posteriori σ {s.get('sigma_px', float('nan')):.4f} px")
+    if "contact_rms_m" in s:
+        parts.append(f"contact RMS {s['contact_rms_m'] * 1e3:.4f} mm")
+    parts.append(f"{s.get('num_residuals', 0)} residuals · {s.get('iterations', '?')} iterations · "
+                 f"status {s.get('status', '?')} · {s.get('num_outliers', 0)} outliers rejected")
+    console.print(" · ".join(parts), highlight=False)
     for warning in s.get("warnings", []):
         console.print(f"[bold yellow]warning:[/] {warning}", highlight=False)
