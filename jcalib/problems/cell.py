@@ -30,8 +30,10 @@ and every contact (station ``"contacts": [{"tool": t, "point": p}]``: the tip to
     T_base_flange_i · p_flange_tip  −  p_base                              (m, σ = ``contact_sigma_m``),
 
 which covers pivot calibration, the robot 4-point TCP method and touched work-object points.
-Corners and tip pixels beyond ``outlier_threshold`` a-posteriori σ are rejected and the problem
-re-solved.
+Corners and tip pixels beyond ``outlier_threshold`` a-posteriori σ of their own kind are rejected
+and the problem re-solved. With a-posteriori noise, each residual kind (corners, tips, contacts) gets
+its own variance factor and the robot pose prior keeps its stated σ (:func:`_variance_components`):
+one common σ̂² would let the numerous, precise corners set the noise of the tips.
 
 Everything is solved jointly by the engine (:func:`jcalib.solve.solve`), with covariances.
 
@@ -81,7 +83,7 @@ from jcalib.solve.covariance import covariance as _covariance
 
 __all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell"]
 
-#: Rounds of outlier rejection (each re-solves once; stops early when nothing new is rejected).
+#: Rounds of outlier rejection (each re-solves once; stops early when the rejected set stops changing).
 MAX_OUTLIER_ROUNDS = 5
 
 
