@@ -39,15 +39,10 @@ RAD2DEG = np.degrees(1.0)
 
 
 def load_camodocal():
-    fs = cv2.FileStorage(str(REAL / "TransformPairsInput.yml"), cv2.FILE_STORAGE_READ)
-    n = int(fs.getNode("frameCount").real())
-    T1 = np.array([fs.getNode(f"T1_{i}").mat() for i in range(n)])
-    T2 = np.array([fs.getNode(f"T2_{i}").mat() for i in range(n)])
-    fs.release()
-    fs = cv2.FileStorage(str(REAL / "CalibratedTransform.yml"), cv2.FILE_STORAGE_READ)
-    ref = fs.getNode("ArmTipToMarkerTagTransform").mat()
-    fs.release()
-    return T1, T2, ref
+    from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
+
+    T1, T2 = read_transform_pairs(REAL / "TransformPairsInput.yml")
+    return T1, T2, read_calibrated_transform(REAL / "CalibratedTransform.yml")
 
 
 def fmt_pose(name, M, std):

@@ -52,6 +52,7 @@ from jcalib.init.pivot import pivot_calibration
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
 from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
+from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
 from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 from jcalib.problems.pivot import refine_pivot
 
@@ -137,14 +138,8 @@ add("OpenCV left", "RMS", "px", cal.rms_px, None, rms_pub)
 
 # %%
 folder = REAL / "handeye_camodocal_example"
-fs = cv2.FileStorage(str(folder / "TransformPairsInput.yml"), cv2.FILE_STORAGE_READ)
-n = int(fs.getNode("frameCount").real())
-T1 = np.array([fs.getNode(f"T1_{i}").mat() for i in range(n)])
-T2 = np.array([fs.getNode(f"T2_{i}").mat() for i in range(n)])
-fs.release()
-fs = cv2.FileStorage(str(folder / "CalibratedTransform.yml"), cv2.FILE_STORAGE_READ)
-ref = fs.getNode("ArmTipToMarkerTagTransform").mat()
-fs.release()
+T1, T2 = read_transform_pairs(folder / "TransformPairsInput.yml")
+ref = read_calibrated_transform(folder / "CalibratedTransform.yml")
 res = calibrate_hand_eye_pairs(T1, T2, mode="eye_to_hand")
 std = res.T_other_std  # rx, ry, rz (rad), tx, ty, tz (m), tangent of the marker frame
 for k, name in enumerate("xyz"):

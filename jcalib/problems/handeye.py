@@ -86,6 +86,7 @@ from jcalib.solve import (
     bucket_size,
     linear,
     lm_solve,
+    pad_problem,
     solve,
 )
 from jcalib.solve.covariance import covariance as _covariance
@@ -953,41 +954,6 @@ _batch_core_jit = eqx.filter_jit(eqx.filter_vmap(_batch_core, in_axes=(0, None))
 _system_core_jit = eqx.filter_jit(eqx.filter_vmap(_system_core))
 
 
-def _pad_to(problem: Problem, var_num: dict[str, int], obs_num: dict[str, int]) -> Problem:
-    """``problem`` with variable ``v`` padded to ``var_num[v.name]`` entries and factor group ``f`` to
-    ``obs_num[f.name]`` observations (whole runs of ``f.chunk``), as :func:`jcalib.solve.pad_problem`
-    pads (fixed copies of entry 0; zero-weight copies of observation 0 at entry 0), to a size shared
-    by a batch."""
-    new_vars = []
-    for v in problem.variables:
-        extra = var_num[v.name] - v.num
-        value, fixed = np.asarray(v.value), np.asarray(v.fixed)
-        if extra:
-            value = np.concatenate([value, np.repeat(value[:1], extra, axis=0)])
-            fixed = np.concatenate([fixed, np.ones((extra, fixed.shape[1]), bool)])
-        new_vars.append(eqx.tree_at(lambda w: (w.value, w.fixed), v, (value, fixed)))
-    new_factors = []
-    for f in problem.factors:
-        extra = obs_num[f.name] - f.num_obs
-
-        def pad(a, extra=extra):
-            a = np.asarray(a)
-            return np.concatenate([a, np.repeat(a[:1], extra, axis=0)]) if extra else a
-
-        new_factors.append(eqx.tree_at(
-            lambda g: (g.indices, g.observations, g.sqrt_weight, g.sigma),
-            f,
-            (
-                tuple(np.concatenate([np.asarray(i), np.zeros((extra,), np.int32)]) for i in f.indices),
-                jax.tree.map(pad, f.observations),
-                np.concatenate([np.asarray(f.sqrt_weight), np.zeros((extra,), np.float64)]),
-                np.asarray(f.sigma),
-            ),
-            is_leaf=lambda x: x is None,
-        ))
-    return eqx.tree_at(lambda q: (q.variables, q.factors), problem, (tuple(new_vars), tuple(new_factors)))
-
-
 def _raise_if_unobservable(sol: Solution) -> None:
     """What :func:`jcalib.solve.solve` raises for a rank-deficient solution."""
     if sol.status != Status.NOT_OBSERVABLE:
@@ -1021,7 +987,7 @@ def _solve_batch(problems: list[Problem], options: SolveOptions) -> list[tuple[S
         obs_num = {f.name: max(bucket_size(g.num_obs // (g.chunk or 1)) * (g.chunk or 1)  # whole runs
                                for k in members for g in problems[k].factors if g.name == f.name)
                    for f in first.factors}
-        padded = [_pad_to(problems[k], var_num, obs_num) for k in members]
+        padded = [pad_problem(problems[k], num_entries=var_num, num_obs=obs_num) for k in members]
         for start in range(0, len(members), _BATCH):
             part = padded[start:start + _BATCH]
             if len(members) > _BATCH:  # one compiled width: fill the last call with copies

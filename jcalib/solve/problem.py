@@ -388,18 +388,24 @@ def bucket_size(n: int) -> int:
     return int(-(-n // step) * step)
 
 
-def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size) -> Problem:
+def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size, *,
+                num_entries: dict[str, int] | None = None, num_obs: dict[str, int] | None = None) -> Problem:
     """Pad every variable kind and factor group to ``size_fn(count)`` entries / observations.
 
     Padded variable entries copy entry 0 and are fully fixed (no unknowns, zero covariance).
     Padded observations copy observation 0, point at entry 0 of each argument (valid indices) and
     have ``sqrt_weight = 0``, so they add nothing to cost, gradient or Hessian. Padding goes at
     the end: entry ``i`` and observation ``k`` keep their positions.
+
+    ``num_entries`` (variable name -> entries) and ``num_obs`` (factor group name -> observations,
+    whole runs of a chunked group) give explicit targets instead, e.g. one shape shared by a batch
+    of problems; names they leave out use ``size_fn``.
     """
+    num_entries, num_obs = num_entries or {}, num_obs or {}
     new_vars = []
     for v in problem.variables:
         n = v.num
-        target = size_fn(n)
+        target = num_entries.get(v.name, size_fn(n))
         extra = target - n
         if extra:
             value = jnp.concatenate([v.value, jnp.broadcast_to(v.value[:1], (extra, v.value.shape[1]))])
@@ -410,7 +416,8 @@ def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size) -
     for f in problem.factors:
         k = f.num_obs
         c = f.chunk or 1
-        extra = (size_fn(k // c) - k // c) * c  # whole runs of copies of observation 0
+        # whole runs of copies of observation 0
+        extra = num_obs[f.name] - k if f.name in num_obs else (size_fn(k // c) - k // c) * c
         if extra and k > 0:
 
             def pad(a, extra=extra):

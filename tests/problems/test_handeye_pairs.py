@@ -8,6 +8,7 @@ from scipy.stats import chi2
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import lie
+from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
 from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 
 N_STATIONS = 12
@@ -282,14 +283,8 @@ def test_bad_input():
 def test_real_camodocal_end_to_end(real_data):
     """jhu-lcsr/handeye_calib_camodocal: AR marker on the gripper, camera fixed (eye-to-hand), 42 pairs."""
     folder = real_data / "handeye_camodocal_example"
-    fs = cv2.FileStorage(str(folder / "TransformPairsInput.yml"), cv2.FILE_STORAGE_READ)
-    n = int(fs.getNode("frameCount").real())
-    T1 = np.array([fs.getNode(f"T1_{i}").mat() for i in range(n)])
-    T2 = np.array([fs.getNode(f"T2_{i}").mat() for i in range(n)])
-    fs.release()
-    fs = cv2.FileStorage(str(folder / "CalibratedTransform.yml"), cv2.FILE_STORAGE_READ)
-    ref = fs.getNode("ArmTipToMarkerTagTransform").mat()
-    fs.release()
+    T1, T2 = read_transform_pairs(folder / "TransformPairsInput.yml")
+    ref = read_calibrated_transform(folder / "CalibratedTransform.yml")
     res = calibrate_hand_eye_pairs(T1, T2, mode="eye_to_hand")
     assert res.num_stations == 42 and res.status == "CONVERGED"
     # degrees and millimetres of noise (README: "the data is noisy")
