@@ -4,7 +4,8 @@ Public API::
 
     Variable(name, manifold, value, fixed=False, prior_mean=None, prior_sqrt_info=None,
              eliminate=False, coord_names=None, entry_label=None)
-    FactorGroup(name, fn, args, indices, observations=None, sigma=1.0, sqrt_weight=None, loss=None)
+    FactorGroup(name, fn, args, indices, observations=None, sigma=1.0, sqrt_weight=None, loss=None,
+                chunk=None, jacobian=None)
     Problem(variables, factors)
     solve(problem, x0=None, options=SolveOptions(), pad=True, raise_on_unobservable=True) -> Solution
     solve_many(problems, options) -> list[Solution]           # one vmapped jit call

@@ -144,7 +144,8 @@ def _active_args(problem: Problem, f) -> tuple[int, ...]:
 def factor_linearization(problem: Problem, values: dict, f, free: dict):
     """Per-observation Gauss–Newton blocks of one factor group (IRLS-reweighted).
 
-    Derivatives are taken with respect to the non-constant arguments only (:func:`_active_args`).
+    Derivatives are taken with respect to the non-constant arguments only (:func:`_active_args`),
+    by autodiff of ``f.fn`` or from the group's hand-derived ``f.jacobian`` when it has one.
 
     Returns:
         cost: scalar ``½ Σ ρ(s_k)``; H_obs ``(K, D, D)``; g_obs ``(K, D)``;
@@ -176,20 +177,37 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
         jac, r = jac_fn(g, argnums=tuple(range(len(active))), has_aux=True)(*deltas_k)
         return r, jnp.concatenate(jac, axis=-1)
 
-    r, J = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
+    def given_jacobian(rows_k, obs_k, w_k):  # the factor's hand-derived linearisation
+        r, Js = f.jacobian(*rows_k, obs_k)
+        J = jnp.concatenate([Js[j] for j in active], axis=-1)
+        s = w_k / f.sigma
+        return (jnp.where(w_k > 0.0, r * s, jnp.zeros_like(r)),
+                jnp.where(w_k > 0.0, J * s, jnp.zeros_like(J)))
+
+    if f.jacobian is not None and active:
+        r, J = jax.vmap(given_jacobian)(rows, f.observations, f.sqrt_weight)
+    else:
+        r, J = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
     s = jnp.sum(r * r, axis=-1)
     rho, rho1 = f.loss.rho(s)
     sw = jnp.sqrt(rho1)
     r = r * sw[:, None]
-    mask = jnp.concatenate([free[f.args[j]][f.indices[j]] for j in active], axis=-1)
-    J = J * (sw[:, None] * mask)[:, None, :]
+    J = J * sw[:, None, None]
+
+    def free_mask(step=1):  # (K / step, D): which tangent coordinates of the arguments are free
+        return jnp.concatenate([free[f.args[j]][f.indices[j][::step]] for j in active], axis=-1).astype(J.dtype)
+
     if f.chunk is not None:
+        # one argument entry per run: mask the (runs, D, D) blocks, not the (K, m, D) Jacobian
         K, m_, D = J.shape
         Jc = J.reshape(K // f.chunk, f.chunk * m_, D)
         rc = r.reshape(K // f.chunk, f.chunk * m_)
-        H_obs = jnp.einsum("cri,crj->cij", Jc, Jc)
-        g_obs = jnp.einsum("cri,cr->ci", Jc, rc)
+        mask_run = free_mask(f.chunk)
+        H_obs = jnp.einsum("cri,crj->cij", Jc, Jc) * mask_run[:, :, None] * mask_run[:, None, :]
+        g_obs = jnp.einsum("cri,cr->ci", Jc, rc) * mask_run
+        J = J * free_mask()[:, None, :]  # returned only (dead code under jit where unused)
     else:
+        J = J * free_mask()[:, None, :]
         H_obs = jnp.einsum("kmi,kmj->kij", J, J)
         g_obs = jnp.einsum("kmi,km->ki", J, r)
     m_eff = jnp.sum(jnp.where(f.sqrt_weight > 0.0, 1, 0)) * r.shape[-1]

@@ -191,7 +191,11 @@ def test_in_jit_start_reaches_the_host_starts_optimum(options):
     assert o_fast.start_ok
     # the two starts differ (h33 = 1 vs homogeneous DLT); the optimum does not (solver tolerance)
     cal_fast, cal_host = C._refine(fast, o_fast, opts), C._refine(host, o_host, opts)
-    np.testing.assert_allclose(np.asarray(cal_fast.cameras["cam"].params), np.asarray(cal_host.cameras["cam"].params),
-                               rtol=1e-8, atol=1e-10)
+    # one optimum to solver tolerance, in units of each parameter's σ (k3's 2e-10 is 1e-7 σ)
+    sigma = np.sqrt(np.diag(cal_host.intrinsics_covariance["cam"]))
+    diff = np.abs(np.asarray(cal_fast.cameras["cam"].params) - np.asarray(cal_host.cameras["cam"].params))
+    free = sigma > 0
+    assert np.all(diff[free] <= 1e-5 * sigma[free]), (diff, sigma)
+    assert np.all(diff[~free] <= 1e-12)
     np.testing.assert_allclose(cal_fast.intrinsics_covariance["cam"], cal_host.intrinsics_covariance["cam"],
                                rtol=1e-6, atol=1e-14)
