@@ -232,7 +232,8 @@ def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats:
         for name, model in cal.cameras.items()
     }
     transforms = {n: TransformResult(T, cal.transform_covariance[n]) for n, T in cal.transforms.items()}
-    points = {n: PointResult(p, "base", cal.point_covariance[n]) for n, p in getattr(cal, "points", {}).items()}
+    frame = getattr(cal, "frame", "base")  # "world" in cells with several robots
+    points = {n: PointResult(p, frame, cal.point_covariance[n]) for n, p in getattr(cal, "points", {}).items()}
     stats = {
         "num_residuals": cal.num_residuals,
         "iterations": cal.iterations,

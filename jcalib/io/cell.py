@@ -2,6 +2,19 @@
 
 See DESIGN.md, "File formats and entry points". Loading validates everything a later stage relies
 on and raises :class:`~jcalib.errors.BadInputError` naming the file, the key and what to do.
+
+Robots: a cell has no robot, one robot (``robot: {...}``, as always) or named robots
+(``robots: {r1: {...}, r2: {...}}``, each with the keys of ``robot:`` plus an optional known base
+pose ``base: [[4x4]]`` = ``T_world_<robot>``, m). ``robot:`` and ``robots:`` are mutually exclusive.
+
+- One robot (``robot:``, or ``robots:`` with one entry): the cell's frame is the robot ``base``
+  exactly as before (``mount: base``, names ``T_base_<x>``, ``T_flange_<x>``); a one-entry
+  ``robots:`` only names the robot (flange entries may say ``robot: <name>``; it is the default),
+  so ``mount: world`` and ``base:`` are refused there (a one-robot cell is solved in its base frame).
+- Several robots: the cell's frame is ``world``. Fixed cameras / targets use ``mount: world``
+  (``mount: base`` is refused: whose base?), flange cameras / targets and tools name their robot
+  with ``robot: <name>`` (required), cell points are in the world frame. Robot names must differ
+  from the camera, target, tool and point names and from ``world``, ``base``, ``flange``.
 """
 
 from __future__ import annotations
@@ -17,8 +30,10 @@ from jcalib.errors import BadInputError
 
 SCHEMA = "jcalib.cell/1"
 CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye")
-CAMERA_MOUNTS = ("flange", "base", "free")
-TARGET_MOUNTS = ("flange", "base", "free")
+CAMERA_MOUNTS = ("flange", "base", "world", "free")
+TARGET_MOUNTS = ("flange", "base", "world", "free")
+#: Names a robot cannot take (frame names).
+RESERVED_ROBOT_NAMES = ("world", "base", "flange", "free")
 TARGET_TYPES = ("checkerboard", "charuco", "circles")
 
 
@@ -29,12 +44,15 @@ class CameraSpec:
     Attributes:
         name: camera id, e.g. ``"cam0"``.
         model: lens model name (one of ``CAMERA_MODELS``).
-        mount: ``"flange"`` (eye-in-hand), ``"base"`` (fixed) or ``"free"`` (no robot).
+        mount: ``"flange"`` (eye-in-hand), ``"base"`` (fixed, one-robot cell), ``"world"`` (fixed,
+            several robots) or ``"free"`` (no robot).
         skew: whether the skew coefficient is estimated.
         fix: intrinsic names held fixed (e.g. ``("p1", "p2")`` or ``("aspect",)``).
         K: optional (3, 3) initial camera matrix in OpenCV form, pixels.
         dist: optional OpenCV distortion vector (initial values).
         pose: optional (4, 4) known pose of the camera in its mount frame, metres.
+        robot: the robot whose flange carries the camera (``mount: flange`` in a cell with named
+            ``robots:``); None otherwise.
     """
 
     name: str
@@ -45,17 +63,20 @@ class CameraSpec:
     K: np.ndarray | None = None
     dist: np.ndarray | None = None
     pose: np.ndarray | None = None
+    robot: str | None = None
 
 
 @dataclass(frozen=True)
 class TargetSpec:
-    """One calibration target: its type, geometry parameters (as in the spec) and mount."""
+    """One calibration target: its type, geometry parameters (as in the spec) and mount (``robot``:
+    the robot whose flange carries it, in a cell with named ``robots:``)."""
 
     name: str
     type: str
     mount: str
     params: dict[str, Any]
     pose: np.ndarray | None = None
+    robot: str | None = None
 
     def geometry(self):
         """The target's geometry object (:mod:`jcalib.geometry.targets`)."""
@@ -66,15 +87,18 @@ class TargetSpec:
 
 @dataclass(frozen=True)
 class ToolSpec:
-    """A tool whose TCP (``T_flange_<name>``) is unknown; ``observed_by`` lists camera ids."""
+    """A tool whose TCP (``T_flange_<name>``) is unknown; ``observed_by`` lists camera ids;
+    ``robot``: the robot that carries it (cells with named ``robots:``)."""
 
     name: str
     observed_by: tuple[str, ...] = ()
+    robot: str | None = None
 
 
 @dataclass(frozen=True)
 class PointSpec:
-    """A fixed cell point (e.g. a pivot divot), unknown unless ``position`` (base frame, m) is given."""
+    """A fixed cell point (e.g. a pivot divot), unknown unless ``position`` is given (m, in the cell's
+    frame: ``base`` with one robot, ``world`` with several)."""
 
     name: str
     position: np.ndarray | None = None
@@ -83,16 +107,25 @@ class PointSpec:
 @dataclass(frozen=True)
 class RobotSpec:
     """Robot settings. ``pose_noise`` is None when flange poses are taken as exact; ``model`` names a
-    kinematics preset (:data:`jcalib.geometry.ROBOT_PRESETS`) for planning and simulation."""
+    kinematics preset (:data:`jcalib.geometry.ROBOT_PRESETS`) for planning and simulation.
+    ``name``: the key under ``robots:`` (None for ``robot:``); ``base``: optional known
+    ``T_world_<name>`` (4, 4), m (several robots only)."""
 
     model: str | None = None
     pose_noise_translation_m: np.ndarray | None = None  # (3,) per axis
     pose_noise_rotation_deg: np.ndarray | None = None  # (3,) per axis
+    name: str | None = None
+    base: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class CellSpec:
-    """A parsed, validated cell spec."""
+    """A parsed, validated cell spec.
+
+    ``robot`` is the robot of a one-robot cell (from ``robot:`` or a one-entry ``robots:``; None
+    without a robot and with several robots); ``robots`` holds the named robots of ``robots:`` in
+    file order (empty for ``robot:``).
+    """
 
     cameras: dict[str, CameraSpec]
     targets: dict[str, TargetSpec]
@@ -101,6 +134,17 @@ class CellSpec:
     robot: RobotSpec | None = None
     fixed: tuple[str, ...] = ()
     source: str = "<dict>"
+    robots: dict[str, RobotSpec] = field(default_factory=dict)
+
+    @property
+    def multi_robot(self) -> bool:
+        """Several named robots: the cell's frame is ``world``."""
+        return len(self.robots) > 1
+
+    @property
+    def frame(self) -> str:
+        """The frame fixed things and cell points live in: ``"world"`` (several robots) or ``"base"``."""
+        return "world" if self.multi_robot else "base"
 
     def target(self, name: str | None = None) -> TargetSpec:
         """The target called ``name``, or the only target when ``name`` is None."""
@@ -160,7 +204,7 @@ def _check_keys(entry: dict, allowed: set[str], where: str) -> None:
 def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
-    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose"}, where)
+    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose", "robot"}, where)
     model = entry.get("model")
     if model not in CAMERA_MODELS:
         raise _fail(where, f"unknown camera model {model!r}; use one of {', '.join(CAMERA_MODELS)}")
@@ -189,6 +233,7 @@ def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
         K=K,
         dist=dist,
         pose=pose,
+        robot=_robot_ref(entry, where),
     )
 
 
@@ -202,13 +247,22 @@ def _parse_target(name: str, entry: Any, where: str) -> TargetSpec:
     if mount not in TARGET_MOUNTS:
         raise _fail(where, f"unknown mount {mount!r}; use one of {', '.join(TARGET_MOUNTS)}")
     pose = _pose(entry["pose"], where + ".pose") if "pose" in entry else None
-    params = {k: v for k, v in entry.items() if k not in ("type", "mount", "pose")}
-    spec = TargetSpec(name=name, type=ttype, mount=mount, params=params, pose=pose)
+    params = {k: v for k, v in entry.items() if k not in ("type", "mount", "pose", "robot")}
+    spec = TargetSpec(name=name, type=ttype, mount=mount, params=params, pose=pose, robot=_robot_ref(entry, where))
     try:
         spec.geometry()  # validates the geometry fields (cols, rows, square, ...)
     except BadInputError as e:
         raise _fail(where, str(e)) from None
     return spec
+
+
+def _robot_ref(entry: dict, where: str) -> str | None:
+    """The ``robot:`` key of a camera / target / tool entry (a robot name), or None."""
+    if "robot" not in entry or entry["robot"] is None:
+        return None
+    if not isinstance(entry["robot"], str) or not entry["robot"]:
+        raise _fail(where + ".robot", f"expected the name of a robot under 'robots', got {entry['robot']!r}")
+    return entry["robot"]
 
 
 def _positive_vector(value: Any, where: str) -> np.ndarray:
@@ -220,18 +274,19 @@ def _positive_vector(value: Any, where: str) -> np.ndarray:
     return arr
 
 
-def _parse_robot(entry: Any, where: str) -> RobotSpec:
+def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
     if entry is None:
-        return RobotSpec()
+        return RobotSpec(name=name)
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
-    _check_keys(entry, {"pose_noise", "model"}, where)
+    _check_keys(entry, {"pose_noise", "model"} | ({"base"} if name is not None else set()), where)
     model = entry.get("model")
     if model is not None and not isinstance(model, str):
         raise _fail(where + ".model", f"expected a robot preset name, got {model!r}")
+    base = _pose(entry["base"], where + ".base") if entry.get("base") is not None else None
     noise = entry.get("pose_noise")
     if noise is None:
-        return RobotSpec(model=model)
+        return RobotSpec(model=model, name=name, base=base)
     _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
     if "translation_m" not in noise or "rotation_deg" not in noise:
         raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
@@ -239,7 +294,79 @@ def _parse_robot(entry: Any, where: str) -> RobotSpec:
         model=model,
         pose_noise_translation_m=_positive_vector(noise["translation_m"], where + ".pose_noise.translation_m"),
         pose_noise_rotation_deg=_positive_vector(noise["rotation_deg"], where + ".pose_noise.rotation_deg"),
+        name=name,
+        base=base,
     )
+
+
+def _parse_robots(data: dict, source: str) -> dict[str, RobotSpec]:
+    """The named robots of ``robots:`` (empty without the key)."""
+    if "robots" not in data:
+        return {}
+    if "robot" in data:
+        raise _fail(source, "the cell has both 'robot' and 'robots'; use 'robot: {...}' for one robot or "
+                            "'robots: {name: {...}, ...}' for named robots, not both")
+    entries = data["robots"]
+    if not isinstance(entries, dict) or not entries:
+        raise _fail(f"{source}: robots", f"expected a mapping of robot names to entries, got {entries!r}")
+    robots = {}
+    for n, e in entries.items():
+        if not isinstance(n, str) or not n or n in RESERVED_ROBOT_NAMES:
+            raise _fail(f"{source}: robots", f"robot name {n!r} is not allowed (names other than "
+                                             f"{', '.join(RESERVED_ROBOT_NAMES)}, e.g. 'r1')")
+        robots[n] = _parse_robot(e, f"{source}: robots.{n}", name=n)
+    if len(robots) == 1:
+        r = next(iter(robots.values()))
+        if r.base is not None:
+            raise _fail(f"{source}: robots.{r.name}.base", "a one-robot cell is solved in its base frame; a known "
+                        "base pose (T_world_<robot>) needs two or more robots. Remove 'base'")
+    return robots
+
+
+def _check_robot_refs(cameras: dict, targets: dict, tools: dict, points: dict, robots: dict[str, RobotSpec],
+                      source: str) -> tuple[dict, dict, dict]:
+    """Check mounts and ``robot:`` references against the robots; fill the default robot (the only one)."""
+    import dataclasses
+
+    several = len(robots) > 1
+    names = ", ".join(robots)
+    for n in robots:
+        for kind, group in (("camera", cameras), ("target", targets), ("tool", tools), ("point", points)):
+            if n in group:
+                raise _fail(f"{source}: robots.{n}", f"robot '{n}' has the name of a {kind}; give it another name "
+                                                     "(transform names such as T_world_<name> must be unique)")
+
+    def check(kind: str, spec, mounted: bool):
+        where = f"{source}: {kind}s.{spec.name}"
+        mount = getattr(spec, "mount", "flange")
+        if mount == "world" and not several:
+            raise _fail(where + ".mount", "mount 'world' is for cells with several robots (robots: with two or "
+                                          "more); a one-robot cell is solved in the robot's base frame: use mount: base")
+        if mount == "base" and several:
+            raise _fail(where + ".mount", f"mount 'base' is ambiguous in a cell with several robots ({names}): use "
+                                          "mount: world for things fixed in the cell (the world frame), or mount: "
+                                          "flange with robot: <name>")
+        if not mounted:
+            if spec.robot is not None:
+                raise _fail(where + ".robot", f"robot: applies to flange-mounted things and tools; this {kind} has "
+                                              f"mount {mount!r}")
+            return spec
+        if spec.robot is None:
+            if several:
+                raise _fail(where + ".robot", f"a cell with several robots ({names}) needs robot: <name> on every "
+                                              f"flange-mounted {kind} and tool")
+            return dataclasses.replace(spec, robot=next(iter(robots))) if robots else spec
+        if not robots:
+            raise _fail(where + ".robot", f"robot: {spec.robot!r} names a robot, but the cell has no named robots; "
+                                          "name them under robots: {name: {...}} (robot: {...} is one unnamed robot)")
+        if spec.robot not in robots:
+            raise _fail(where + ".robot", f"robot {spec.robot!r} is not in robots ({names})")
+        return spec
+
+    cameras = {n: check("camera", c, c.mount == "flange") for n, c in cameras.items()}
+    targets = {n: check("target", t, t.mount == "flange") for n, t in targets.items()}
+    tools = {n: check("tool", t, True) for n, t in tools.items()}
+    return cameras, targets, tools
 
 
 def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
@@ -253,7 +380,8 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
     schema = data.get("schema")
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
-    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "fixed"}, source)
+    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed"}, source)
+    robots = _parse_robots(data, source)
     cameras_in = data.get("cameras") or {}
     if not isinstance(cameras_in, dict) or not (cameras_in or data.get("tools") or data.get("points")):
         raise _fail(source, "'cameras' must map camera ids to entries (at least one camera, unless the cell "
@@ -270,20 +398,23 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
         for c in observed:
             if c not in cameras:
                 raise _fail(f"{source}: tools.{n}.observed_by", f"camera '{c}' is not in 'cameras'")
-        tools[str(n)] = ToolSpec(name=str(n), observed_by=observed)
+        tools[str(n)] = ToolSpec(name=str(n), observed_by=observed, robot=_robot_ref(e, f"{source}: tools.{n}"))
     points = {}
     for n, e in (data.get("points") or {}).items():
         e = e or {}
         pos = _matrix(e["position"], (3,), f"{source}: points.{n}.position") if "position" in e else None
         points[str(n)] = PointSpec(name=str(n), position=pos)
     robot = _parse_robot(data["robot"], f"{source}: robot") if "robot" in data else None
+    cameras, targets, tools = _check_robot_refs(cameras, targets, tools, points, robots, source)
+    if len(robots) == 1:
+        robot = next(iter(robots.values()))
     fixed = data.get("fixed") or []
     if not isinstance(fixed, list) or not all(isinstance(f, str) for f in fixed):
         raise _fail(f"{source}: fixed", f"expected a list of parameter names, got {fixed!r}")
     needs_robot = any(c.mount != "free" for c in cameras.values()) or any(
         t.mount != "free" for t in targets.values()
     )
-    if needs_robot and robot is None:
+    if needs_robot and robot is None and not robots:
         robot = RobotSpec()
     return CellSpec(
         cameras=cameras,
@@ -293,6 +424,7 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
         robot=robot,
         fixed=tuple(fixed),
         source=source,
+        robots=robots,
     )
 
 
@@ -329,30 +461,43 @@ def cell_to_dict(cell: CellSpec) -> dict:
             entry["intrinsics"] = {"K": c.K.tolist(), "dist": [] if c.dist is None else c.dist.tolist()}
         if c.pose is not None:
             entry["pose"] = c.pose.tolist()
+        if c.robot is not None:
+            entry["robot"] = c.robot
         out["cameras"][c.name] = entry
     for t in cell.targets.values():
         entry = {"type": t.type, **t.params, "mount": t.mount}
         if t.pose is not None:
             entry["pose"] = t.pose.tolist()
+        if t.robot is not None:
+            entry["robot"] = t.robot
         out["targets"][t.name] = entry
     if cell.tools:
-        out["tools"] = {t.name: {"observed_by": list(t.observed_by)} for t in cell.tools.values()}
+        out["tools"] = {t.name: {"observed_by": list(t.observed_by), **({"robot": t.robot} if t.robot else {})}
+                        for t in cell.tools.values()}
     if cell.points:
         out["points"] = {
             p.name: ({} if p.position is None else {"position": p.position.tolist()})
             for p in cell.points.values()
         }
-    if cell.robot is not None:
-        robot: dict[str, Any] = {}
-        if cell.robot.model is not None:
-            robot["model"] = cell.robot.model
-        if cell.robot.pose_noise_translation_m is not None:
-            robot["pose_noise"] = {
-                "translation_m": cell.robot.pose_noise_translation_m.tolist(),
-                "rotation_deg": cell.robot.pose_noise_rotation_deg.tolist(),
-            }
-        out["robot"] = robot
+    if cell.robots:
+        out["robots"] = {n: _robot_to_dict(r) for n, r in cell.robots.items()}
+    elif cell.robot is not None:
+        out["robot"] = _robot_to_dict(cell.robot)
     if cell.fixed:
         out["fixed"] = list(cell.fixed)
     return out
 
+
+
+def _robot_to_dict(r: RobotSpec) -> dict:
+    robot: dict[str, Any] = {}
+    if r.model is not None:
+        robot["model"] = r.model
+    if r.pose_noise_translation_m is not None:
+        robot["pose_noise"] = {
+            "translation_m": r.pose_noise_translation_m.tolist(),
+            "rotation_deg": r.pose_noise_rotation_deg.tolist(),
+        }
+    if r.base is not None:
+        robot["base"] = r.base.tolist()
+    return robot

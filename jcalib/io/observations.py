@@ -64,20 +64,28 @@ class Station:
 
     Attributes:
         id: station id, unique in the file.
-        T_base_flange: (4, 4) measured flange pose in the robot base, metres; None without a robot.
+        T_base_flange: (4, 4) measured flange pose in the robot base, metres; None without a robot
+            (and in cells with several robots, which use ``flange_poses``).
         detections: what the cameras saw.
         contacts: tool-tip contacts with cell points.
+        flange_poses: robot name -> (4, 4) measured flange pose of that robot in its own base
+            (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
+            the station gives ``T_base_flange``. Which robots a station must give is checked against
+            the cell (:func:`jcalib.problems.cell.calibrate_cell`).
     """
 
     id: str
     detections: tuple[Detection, ...] = ()
     T_base_flange: np.ndarray | None = None
     contacts: tuple[Contact, ...] = ()
+    flange_poses: dict[str, np.ndarray] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"id": self.id}
         if self.T_base_flange is not None:
             out["T_base_flange"] = self.T_base_flange.tolist()
+        if self.flange_poses:
+            out["flange_poses"] = {r: T.tolist() for r, T in self.flange_poses.items()}
         out["detections"] = [d.to_dict() for d in self.detections]
         if self.contacts:
             out["contacts"] = [{"tool": c.tool, "point": c.point} for c in self.contacts]
@@ -127,6 +135,17 @@ def _array(value: Any, where: str, ndim: int, last: int | None = None, dtype=np.
         bad = np.argwhere(~np.isfinite(arr))[0].tolist()
         raise _fail(where, f"contains NaN or infinity (first at index {bad}); remove or re-detect it")
     return arr
+
+
+def _flange_pose(value: Any, where: str) -> np.ndarray:
+    """A measured flange pose: 4x4, finite, proper rotation (m)."""
+    T = _array(value, where, 2, 4)
+    if T.shape != (4, 4):
+        raise _fail(where, f"expected a 4x4 matrix, got {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise _fail(where, "the rotation part is not a proper rotation")
+    return T
 
 
 def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict) -> Detection:
@@ -205,12 +224,16 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
         seen.add(sid)
         T = None
         if s.get("T_base_flange") is not None:
-            T = _array(s["T_base_flange"], where + ".T_base_flange", 2, 4)
-            if T.shape != (4, 4):
-                raise _fail(where + ".T_base_flange", f"expected a 4x4 matrix, got {T.shape}")
-            R = T[:3, :3]
-            if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-                raise _fail(where + ".T_base_flange", "the rotation part is not a proper rotation")
+            T = _flange_pose(s["T_base_flange"], where + ".T_base_flange")
+        flange_poses = {}
+        if s.get("flange_poses") is not None:
+            if T is not None:
+                raise _fail(where, "has both T_base_flange (one robot) and flange_poses (named robots); give one")
+            fp = s["flange_poses"]
+            if not isinstance(fp, dict) or not all(isinstance(r, str) and r for r in fp):
+                raise _fail(where + ".flange_poses", "expected a mapping of robot names to 4x4 flange poses "
+                                                     f"(T_<robot>_flange, m), got {str(fp)[:80]}")
+            flange_poses = {r: _flange_pose(v, f"{where}.flange_poses.{r}") for r, v in fp.items()}
         dets = tuple(
             _parse_detection(d, f"{where}.detections[{j}]", cameras, targets)
             for j, d in enumerate(s.get("detections") or [])
@@ -218,7 +241,8 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
         contacts = tuple(
             Contact(tool=str(c["tool"]), point=str(c["point"])) for c in (s.get("contacts") or [])
         )
-        stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts))
+        stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts,
+                                flange_poses=flange_poses))
     return Observations(cameras=cameras, targets=targets, stations=tuple(stations), source=source)
 
 

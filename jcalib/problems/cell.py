@@ -1,5 +1,6 @@
 """The whole cell as one joint least-squares problem: any mix of flange and fixed cameras, fixed and
-flange targets, tools seen by fixed cameras and/or touching cell points, one robot with a pose-error model.
+flange targets, tools seen by fixed cameras and/or touching cell points, one robot or several (each with its
+base in a world frame), each with a pose-error model.
 
 Unknowns (names as in the result file):
 
@@ -45,6 +46,26 @@ relative pose; moving pairs: averaged per station), and a closed-form hand-eye s
 then each TCP from its contacts (pivot / 4-point linear least squares, with the points it touches) or
 else from the viewing rays of its tip detections (linear least squares), then the remaining points.
 
+Several robots (``robots:`` in the cell, :mod:`jcalib.io.cell`): the cell's frame is ``world``
+(fixed things ``T_world_<x>``, points in the world frame). Per robot ``r`` an SE(3) unknown
+``T_world_<r>`` (its base) and per station the flange pose ``T_<r>_flange`` (station
+``flange_poses``) with that robot's own pose-noise prior, so any chain works, e.g. a camera on r1
+seeing a target on r2: ``T_world_cam = T_world_r1 · T_r1_flange_i · T_flange_cam`` and
+``T_world_board = T_world_r2 · T_r2_flange_i · T_flange_board``; tool tips (world cameras) and contacts
+likewise. The flange poses are Schur-eliminated per robot; where a camera on one robot sees a target
+on another, one of the two robots' flange poses stays in the dense system (a factor may touch one
+eliminated kind). The gauge: the world frame is the first robot's base (``T_world_<r1>`` held, at
+identity or at its ``base``) unless a held world pose anchors it: a robot ``base`` or a ``mount:
+world`` camera / target ``pose`` listed in ``fixed``; then every robot base not held is unknown.
+A robot no observation involves is left out (a warning). The start goes on after the poses: a
+robot base follows from a pair whose two poses are started (averaged), or, with the thing on the
+robot still unknown, from a closed-form robot-world solve (AX = ZB, Shah,
+:func:`jcalib.init.robot_world.solve_robot_world_hand_eye`) on a camera or target on its flange
+that pairs with something whose world pose is started; hand-eye solves run per robot once its base
+is started (motion degeneracy checks per robot). A base that nothing places is named
+(:class:`NotObservableError`). One robot (``robot:`` or a one-entry ``robots:``) is exactly the
+problem above.
+
 Priors from a previous result (``prior=``): each named unknown gets a Gaussian prior with the old
 value as mean and the old covariance (pseudo-inverse square root: coordinates with zero variance
 get no prior). The old values are also the start.
@@ -64,6 +85,7 @@ from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import lie
 from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
 from jcalib.init.handeye import HAND_EYE_METHODS, average_poses, solve_hand_eye
+from jcalib.init.robot_world import solve_robot_world_hand_eye
 from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, _check_rotations
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
@@ -81,7 +103,8 @@ from jcalib.residuals.priors import gaussian_prior_residual
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, linear, solve
 from jcalib.solve.covariance import covariance as _covariance
 
-__all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell"]
+__all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell",
+           "synthetic_two_robot_cell"]
 
 #: Rounds of outlier rejection (each re-solves once; stops early when the rejected set stops changing).
 MAX_OUTLIER_ROUNDS = 5
@@ -160,11 +183,12 @@ class CellCalibration:
         start_method: name -> how it was started (``"cell"``, ``"prior"``, ``"hand_eye:<method>"``,
             ``"from:<pair>"``, ``"tip_rays"``).
         station_ids: the stations used, in file order.
-        T_base_flange_measured, T_base_flange: ``(N, 4, 4)`` measured / estimated flange poses, m.
+        T_base_flange_measured, T_base_flange: ``(N, 4, 4)`` measured / estimated flange poses, m (one-robot
+            cells; ``(0, 4, 4)`` with several robots: see ``flange_poses``).
         rms_px: RMS of the target-corner residual coordinates (pixels). ``tip_rms_px``: of the tip pixels.
         sigma_px: a-posteriori corner noise (``sqrt(σ̂²)·sigma_px``).
         num_residuals, iterations, status, sigma2: solver facts.
-        pose_model: whether robot pose corrections were estimated.
+        pose_model: whether robot pose corrections were estimated (for any robot).
         priors: names of the unknowns that carried a prior.
         joint_covariance: ``{"names": [...], "dims": [...], "matrix": (n, n)}``: the joint covariance
             of every unknown (camera ids for intrinsics, transform names; tangent coordinates in that
@@ -175,6 +199,9 @@ class CellCalibration:
         outliers: rejected measurements ``(camera/tool, station id, point index or -1 for a tip)``.
         variance_components: residual kind (``corner``, ``tip``, ``contact``) -> a-posteriori variance
             factor on its stated σ² that the covariances use (empty: one factor σ̂² for everything).
+        frame: the frame of fixed things and points: ``"base"`` (one robot) or ``"world"``.
+        flange_poses: several robots: robot -> ``{"station_ids": [...], "measured": (n, 4, 4),
+            "estimated": (n, 4, 4)}`` (``T_<robot>_flange`` at the stations that use it, m); empty for one robot.
         solution: the :class:`jcalib.solve.Solution`.
     """
 
@@ -203,6 +230,8 @@ class CellCalibration:
     contact_rms_m: float = float("nan")
     outliers: list[tuple[str, str, int]] = field(default_factory=list)
     variance_components: dict[str, float] = field(default_factory=dict)
+    frame: str = "base"
+    flange_poses: dict[str, dict] = field(default_factory=dict)
     solution: object = field(default=None, repr=False)
 
 
@@ -219,15 +248,27 @@ def is_cell_problem(cell: CellSpec) -> bool:
 
 
 @functools.cache
-def _target_fn(model_cls: type, image_size: tuple[int, int], skew: bool, cam_mount: str, target_mount: str):
-    """``(intrinsics, T_<mount>_cam, T_<mount>_target, T_base_flange, obs) -> (2,)`` px residual,
-    ``obs = (p_target (3,), pixel (2,), aspect (2,))``. One function per configuration."""
+def _target_fn(model_cls: type, image_size: tuple[int, int], skew: bool, cam_slot: int, target_slot: int,
+               with_base: bool):
+    """``(intrinsics, X, Y, *robots, obs) -> (2,)`` px residual, ``obs = (p_target (3,), pixel (2,),
+    aspect (2,))``. ``X``/``Y``: the camera's / target's pose on its holder (``T_<frame>_cam`` or
+    ``T_flange_cam``). ``robots``: per robot involved (at most two) its flange pose
+    ``T_base_flange`` (one-robot cell) or ``T_world_<r>, T_<r>_flange`` (``with_base``);
+    ``cam_slot`` / ``target_slot`` say which robot holds the camera / target (-1: fixed). One
+    function per configuration."""
     project = _reprojection_fn(model_cls, image_size, skew)
+    width = 2 if with_base else 1
 
-    def fn(intrinsics, X, Y, T_base_flange, obs):
-        T_base_cam = lie.se3_compose(T_base_flange, X) if cam_mount == "flange" else X
-        T_base_target = lie.se3_compose(T_base_flange, Y) if target_mount == "flange" else Y
-        return project(intrinsics, lie.se3_inverse(T_base_cam), T_base_target, obs)
+    def fn(intrinsics, X, Y, *rest):
+        *robots, obs = rest
+
+        def world(slot, T):
+            if slot < 0:
+                return T
+            chain = robots[width * slot:width * (slot + 1)] + [T]
+            return functools.reduce(lie.se3_compose, chain)
+
+        return project(intrinsics, lie.se3_inverse(world(cam_slot, X)), world(target_slot, Y), obs)
 
     return fn
 
@@ -235,6 +276,23 @@ def _target_fn(model_cls: type, image_size: tuple[int, int], skew: bool, cam_mou
 def _contact_fn(T_flange_tool, point, T_base_flange, obs):
     """Tool tip at the station's flange pose minus the touched cell point, base frame (m), (3,)."""
     return lie.se3_apply(T_base_flange, T_flange_tool[4:]) - point
+
+
+def _world_contact_fn(T_flange_tool, point, T_world_robot, T_robot_flange, obs):
+    """:func:`_contact_fn` for a tool on one of several robots: world frame (m), (3,)."""
+    return lie.se3_apply(lie.se3_compose(T_world_robot, T_robot_flange), T_flange_tool[4:]) - point
+
+
+@functools.cache
+def _world_tip_fn(model_cls: type, image_size: tuple[int, int], skew: bool):
+    """``(intrinsics, T_world_cam, T_flange_tcp, T_world_robot, T_robot_flange, pixel (2,)) -> (2,)`` px:
+    :func:`jcalib.problems.tcp._tip_fn` for a tool on one of several robots."""
+    tip = _tip_fn(model_cls, image_size, skew)
+
+    def fn(intrinsics, T_world_cam, T_flange_tcp, T_world_robot, T_robot_flange, pixel):
+        return tip(intrinsics, T_world_cam, T_flange_tcp, lie.se3_compose(T_world_robot, T_robot_flange), pixel)
+
+    return fn
 
 
 @functools.cache
@@ -270,16 +328,99 @@ class _Contacts:
     stations: list[int]
 
 
-def _gather(cell: CellSpec, obs: Observations):
+class _Robots:
+    """The robots of a cell and where things hang: the bookkeeping shared by gather, start and problem.
+
+    One robot (``robot:`` or a one-entry ``robots:``): frame ``base``, one flange-pose variable
+    ``T_base_flange``, no base variable. Several: frame ``world``, per robot ``r`` the variables
+    ``T_world_<r>`` (its base) and ``T_<r>_flange`` (its flange pose at each station that needs it).
+    A thing's *holder* is None (fixed in the cell's frame) or the robot whose flange carries it.
+    """
+
+    def __init__(self, cell: CellSpec):
+        self.cell = cell
+        self.multi = cell.multi_robot
+        self.frame = cell.frame
+        if self.multi:
+            self.names = list(cell.robots)
+            self.specs = dict(cell.robots)
+        else:
+            name = (cell.robot.name if cell.robot is not None and cell.robot.name else None) or "robot"
+            self.names = [name]
+            self.specs = {name: cell.robot}
+
+    def holder(self, spec) -> str | None:
+        """The robot carrying a camera / target (``mount: flange``) or a tool; None when fixed."""
+        if getattr(spec, "mount", "flange") != "flange":
+            return None
+        return spec.robot if self.multi else self.names[0]
+
+    def flange_var(self, r: str) -> str:
+        return f"T_{r}_flange" if self.multi else "T_base_flange"
+
+    def base_var(self, r: str) -> str | None:
+        return f"T_world_{r}" if self.multi else None
+
+    def label(self, r: str) -> str:
+        return f"robot '{r}'" if self.multi or r != "robot" else "the robot"
+
+    def has_noise(self, r: str) -> bool:
+        s = self.specs[r]
+        return s is not None and s.pose_noise_translation_m is not None
+
+    def sqrt_info(self, r: str) -> np.ndarray:
+        s = self.specs[r]
+        rot = np.radians(np.asarray(s.pose_noise_rotation_deg, np.float64))
+        trans = np.asarray(s.pose_noise_translation_m, np.float64)
+        return np.diag(1.0 / np.concatenate([rot, trans]))
+
+    def gauge(self) -> tuple[str | None, list[str]]:
+        """``(robot whose base is the world frame or None, anchors)``. Anchors are held world poses:
+        a robot ``base`` listed in ``fixed`` (``T_world_<r>`` or the robot's name), a ``mount: world``
+        camera or target with a ``pose`` listed in ``fixed``. With an anchor every robot base not held
+        is unknown; without, the first robot's base is the world frame (held at its ``base``, else identity)."""
+        cell = self.cell
+        if not self.multi:
+            return self.names[0], []
+        anchors = [f"T_world_{r}" for r, s in self.specs.items()
+                   if s.base is not None and (r in cell.fixed or f"T_world_{r}" in cell.fixed)]
+        for spec in list(cell.cameras.values()) + list(cell.targets.values()):
+            if spec.mount == "world" and spec.pose is not None and (spec.name in cell.fixed
+                                                                    or f"T_world_{spec.name}" in cell.fixed):
+                anchors.append(f"T_world_{spec.name}")
+        return (None if anchors else self.names[0]), anchors
+
+    def held_base(self, r: str) -> bool:
+        gauge, _ = self.gauge()
+        s = self.specs[r]
+        listed = r in self.cell.fixed or f"T_world_{r}" in self.cell.fixed
+        return r == gauge or (s.base is not None and listed)
+
+
+def _station_pose(rb: _Robots, station, r: str, source: str) -> np.ndarray | None:
+    """The measured flange pose of robot ``r`` at ``station`` (None when the station has none)."""
+    if rb.multi:
+        return station.flange_poses.get(r)
+    if station.flange_poses:
+        return station.flange_poses.get(r)
+    return station.T_base_flange
+
+
+def _gather(cell: CellSpec, obs: Observations, rb: _Robots):
+    """Pairs, tips and contacts of the used stations, and per robot its measured flange poses
+    ``{robot: (N, 4, 4)}`` (identity where a station has none) with the stations that need them
+    ``{robot: (N,) bool}``."""
     for c in cell.cameras.values():
         if c.name not in obs.cameras:
             raise BadInputError(f"{obs.source}: camera '{c.name}' of the cell has no image size in the observations")
     pairs: dict[tuple[str, str], _Pair] = {}
     tips: dict[tuple[str, str], _Tips] = {}
     contacts: dict[tuple[str, str], _Contacts] = {}
-    ids, poses = [], []
+    ids, needs, stations = [], [], []
+    fixed_mounts = ("base", "world")
     for station in obs.stations:
         used = False
+        need: set[str] = set()
         k = len(ids)
         for c in station.contacts:
             if c.tool not in cell.tools:
@@ -289,6 +430,7 @@ def _gather(cell: CellSpec, obs: Observations):
                 raise BadInputError(f"{obs.source}: station '{station.id}': contact with point '{c.point}', which is "
                                     f"not in the cell's points ({', '.join(cell.points) or 'none'})")
             contacts.setdefault((c.tool, c.point), _Contacts(c.tool, c.point, [])).stations.append(k)
+            need.add(rb.holder(cell.tools[c.tool]))
             used = True
         for det in station.detections:
             if det.camera not in cell.cameras:
@@ -296,14 +438,16 @@ def _gather(cell: CellSpec, obs: Observations):
             if det.tool is not None:
                 if det.tool not in cell.tools:
                     continue
-                if cell.cameras[det.camera].mount != "base":
+                if cell.cameras[det.camera].mount not in fixed_mounts:
                     raise BadInputError(
                         f"{obs.source}: station '{station.id}': tool '{det.tool}' seen by camera '{det.camera}' "
-                        f"(mount {cell.cameras[det.camera].mount}); tool tips are used from fixed cameras (mount: base)"
+                        f"(mount {cell.cameras[det.camera].mount}); tool tips are used from fixed cameras "
+                        f"(mount: {rb.frame})"
                     )
                 t = tips.setdefault((det.camera, det.tool), _Tips(det.camera, det.tool, [], []))
                 t.stations.append(k)
                 t.pixels.append(det.pixels.reshape(2))
+                need.add(rb.holder(cell.tools[det.tool]))
                 used = True
             elif det.target in cell.targets:
                 n = det.point_index.size
@@ -319,22 +463,54 @@ def _gather(cell: CellSpec, obs: Observations):
                 p.points.append(obs.targets[det.target][det.point_index])
                 p.pixels.append(det.pixels)
                 p.point_index.append(det.point_index)
+                need |= {rb.holder(cell.cameras[det.camera]), rb.holder(cell.targets[det.target])}
                 used = True
         if not used:
             continue
-        if station.T_base_flange is None:
+        unknown = sorted(set(station.flange_poses) - set(rb.names))
+        if unknown:
             raise BadInputError(
-                f"{obs.source}: station '{station.id}' has no T_base_flange; a robot cell needs the flange pose "
-                "of every station"
+                f"{obs.source}: station '{station.id}': flange_poses names robot(s) {unknown}, which the cell does "
+                f"not have (robots: {', '.join(rb.names)}); fix the robot names or the cell's robots"
             )
+        if rb.multi:
+            if station.T_base_flange is not None:
+                raise BadInputError(
+                    f"{obs.source}: station '{station.id}' gives T_base_flange, but the cell has several robots "
+                    f"({', '.join(rb.names)}): give each robot's flange pose in flange_poses: {{robot: [[4x4]]}}"
+                )
+            need.discard(None)
+            for r in sorted(need):
+                if r not in station.flange_poses:
+                    raise BadInputError(
+                        f"{obs.source}: station '{station.id}': the detections or contacts involve robot '{r}' "
+                        f"(a camera, target or tool on its flange), but the station has no flange pose of '{r}'; "
+                        f"add flange_poses: {{{r}: [[4x4]]}} (T_{r}_flange, m) or drop those detections"
+                    )
+        else:  # one robot: every used station needs the flange pose, as always
+            need = {rb.names[0]}
+            if _station_pose(rb, station, rb.names[0], obs.source) is None:
+                raise BadInputError(
+                    f"{obs.source}: station '{station.id}' has no T_base_flange; a robot cell needs the flange pose "
+                    "of every station"
+                )
         ids.append(station.id)
-        poses.append(np.asarray(station.T_base_flange, np.float64))
+        needs.append(need)
+        stations.append(station)
     if not ids:
         raise BadInputError(f"{obs.source}: no detection of the cell's targets or tools, and no contact, in any station")
+    poses, need_mask = {}, {}
+    for r in rb.names:
+        mask = np.array([r in n for n in needs])
+        T = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
+        for k, station in enumerate(stations):
+            if mask[k]:
+                T[k] = np.asarray(_station_pose(rb, station, r, obs.source), np.float64)
+        poses[r], need_mask[r] = T, mask
     for (cam_name, target_name), p in pairs.items():
-        if cell.cameras[cam_name].mount == cell.targets[target_name].mount and len(p.views) > 1:
+        if rb.holder(cell.cameras[cam_name]) == rb.holder(cell.targets[target_name]) and len(p.views) > 1:
             pairs[(cam_name, target_name)] = _static_view(p)
-    return pairs, tips, contacts, ids, np.stack(poses)
+    return pairs, tips, contacts, ids, poses, need_mask
 
 
 def _static_view(p: _Pair) -> _Pair:
@@ -369,12 +545,6 @@ def _sqrt_info(cov: np.ndarray) -> np.ndarray:
     return inv[:, None] * U.T
 
 
-def _pose_sqrt_info(cell: CellSpec) -> np.ndarray:
-    rot = np.radians(np.asarray(cell.robot.pose_noise_rotation_deg, np.float64))
-    trans = np.asarray(cell.robot.pose_noise_translation_m, np.float64)
-    return np.diag(1.0 / np.concatenate([rot, trans]))
-
-
 def _inv(T: np.ndarray) -> np.ndarray:
     out = np.eye(4)
     out[:3, :3] = T[:3, :3].T
@@ -389,7 +559,7 @@ def _mount_name(mount: str, name: str) -> str:
     return f"T_{mount}_{name}"
 
 
-def _start_intrinsics(cell: CellSpec, obs: Observations, pairs, prior) -> tuple[dict, dict]:
+def _start_intrinsics(cell: CellSpec, obs: Observations, pairs, prior, rb: _Robots) -> tuple[dict, dict]:
     """Start models and per-view target poses ``{(camera, target): (V, 4, 4)}``."""
     models, views = {}, {}
     for cam in cell.cameras.values():
@@ -399,7 +569,7 @@ def _start_intrinsics(cell: CellSpec, obs: Observations, pairs, prior) -> tuple[
             old = prior.cameras[cam.name]
             if old.model == cam.model:
                 K0, dist0 = np.asarray(old.K), np.asarray(old.dist)
-        moving = [p for p in cam_pairs if cell.targets[p.target].mount != cam.mount]
+        moving = [p for p in cam_pairs if rb.holder(cell.targets[p.target]) != rb.holder(cam)]
         if K0 is None and not moving:
             raise BadInputError(
                 f"{cell.source}: camera '{cam.name}' (mount {cam.mount}) sees no moving target, so its views do not "
@@ -478,29 +648,78 @@ def _contact_start(tool: str, tool_contacts: list, T_bf: np.ndarray, point_start
     return T, "contacts"
 
 
-def _start_poses(cell, pairs, views, T_bf, known: dict, method: str, rot_noise: float):
-    """Fill ``known`` (name -> (4, 4)) for every camera and target pose, and say how each started."""
+def _start_poses(cell, rb: _Robots, pairs, views, poses, known: dict, method: str, rot_noise: float,
+                 used_robots: list[str], tool_robots: frozenset = frozenset()):
+    """Fill ``known`` (name -> (4, 4)) for every camera and target pose and every robot base, and say
+    how each started.
+
+    Repeats, until nothing changes: (1) a pose that follows from a started one through a camera–target
+    pair (averaged over the pair's stations; a robot base the same way when both things of the pair are
+    started); (2) a closed-form hand-eye solve (:func:`solve_hand_eye`) for a moving pair whose two
+    poses are unknown while their robots' bases are started; (3) a closed-form robot-world solve
+    (:func:`solve_robot_world_hand_eye`, AX = ZB, Shah) for a robot with an unknown base whose flange
+    carries a camera or target that pairs with something whose world pose is started.
+    """
     how = {name: "known" for name in known}
 
-    def names(p):
-        cm, tm = cell.cameras[p.camera].mount, cell.targets[p.target].mount
-        return _mount_name(cm, p.camera), _mount_name(tm, p.target), cm, tm
+    def base_known(h) -> bool:
+        return h is None or rb.base_var(h) is None or rb.base_var(h) in known
+
+    def world(h, ks):
+        """World (cell-frame) pose of holder ``h`` at stations ``ks``; None for a fixed thing."""
+        if h is None:
+            return None
+        b = rb.base_var(h)
+        return poses[h][ks] if b is None else known[b] @ poses[h][ks]
+
+    def info(p):
+        cs, ts = cell.cameras[p.camera], cell.targets[p.target]
+        return _mount_name(cs.mount, p.camera), _mount_name(ts.mount, p.target), rb.holder(cs), rb.holder(ts)
+
+    def pose_at(name, h, ks):
+        """``(n, 4, 4)`` world pose of a started thing at stations ``ks``."""
+        W = world(h, ks)
+        return np.broadcast_to(known[name], (len(ks), 4, 4)) if W is None else W @ known[name]
+
+    def offset(T_world, h, ks):
+        """A thing's pose on its holder from its world poses at stations ``ks`` (averaged)."""
+        W = world(h, ks)
+        return average_poses(T_world if W is None else np.linalg.inv(W) @ T_world)
 
     def derive(p) -> bool:
-        X, Y, cm, tm = names(p)
+        X, Y, hc, ht = info(p)
         T_ct = views[(p.camera, p.target)]
-        Tb = T_bf[np.asarray(p.views)]
-        if X in known and Y not in known:
-            T_base_cam = Tb @ known[X] if cm == "flange" else np.broadcast_to(known[X], T_ct.shape)
-            T_base_target = T_base_cam @ T_ct
-            known[Y] = average_poses(np.linalg.inv(Tb) @ T_base_target if tm == "flange" else T_base_target)
+        ks = np.asarray(p.views)
+        if hc == ht:  # static pair: the relative pose alone, whatever the holder's base
+            if X in known and Y not in known:
+                known[Y] = average_poses(known[X] @ T_ct)
+                how[Y] = f"from:{X}+{p.camera}/{p.target}"
+                return True
+            if Y in known and X not in known:
+                known[X] = average_poses(known[Y] @ np.linalg.inv(T_ct))
+                how[X] = f"from:{Y}+{p.camera}/{p.target}"
+                return True
+            return False
+        kc, kt = base_known(hc), base_known(ht)
+        if X in known and kc and Y not in known and kt:
+            known[Y] = offset(pose_at(X, hc, ks) @ T_ct, ht, ks)
             how[Y] = f"from:{X}+{p.camera}/{p.target}"
             return True
-        if Y in known and X not in known:
-            T_base_target = Tb @ known[Y] if tm == "flange" else np.broadcast_to(known[Y], T_ct.shape)
-            T_base_cam = T_base_target @ np.linalg.inv(T_ct)
-            known[X] = average_poses(np.linalg.inv(Tb) @ T_base_cam if cm == "flange" else T_base_cam)
+        if Y in known and kt and X not in known and kc:
+            known[X] = offset(pose_at(Y, ht, ks) @ np.linalg.inv(T_ct), hc, ks)
             how[X] = f"from:{Y}+{p.camera}/{p.target}"
+            return True
+        if X in known and Y in known and kc != kt:  # a robot base through a started pair
+            if not kt:
+                T_wt = pose_at(X, hc, ks) @ T_ct  # world pose of the target = B · F_k · Y
+                B = average_poses(T_wt @ np.linalg.inv(known[Y]) @ np.linalg.inv(poses[ht][ks]))
+                name = rb.base_var(ht)
+            else:
+                T_wc = pose_at(Y, ht, ks) @ np.linalg.inv(T_ct)
+                B = average_poses(T_wc @ np.linalg.inv(known[X]) @ np.linalg.inv(poses[hc][ks]))
+                name = rb.base_var(hc)
+            known[name] = B
+            how[name] = f"from:{X}+{Y}+{p.camera}/{p.target}"
             return True
         return False
 
@@ -508,18 +727,56 @@ def _start_poses(cell, pairs, views, T_bf, known: dict, method: str, rot_noise: 
     while True:
         while any(derive(p) for p in plist):
             pass
-        todo = [p for p in plist if names(p)[2] != names(p)[3] and names(p)[0] not in known and names(p)[1] not in known]
-        if not todo:
+        todo = [p for p in plist if info(p)[2] != info(p)[3] and info(p)[0] not in known and info(p)[1] not in known
+                and base_known(info(p)[2]) and base_known(info(p)[3])]
+        if todo:  # hand-eye: both poses unknown, the robots' bases started
+            p = todo[0]
+            X, Y, hc, ht = info(p)
+            ks = np.asarray(p.views)
+            if ht is None:  # camera on a flange, target fixed: T_world_flange, eye-in-hand
+                H, mount = world(hc, ks), "flange"
+            elif hc is None:  # camera fixed, target on a flange: eye-to-hand
+                H, mount = world(ht, ks), "base"
+            else:  # camera on one robot, target on another: the camera's flange in the target's flange
+                H, mount = np.linalg.inv(world(ht, ks)) @ world(hc, ks), "flange"
+            init = solve_hand_eye(H, views[(p.camera, p.target)], method=method, mount=mount,
+                                  rotation_noise_deg=rot_noise)
+            known[X], known[Y] = init.T, init.T_other
+            how[X] = how[Y] = f"hand_eye:{method}"
+            continue
+        # robot-world: a thing Q on robot r (base unknown, Q's pose unknown) paired with a thing P whose
+        # world pose is started: W_P,k · T_PQ,k = B · F_k · Q, i.e. T_Q_world,k = Q⁻¹ F_k⁻¹ B⁻¹ (eye-in-hand
+        # AX = ZB with the world frame as the target fixed in r's base)
+        rw = None
+        for p in plist:
+            X, Y, hc, ht = info(p)
+            if hc == ht:
+                continue
+            for P, hP, Q, hQ, cam_is_P in ((X, hc, Y, ht, True), (Y, ht, X, hc, False)):
+                if P in known and base_known(hP) and Q not in known and not base_known(hQ):
+                    rw = (p, P, hP, Q, hQ, cam_is_P)
+                    break
+            if rw:
+                break
+        if rw is None:
             break
-        p = todo[0]
-        X, Y, cm, _ = names(p)
-        init = solve_hand_eye(T_bf[np.asarray(p.views)], views[(p.camera, p.target)], method=method, mount=cm,
-                              rotation_noise_deg=rot_noise)
-        known[X], known[Y] = init.T, init.T_other
-        how[X] = how[Y] = f"hand_eye:{method}"
-    missing = sorted(
-        {n for p in plist for n in names(p)[:2] if n not in known}
-    )
+        p, P, hP, Q, hQ, cam_is_P = rw
+        ks = np.asarray(p.views)
+        T_ct = views[(p.camera, p.target)]
+        W_Q = pose_at(P, hP, ks) @ (T_ct if cam_is_P else np.linalg.inv(T_ct))
+        base = rb.base_var(hQ)
+        try:
+            init = solve_robot_world_hand_eye(poses[hQ][ks], np.linalg.inv(W_Q), method="shah", mount="flange",
+                                              rotation_noise_deg=rot_noise)
+        except NotObservableError as err:
+            raise NotObservableError(f"{cell.source}: {rb.label(hQ)}'s base ({base}) and {Q} from the pair "
+                                     f"{p.camera}/{p.target}: {err}", [base, Q]) from None
+        known[Q], known[base] = init.T, _inv(init.T_other)
+        how[Q] = how[base] = "robot_world:shah"
+    missing = sorted({n for p in plist for n in info(p)[:2] if n not in known})
+    bases = [r for r in used_robots if rb.base_var(r) is not None and rb.base_var(r) not in known]
+    if bases:
+        _unconnected_base(cell, rb, bases[0], pairs, missing, bases[0] in tool_robots)
     if missing:
         raise NotObservableError(
             f"{cell.source}: the poses {missing} are not determined: their cameras and targets are seen only "
@@ -528,6 +785,32 @@ def _start_poses(cell, pairs, views, T_bf, known: dict, method: str, rot_noise: 
             missing,
         )
     return how
+
+
+def _unconnected_base(cell, rb: _Robots, r: str, pairs, missing, has_tools: bool):
+    """Raise the NotObservableError for robot ``r`` whose base the start could not place."""
+    base = rb.base_var(r)
+    gauge, anchors = rb.gauge()
+    frame = (f"the world frame is robot '{gauge}''s base (nothing in the cell holds a world pose)" if gauge
+             else f"the world frame is fixed by {', '.join(anchors)}")
+    linked = [f"{c}/{t}" for (c, t) in pairs
+              if r in (rb.holder(cell.cameras[c]), rb.holder(cell.targets[t]))
+              and rb.holder(cell.cameras[c]) != rb.holder(cell.targets[t])]
+    if not linked and has_tools:
+        raise NotObservableError(
+            f"{cell.source}: robot {r}'s base ({base}) cannot be started: {r} is linked to the world frame only "
+            f"through tool tips or contacts ({frame}), which do not give a closed-form start for a base. Let a "
+            f"camera see a target on {r} (or a camera on {r} see a target off it), or give robots.{r}.base", [base])
+    if not linked:
+        raise NotObservableError(
+            f"{cell.source}: robot {r}'s base ({base}) is not connected to the world frame: no camera or target on "
+            f"{r} is seen together with the world or another robot ({frame}). Let a camera fixed in the world or "
+            f"on another robot see a target on {r} (or a camera on {r} see a target off it), or give robots.{r}.base "
+            f"and list {base} in fixed", [base])
+    raise NotObservableError(
+        f"{cell.source}: robot {r}'s base ({base}) cannot be started: the pairs that link it ({', '.join(linked)}) "
+        f"involve only things whose poses are not determined either ({', '.join(missing) or 'none'}; {frame}). "
+        f"Give a known pose to one of them (pose: [[4x4]] listed in fixed) or robots.{r}.base", [base] + missing)
 
 
 # ------------------------------------------------------------------------------------ solve
@@ -548,7 +831,8 @@ def calibrate_cell(
         cell: a ``jcalib.cell/1`` spec with cameras and targets on the ``base`` or ``flange`` and tools
             ``observed_by`` fixed cameras; ``robot.pose_noise`` switches the robot pose model on.
             ``fix`` (intrinsics), ``pose`` + ``fixed`` (known camera / target poses) are honoured.
-        obs: observations with ``T_base_flange`` per station (m): target corners and tool-tip pixels
+        obs: observations with ``T_base_flange`` per station (m), or with several robots
+            ``flange_poses`` (each robot the detections involve): target corners and tool-tip pixels
             (``{"camera", "tool", "pixel"}``).
         options: :class:`CellOptions`.
         prior: an old :class:`jcalib.io.result.ResultFile`: its values start the solve and its
@@ -573,16 +857,24 @@ def calibrate_cell(
             f"{cell.source}: the whole-cell problem takes cameras and targets on the base or flange and tools; "
             "free-moving cameras/targets and contact points are calibrated by the camera and pivot problems"
         )
-    pairs, tips, contacts, ids, T_bf = _gather(cell, obs)
-    has_noise = cell.robot is not None and cell.robot.pose_noise_translation_m is not None
-    use_pose_model = has_noise if options.pose_model is None else bool(options.pose_model)
-    if use_pose_model and not has_noise:
-        raise BadInputError(f"options.pose_model: got True, but {cell.source} has no robot.pose_noise")
-    rot_noise = 0.02 if not has_noise else max(0.02, float(np.max(cell.robot.pose_noise_rotation_deg)))
+    rb = _Robots(cell)
+    pairs, tips, contacts, ids, poses, need = _gather(cell, obs, rb)
+    used_robots = [r for r in rb.names if need[r].any()]
+    pose_model = {}
+    for r in used_robots:
+        pose_model[r] = rb.has_noise(r) if options.pose_model is None else bool(options.pose_model)
+        if pose_model[r] and not rb.has_noise(r):
+            where = f"robots.{r}.pose_noise" if rb.multi else "robot.pose_noise"
+            raise BadInputError(f"options.pose_model: got True, but {cell.source} has no {where}")
+    use_pose_model = any(pose_model.values())
+    noisy = [r for r in used_robots if rb.has_noise(r)]
+    rot_noise = max([0.02] + [float(np.max(rb.specs[r].pose_noise_rotation_deg)) for r in noisy])
     seed = prior if prior is not None else start
+    warnings = [f"{rb.label(r)} has no observations; its base ({rb.base_var(r)}) is not estimated"
+                for r in rb.names if rb.multi and r not in used_robots]
 
-    # --- start: intrinsics, then poses, then TCPs
-    models, views = _start_intrinsics(cell, obs, pairs, seed)
+    # --- start: intrinsics, then poses (hand-eye per robot, then robot bases), then TCPs
+    models, views = _start_intrinsics(cell, obs, pairs, seed, rb)
     known: dict[str, np.ndarray] = {}
     for c in cell.cameras.values():
         if c.pose is not None:
@@ -590,14 +882,35 @@ def calibrate_cell(
     for t in cell.targets.values():
         if t.pose is not None:
             known[_mount_name(t.mount, t.name)] = np.asarray(t.pose, np.float64)
+    gauge, _ = rb.gauge()
+    for r in rb.names:
+        b = rb.base_var(r)
+        if b is None:
+            continue
+        if rb.specs[r].base is not None:
+            known[b] = np.asarray(rb.specs[r].base, np.float64)
+        elif r == gauge:
+            known[b] = np.eye(4)
+        if (r in cell.fixed or b in cell.fixed) and rb.specs[r].base is None and r != gauge:
+            raise BadInputError(f"{cell.source}: fixed lists '{r}' ({b}) but the cell gives it no base; add "
+                                f"robots.{r}.base: [[4x4]] (m) or remove it from fixed")
     how_known = {n: "cell" for n in known}
+    if gauge is not None and rb.base_var(gauge) is not None:
+        how_known[rb.base_var(gauge)] = "gauge" if rb.specs[gauge].base is None else "gauge:cell"
     if seed is not None:
         for n, tr in seed.transforms.items():
             if n not in known:
                 known[n] = np.asarray(tr.matrix, np.float64)
                 how_known[n] = "prior"
-    how = _start_poses(cell, pairs, views, T_bf, known, options.method, rot_noise)
+    tool_robots = frozenset(rb.holder(cell.tools[t.tool]) for t in list(tips.values()) + list(contacts.values()))
+    how = _start_poses(cell, rb, pairs, views, poses, known, options.method, rot_noise, used_robots, tool_robots)
     how.update(how_known)
+
+    def world_flange(r):
+        """``(N, 4, 4)`` started world (cell-frame) flange poses of robot ``r`` per station."""
+        b = rb.base_var(r)
+        return poses[r] if b is None else known[b] @ poses[r]
+
     point_start: dict[str, np.ndarray] = {n: np.asarray(pt.position, np.float64) for n, pt in cell.points.items()
                                           if pt.position is not None}
     for tool in cell.tools.values():
@@ -607,19 +920,21 @@ def calibrate_cell(
         if name in known:
             continue
         if tool_contacts:
-            known[name], how[name] = _contact_start(tool.name, tool_contacts, T_bf, point_start, obs.source)
+            known[name], how[name] = _contact_start(tool.name, tool_contacts, world_flange(rb.holder(tool)),
+                                                    point_start, obs.source)
             continue
         if not tool_tips:
             raise NotObservableError(f"{obs.source}: tool '{tool.name}' has no tip detections and no contacts; {name} "
                                      "is undetermined", [name])
         A_rows, x = [], None
+        T_wf = world_flange(rb.holder(tool))
         for t in tool_tips:
-            cam_name = _mount_name("base", t.camera)
+            cam_name = _mount_name(rb.frame, t.camera)
             if cam_name not in known:
                 raise NotObservableError(
                     f"{cell.source}: camera '{t.camera}' sees tool '{tool.name}' but its pose {cam_name} is not "
                     "determined by the targets; give it a pose or let it see a target", [cam_name])
-            A_rows.append((models[t.camera], known[cam_name], T_bf[np.asarray(t.stations)], np.stack(t.pixels)))
+            A_rows.append((models[t.camera], known[cam_name], T_wf[np.asarray(t.stations)], np.stack(t.pixels)))
         # all cameras together (one lstsq)
         As, bs = [], []
         for model, Tc, Tb, px in A_rows:
@@ -647,12 +962,13 @@ def calibrate_cell(
         if not touches:
             raise NotObservableError(f"{obs.source}: cell point '{point}' is touched in no station (no contacts); its "
                                      "position is undetermined. Touch it with a tool or give its position", [f"point:{point}"])
-        tips_base = [T_bf[k, :3, :3] @ known[f"T_flange_{c.tool}"][:3, 3] + T_bf[k, :3, 3] for c in touches
-                     for k in c.stations]
-        point_start[point] = np.mean(tips_base, axis=0)
+        tips_world = []
+        for c in touches:
+            T_wf = world_flange(rb.holder(cell.tools[c.tool]))
+            tips_world += [T_wf[k, :3, :3] @ known[f"T_flange_{c.tool}"][:3, 3] + T_wf[k, :3, 3] for k in c.stations]
+        point_start[point] = np.mean(tips_world, axis=0)
 
     # --- problem
-    meas = np.stack([_se3_params(T) for T in T_bf])
     prior_for = {}
     if prior is not None:
         wanted = None if prior_names is None else set(prior_names)
@@ -682,12 +998,24 @@ def calibrate_cell(
             (np.asarray(mean, np.float64)[None], np.asarray(S, np.float64)[None]), sqrt_weight=np.array([w])))
         return Variable(name, manifold, value, fixed=fixed, **kw)
 
-    if use_pose_model:
-        variables = [Variable("T_base_flange", SE3(), meas, prior_mean=meas, prior_sqrt_info=_pose_sqrt_info(cell),
-                              eliminate=True, entry_label="station {i} flange pose")]
-    else:
-        variables = [Variable("T_base_flange", SE3(), meas, fixed=True, eliminate=True,
-                              entry_label="station {i} flange pose")]
+    # per robot: its flange pose at each station that needs it (entry e_r[k] of station k)
+    entry = {r: np.cumsum(need[r]) - 1 for r in used_robots}
+    stations_of = {r: np.flatnonzero(need[r]) for r in used_robots}
+    shared = _shared_flange_robots(cell, rb, pairs, {r: len(stations_of[r]) for r in used_robots})
+    variables = []
+    pose_sqrt_info = []  # (flange variable, S) of every robot with the pose model
+    for r in used_robots:
+        meas = np.stack([_se3_params(T) for T in poses[r][stations_of[r]]])
+        label = "station {i} flange pose" if not rb.multi else f"station {{i}} {r} flange pose"
+        elim = r not in shared
+        if pose_model[r]:
+            S = rb.sqrt_info(r)
+            pose_sqrt_info.append((rb.flange_var(r), S))
+            variables.append(Variable(rb.flange_var(r), SE3(), meas, prior_mean=meas, prior_sqrt_info=S,
+                                      eliminate=elim, entry_label=label))
+        else:
+            variables.append(Variable(rb.flange_var(r), SE3(), meas, fixed=True, eliminate=elim,
+                                      constant=not elim, entry_label=label))
     aspect = {}
     for cam in cell.cameras.values():
         model = models[cam.name]
@@ -715,6 +1043,11 @@ def calibrate_cell(
         variables.append(var(name, SE3(), _se3_params(known[name]),
                              fixed=np.array([True, True, True, name in cell.fixed, name in cell.fixed,
                                              name in cell.fixed])))
+    for r in used_robots:
+        name = rb.base_var(r)
+        if name is not None:
+            transform_names.append(name)
+            variables.append(var(name, SE3(), _se3_params(known[name]), fixed=rb.held_base(r)))
 
     for point, spec in cell.points.items():
         fixed = spec.position is not None or point in cell.fixed
@@ -724,46 +1057,69 @@ def calibrate_cell(
         variables.append(Variable(f"point:{point}", Euclidean(3), point_start[point][None, :],
                                   fixed=np.full((1, 3), fixed), entry_label=f"point {point}"))
 
+    def robot_args(holders, st):
+        """Variable names and index arrays of the robots ``holders`` at stations ``st`` (per robot:
+        ``T_world_<r>`` with several robots, then its flange pose)."""
+        names, idx = [], []
+        for r in holders:
+            if rb.base_var(r) is not None:
+                names.append(rb.base_var(r))
+                idx.append(np.zeros_like(st))
+            names.append(rb.flange_var(r))
+            idx.append(entry[r][st].astype(np.int32))
+        return tuple(names), tuple(idx)
+
     factors, evals = [], []
     for p in pairs.values():
         cam = cell.cameras[p.camera]
-        tm = cell.targets[p.target].mount
+        tgt = cell.targets[p.target]
+        hc, ht = rb.holder(cam), rb.holder(tgt)
+        holders = [h for h in dict.fromkeys([hc, ht]) if h is not None]
         model = models[p.camera]
-        fn = _target_fn(type(model), tuple(int(v) for v in model.image_size), bool(model.has_skew), cam.mount, tm)
+        fn = _target_fn(type(model), tuple(int(v) for v in model.image_size), bool(model.has_skew),
+                        -1 if hc is None else holders.index(hc), -1 if ht is None else holders.index(ht), rb.multi)
         st = np.repeat(np.asarray(p.views, np.int32), [x.shape[0] for x in p.points])
         o = (np.concatenate(p.points), np.concatenate(p.pixels), np.broadcast_to(np.array(aspect[p.camera]),
                                                                                  (st.shape[0], 2)).copy())
-        args = (f"intrinsics:{p.camera}", _mount_name(cam.mount, p.camera), _mount_name(tm, p.target), "T_base_flange")
+        rnames, ridx = robot_args(holders, st)
+        args = (f"intrinsics:{p.camera}", _mount_name(cam.mount, p.camera), _mount_name(tgt.mount, p.target)) + rnames
         z = np.zeros_like(st)
-        factors.append(FactorGroup(f"reprojection:{p.camera}/{p.target}", fn, args, (z, z, z, st), o,
+        indices = (z, z, z) + ridx
+        factors.append(FactorGroup(f"reprojection:{p.camera}/{p.target}", fn, args, indices, o,
                                    sigma=options.sigma_px))
-        evals.append(("corner", fn, args, st, o, (p.camera, np.concatenate(p.point_index))))
+        evals.append(("corner", fn, args, st, o, (p.camera, np.concatenate(p.point_index)), indices))
     for t in tips.values():
         model = models[t.camera]
-        fn = _tip_fn(type(model), tuple(int(v) for v in model.image_size), bool(model.has_skew))
+        size = tuple(int(v) for v in model.image_size)
+        fn = _tip_fn(type(model), size, bool(model.has_skew)) if not rb.multi else \
+            _world_tip_fn(type(model), size, bool(model.has_skew))
         st = np.asarray(t.stations, np.int32)
         o = np.stack(t.pixels)
-        args = (f"intrinsics:{t.camera}", _mount_name("base", t.camera), f"T_flange_{t.tool}", "T_base_flange")
+        rnames, ridx = robot_args([rb.holder(cell.tools[t.tool])], st)
+        args = (f"intrinsics:{t.camera}", _mount_name(rb.frame, t.camera), f"T_flange_{t.tool}") + rnames
         z = np.zeros_like(st)
-        factors.append(FactorGroup(f"tooltip:{t.camera}/{t.tool}", fn, args, (z, z, z, st), o,
+        indices = (z, z, z) + ridx
+        factors.append(FactorGroup(f"tooltip:{t.camera}/{t.tool}", fn, args, indices, o,
                                    sigma=options.tip_sigma_px))
-        evals.append(("tip", fn, args, st, o, (f"{t.camera}/{t.tool}", np.full(st.shape, -1))))
+        evals.append(("tip", fn, args, st, o, (f"{t.camera}/{t.tool}", np.full(st.shape, -1)), indices))
     for c in contacts.values():
         st = np.asarray(c.stations, np.int32)
         z = np.zeros_like(st)
-        args = (f"T_flange_{c.tool}", f"point:{c.point}", "T_base_flange")
+        rnames, ridx = robot_args([rb.holder(cell.tools[c.tool])], st)
+        args = (f"T_flange_{c.tool}", f"point:{c.point}") + rnames
+        fn = _contact_fn if not rb.multi else _world_contact_fn
         o = np.zeros((st.shape[0], 1))
-        factors.append(FactorGroup(f"contact:{c.tool}/{c.point}", _contact_fn, args, (z, z, st), o,
+        indices = (z, z) + ridx
+        factors.append(FactorGroup(f"contact:{c.tool}/{c.point}", fn, args, indices, o,
                                    sigma=options.contact_sigma_m))
-        evals.append(("contact", _contact_fn, args, st, o, None))
+        evals.append(("contact", fn, args, st, o, None, indices))
 
     def residuals(values):
         out = []
-        for kind, fn, args, st, o, _ in evals:
+        for kind, fn, args, st, o, _, indices in evals:
             n = st.shape[0]
-            ins = [jnp.broadcast_to(jnp.asarray(values[a][0]), (n, values[a].shape[1])) for a in args[:-1]]
-            out.append(np.asarray(_residuals_jit(fn)(*ins, jnp.asarray(values["T_base_flange"][st]),
-                                                     jax.tree.map(jnp.asarray, o))).reshape(n, -1))
+            ins = [jnp.asarray(values[a][np.asarray(i)]) for a, i in zip(args, indices)]
+            out.append(np.asarray(_residuals_jit(fn)(*ins, jax.tree.map(jnp.asarray, o))).reshape(n, -1))
         return out
 
     def build(weights, scale=None):
@@ -799,7 +1155,7 @@ def calibrate_cell(
         sol = solve(build(weights), x0=sol.values, options=solve_options)
         res = residuals({k: np.asarray(v) for k, v in sol.values.items()})
     outliers: list[tuple[str, str, int]] = []
-    for (kind, _, _, st, _, label), w in zip(evals, weights):
+    for (kind, _, _, st, _, label, _), w in zip(evals, weights):
         if kind != "contact":
             who, index = label
             outliers += [(who, ids[int(st[j])], int(index[j])) for j in np.flatnonzero(w == 0)]
@@ -813,7 +1169,7 @@ def calibrate_cell(
     components = {}
     if options.noise == "a_posteriori":
         sol, res, components = _variance_components(sol, build, residuals, evals, factors, weights,
-                                                    _pose_sqrt_info(cell) if use_pose_model else None, solve_options)
+                                                    pose_sqrt_info or None, solve_options)
         if components:
             cov_noise = "stated"
     cov_sol = sol
@@ -853,7 +1209,15 @@ def calibrate_cell(
             M = joint["matrix"]
             M[o + 1, :] = M[o, :] / ratio
             M[:, o + 1] = M[:, o] / ratio
-    T_bf_est = np.stack([_se3_matrix(v) for v in vals["T_base_flange"]]) if use_pose_model else T_bf.copy()
+    flange = {}
+    for r in used_robots:
+        measured = poses[r][stations_of[r]]
+        est = (np.stack([_se3_matrix(v) for v in vals[rb.flange_var(r)]]) if pose_model[r] else measured.copy())
+        flange[r] = {"station_ids": [ids[k] for k in stations_of[r]], "measured": measured, "estimated": est}
+    if rb.multi:
+        T_bf, T_bf_est = np.zeros((0, 4, 4)), np.zeros((0, 4, 4))
+    else:
+        T_bf, T_bf_est = flange[rb.names[0]]["measured"], flange[rb.names[0]]["estimated"]
     return CellCalibration(
         cameras=cameras,
         intrinsics_covariance=intr_cov,
@@ -879,8 +1243,32 @@ def calibrate_cell(
         pose_model=bool(use_pose_model),
         priors=sorted(set(used_priors)),
         joint_covariance=joint,
+        warnings=warnings,
+        frame=rb.frame,
+        flange_poses=flange if rb.multi else {},
         solution=sol,
     )
+
+
+def _shared_flange_robots(cell, rb: _Robots, pairs, num_entries: dict[str, int]) -> set[str]:
+    """Robots whose flange-pose variable stays in the dense (shared) system: a factor may touch one
+    eliminated kind only, so of a camera on one robot seeing a target on another, one robot's flange
+    poses are not eliminated. A greedy vertex cover of those robot pairs, fewest entries first."""
+    edges = set()
+    for c, t in pairs:
+        hc, ht = rb.holder(cell.cameras[c]), rb.holder(cell.targets[t])
+        if hc is not None and ht is not None and hc != ht:
+            edges.add(tuple(sorted((hc, ht))))
+    shared: set[str] = set()
+    while edges:
+        degree: dict[str, int] = {}
+        for a, b in edges:
+            degree[a] = degree.get(a, 0) + 1
+            degree[b] = degree.get(b, 0) + 1
+        r = max(degree, key=lambda n: (degree[n], -num_entries.get(n, 0)))
+        shared.add(r)
+        edges = {e for e in edges if r not in e}
+    return shared
 
 
 @eqx.filter_jit
@@ -968,11 +1356,11 @@ def _variance_components(sol, build, residuals, evals, factors, weights, pose_sq
                          for e, f, w in zip(evals, factors, weights) if e[0] == k]
                 redundancy[k] = count[k] - _hat_trace(sol, group)
         prior = 0.0
-        if pose_sqrt_info is not None:
-            S = np.asarray(pose_sqrt_info)
-            n = sol.problem.variable("T_base_flange").num
-            cov = np.asarray(sol.covariance("T_base_flange", noise="stated")).reshape(n, 6, n, 6)
-            prior = float(sum(6.0 - np.trace(S @ cov[k, :, k, :] @ S.T) for k in range(n)))
+        for name, S in pose_sqrt_info or ():  # every robot with the pose model
+            S = np.asarray(S)
+            n = sol.problem.variable(name).num
+            cov = np.asarray(sol.covariance(name, noise="stated")).reshape(n, 6, n, 6)
+            prior += float(sum(6.0 - np.trace(S @ cov[k, :, k, :] @ S.T) for k in range(n)))
         redundancy[main] = (sol.num_residuals - sol.num_free) - prior - sum(redundancy.values())
         use = {k: chi2[k] / redundancy[k] for k in kinds
                if redundancy[k] >= max(MIN_REDUNDANCY, 0.25 * count[k]) and chi2[k] > 0.0}
@@ -1165,4 +1553,147 @@ def synthetic_cell(
     obs = {"schema": "jcalib.observations/1",
            "cameras": {c: {"image_size": list(SYNTH_IMAGE_SIZE)} for c in ("cam0", "cam1")},
            "targets": {"board": {"points": pts.tolist()}}, "stations": stations}
+    return cell, obs, true
+
+
+def synthetic_two_robot_cell(
+    seed: int = 0,
+    *,
+    num_board_stations: int = 12,
+    num_r2_stations: int = 12,
+    num_cross_stations: int = 6,
+    num_tool_stations: int = 16,
+    sigma_px: float = 0.2,
+    tip_sigma_px: float = 0.2,
+    robot_m: float = 1e-4,
+    robot_deg: float = 0.01,
+) -> tuple[dict, dict, dict]:
+    """A synthetic two-robot cell (world frame = robot ``r1``'s base): ``r1`` carries the flange camera
+    ``cam0``; ``r2`` (base ``T_world_r2`` unknown) carries a 7x5 checkerboard ``board2`` and a tool
+    ``torch``; the world holds a 9x6 ``board`` (on the table) and a camera ``cam1`` (intrinsics given as
+    the start, estimated) that sees ``board``, ``board2`` and the torch's tip. Stations: ``cam0`` looks at
+    ``board`` (r1 only), ``r2`` presents ``board2`` to ``cam1`` (r2 only), ``cam0`` looks at ``board2``
+    held by ``r2`` (both robots), ``r2`` presents the tip to ``cam1``. Pixels from the true poses plus
+    Gaussian noise; the file holds each robot's flange poses perturbed by the robot noise (right
+    perturbation, σ per axis, both robots alike).
+
+    Returns:
+        ``(cell dict, observations dict, truth dict)``; truth holds ``T_world_r1`` (identity),
+        ``T_world_r2``, ``T_flange_cam0``, ``T_world_cam1``, ``T_world_board``, ``T_flange_board2``,
+        ``T_flange_torch`` ((4, 4), m) and the ``cam0`` / ``cam1`` parameter vectors.
+    """
+    from jcalib.geometry.targets import Checkerboard
+
+    rng = np.random.default_rng(seed)
+    geo = np.random.default_rng(54321)  # the layout is the same for every seed
+    boards = {"board": Checkerboard(cols=9, rows=6, square=0.03), "board2": Checkerboard(cols=7, rows=5, square=0.03)}
+    pts = {n: np.asarray(b.points, np.float64) for n, b in boards.items()}
+    T_world_board = np.eye(4)
+    T_world_board[:3, :3] = _rot((1, 0, 0), np.pi)
+    T_world_board[:3, 3] = [0.7, -0.1, 0.0]
+    centre = T_world_board[:3, :3] @ pts["board"].mean(axis=0) + T_world_board[:3, 3]
+    T_world_r2 = np.eye(4)
+    T_world_r2[:3, :3] = _rot((0.05, -0.03, 1.0), 2.4)
+    T_world_r2[:3, 3] = [1.7, 0.9, 0.05]
+    T_flange_cam0 = np.eye(4)
+    T_flange_cam0[:3, :3] = _rot((0.2, 0.1, 1.0), 0.3)
+    T_flange_cam0[:3, 3] = [0.06, -0.03, 0.08]
+    T_flange_board2 = np.eye(4)
+    T_flange_board2[:3, :3] = _rot((0.1, -0.2, 1.0), 0.5)
+    T_flange_board2[:3, 3] = [-0.09, -0.06, 0.04]
+    T_flange_torch = np.eye(4)
+    T_flange_torch[:3, 3] = [0.015, 0.01, 0.21]
+    T_world_cam1 = _look_at(np.array([1.2, 0.5, 0.6]), centre + np.array([0.05, 0.1, 0.1]))
+    true = {"T_world_r1": np.eye(4), "T_world_r2": T_world_r2, "T_flange_cam0": T_flange_cam0,
+            "T_world_cam1": T_world_cam1, "T_world_board": T_world_board, "T_flange_board2": T_flange_board2,
+            "T_flange_torch": T_flange_torch, "cam0": SYNTH_FLANGE_PARAMS.copy(), "cam1": SYNTH_FIXED_PARAMS.copy()}
+    cams = {c: camera_model_from_name("opencv5", SYNTH_IMAGE_SIZE, true[c]) for c in ("cam0", "cam1")}
+
+    def project(cam, T_cam_x, P):
+        p = P @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
+        u = np.asarray(cams[cam].project(jnp.asarray(p)))
+        w, h = SYNTH_IMAGE_SIZE
+        ok = (p[:, 2] > 0.05) & (u[:, 0] > 5) & (u[:, 0] < w - 6) & (u[:, 1] > 5) & (u[:, 1] < h - 6)
+        return u, ok
+
+    def look(eye, at):  # a camera pose at eye looking at `at`, rolled at random
+        T = _look_at(eye, at + geo.normal(scale=0.03, size=3), up=(1.0, 0.0, 0.0))
+        T[:3, :3] = T[:3, :3] @ _rot((0, 0, 1), geo.uniform(-0.6, 0.6))
+        return T
+
+    def facing(T_world_cam, dist):  # a board2 pose in front of a camera, tilted, printed face to it
+        c = np.array([geo.uniform(-0.06, 0.06), geo.uniform(-0.05, 0.05), dist])
+        T = T_world_cam.copy()
+        T[:3, :3] = T_world_cam[:3, :3] @ _rot(geo.normal(size=3), geo.uniform(0.1, 0.6))
+        T[:3, 3] = T_world_cam[:3, :3] @ c + T_world_cam[:3, 3] - T[:3, :3] @ pts["board2"].mean(axis=0)
+        return T
+
+    stations = []  # (F1 or None, F2 or None) true flange poses in each robot's base
+    while len(stations) < num_board_stations:
+        dirn = np.array([geo.uniform(-0.5, 0.5), geo.uniform(-0.5, 0.5), 1.0])
+        T_wc = look(centre + geo.uniform(0.35, 0.6) * dirn / np.linalg.norm(dirn), centre)
+        if project("cam0", _inv(T_wc) @ T_world_board, pts["board"])[1].all():
+            stations.append((T_wc @ _inv(T_flange_cam0), None))
+    while len(stations) < num_board_stations + num_r2_stations:
+        T_wb = facing(T_world_cam1, geo.uniform(0.45, 0.7))
+        if project("cam1", _inv(T_world_cam1) @ T_wb, pts["board2"])[1].all():
+            stations.append((None, _inv(T_world_r2) @ T_wb @ _inv(T_flange_board2)))
+    hold = np.array([1.0, 0.45, 0.35])
+    while len(stations) < num_board_stations + num_r2_stations + num_cross_stations:
+        dirn = np.array([geo.uniform(-0.6, 0.2), geo.uniform(-0.6, 0.0), geo.uniform(0.2, 0.6)])
+        T_wc = look(hold + geo.uniform(0.4, 0.55) * dirn / np.linalg.norm(dirn), hold)
+        T_wb = facing(T_wc, np.linalg.norm(T_wc[:3, 3] - hold))
+        if project("cam0", _inv(T_wc) @ T_wb, pts["board2"])[1].all():
+            stations.append((T_wc @ _inv(T_flange_cam0), _inv(T_world_r2) @ T_wb @ _inv(T_flange_board2)))
+    while len(stations) < num_board_stations + num_r2_stations + num_cross_stations + num_tool_stations:
+        p_cam = np.array([geo.uniform(-0.08, 0.08), geo.uniform(-0.06, 0.06), geo.uniform(0.5, 0.7)])
+        p_world = T_world_cam1[:3, :3] @ p_cam + T_world_cam1[:3, 3]
+        T_wf = np.eye(4)
+        T_wf[:3, :3] = _rot((1, 0, 0), np.pi) @ _rot(geo.normal(size=3), geo.uniform(0.1, 0.7))
+        T_wf[:3, 3] = p_world - T_wf[:3, :3] @ T_flange_torch[:3, 3]
+        stations.append((None, _inv(T_world_r2) @ T_wf))
+
+    out = []
+    for i, (F1, F2) in enumerate(stations):
+        W1 = None if F1 is None else F1
+        W2 = None if F2 is None else T_world_r2 @ F2
+        dets = []
+        views = []
+        if W1 is not None and W2 is not None:
+            views.append(("cam0", W1 @ T_flange_cam0, "board2", W2 @ T_flange_board2))
+        elif W1 is not None:
+            views += [("cam0", W1 @ T_flange_cam0, "board", T_world_board), ("cam1", T_world_cam1, "board", T_world_board)]
+        elif i < num_board_stations + num_r2_stations:
+            views.append(("cam1", T_world_cam1, "board2", W2 @ T_flange_board2))
+        for cam, T_wc, tgt, T_wt in views:
+            u, ok = project(cam, _inv(T_wc) @ T_wt, pts[tgt])
+            idx = np.flatnonzero(ok)
+            if idx.size >= MIN_POINTS_PER_VIEW:
+                px = u[idx] + sigma_px * rng.normal(size=(idx.size, 2))
+                dets.append({"camera": cam, "target": tgt, "point_index": idx.tolist(), "pixels": px.tolist()})
+        if F1 is None and i >= num_board_stations + num_r2_stations:
+            tip = W2[:3, :3] @ T_flange_torch[:3, 3] + W2[:3, 3]
+            u, ok = project("cam1", _inv(T_world_cam1), tip[None])
+            if ok[0]:
+                dets.append({"camera": "cam1", "tool": "torch", "pixel": (u[0] + tip_sigma_px * rng.normal(size=2)).tolist()})
+        flange = {r: _perturb(F, rng, robot_m, robot_deg).tolist() for r, F in (("r1", F1), ("r2", F2)) if F is not None}
+        out.append({"id": f"s{i:03d}", "flange_poses": flange, "detections": dets})
+    K1, d1 = cams["cam1"].to_opencv()
+    noise = {"pose_noise": {"translation_m": robot_m, "rotation_deg": robot_deg}}
+    cell = {
+        "schema": "jcalib.cell/1",
+        "robots": {"r1": dict(noise), "r2": dict(noise)},
+        "cameras": {
+            "cam0": {"model": "opencv5", "mount": "flange", "robot": "r1"},
+            "cam1": {"model": "opencv5", "mount": "world",
+                     "intrinsics": {"K": np.asarray(K1).tolist(), "dist": np.asarray(d1).tolist()}},
+        },
+        "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.03, "mount": "world"},
+                    "board2": {"type": "checkerboard", "cols": 7, "rows": 5, "square": 0.03, "mount": "flange",
+                               "robot": "r2"}},
+        "tools": {"torch": {"observed_by": ["cam1"], "robot": "r2"}},
+    }
+    obs = {"schema": "jcalib.observations/1",
+           "cameras": {c: {"image_size": list(SYNTH_IMAGE_SIZE)} for c in ("cam0", "cam1")},
+           "targets": {n: {"points": p.tolist()} for n, p in pts.items()}, "stations": out}
     return cell, obs, true

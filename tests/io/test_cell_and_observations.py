@@ -149,3 +149,121 @@ def test_append_line_durable(tmp_path):
     assert [json.loads(line)["id"] for line in path.read_text().splitlines()] == ["s000", "s001"]
     with pytest.raises(ValueError):
         append_line_durable(path, "two\nlines")
+
+
+# ------------------------------------------------------------------------------------ several robots
+
+TWO_ROBOT_CELL = textwrap.dedent(
+    """
+    schema: jcalib.cell/1
+    robots:
+      r1: {pose_noise: {translation_m: 0.0001, rotation_deg: 0.01}}
+      r2: {pose_noise: {translation_m: 0.0002, rotation_deg: 0.02},
+           base: [[0, -1, 0, 1.5], [1, 0, 0, 0.2], [0, 0, 1, 0], [0, 0, 0, 1]]}
+    cameras:
+      cam0: {model: opencv5, mount: flange, robot: r1}
+      cam1: {model: opencv5, mount: world}
+    targets:
+      board: {type: checkerboard, cols: 9, rows: 6, square: 0.025, mount: world}
+      plate: {type: checkerboard, cols: 7, rows: 5, square: 0.03, mount: flange, robot: r2}
+    tools:
+      gripper: {robot: r2, observed_by: [cam1]}
+    fixed: [T_world_r2]
+    """
+)
+
+
+def test_two_robot_cell_parses_and_round_trips(tmp_path):
+    path = tmp_path / "cell.yaml"
+    path.write_text(TWO_ROBOT_CELL)
+    cell = load_cell(path)
+    assert cell.multi_robot and cell.frame == "world" and cell.robot is None
+    assert list(cell.robots) == ["r1", "r2"]
+    assert cell.cameras["cam0"].robot == "r1" and cell.cameras["cam1"].robot is None
+    assert cell.targets["plate"].robot == "r2" and "robot" not in cell.targets["plate"].params
+    assert cell.tools["gripper"].robot == "r2"
+    np.testing.assert_array_equal(cell.robots["r2"].base[:3, 3], [1.5, 0.2, 0.0])
+    np.testing.assert_array_equal(cell.robots["r2"].pose_noise_rotation_deg, [0.02] * 3)
+    again = parse_cell(cell_to_dict(cell))
+    assert cell_to_dict(again) == cell_to_dict(cell)
+    assert "robot" not in cell_to_dict(cell) and cell_to_dict(cell)["robots"]["r2"]["base"][0] == [0, -1, 0, 1.5]
+
+
+def test_one_entry_robots_is_the_one_robot_cell():
+    """A one-entry robots: names the one robot; the cell stays in its base frame (as robot:)."""
+    import yaml
+
+    data = yaml.safe_load(DESIGN_CELL)
+    data["robots"] = {"arm": data.pop("robot")}
+    cell = parse_cell(data)
+    assert not cell.multi_robot and cell.frame == "base"
+    assert cell.robot is cell.robots["arm"]
+    assert cell.cameras["cam0"].robot == "arm" and cell.tools["needle"].robot == "arm"  # the default
+    np.testing.assert_array_equal(cell.robot.pose_noise_translation_m, [1e-4] * 3)
+    assert cell_to_dict(parse_cell(cell_to_dict(cell))) == cell_to_dict(cell)
+
+
+@pytest.mark.parametrize(
+    "mutate, needle",
+    [
+        (lambda d: d["cameras"]["cam0"].update(robot="r9"), r"cameras.cam0.robot.*'r9'"),
+        (lambda d: d["cameras"]["cam1"].update(mount="base"), r"cameras.cam1.mount.*ambiguous.*mount: world"),
+        (lambda d: d["targets"]["board"].update(mount="base"), r"targets.board.mount.*world"),
+        (lambda d: d.update(robot={"pose_noise": None}), r"both 'robot' and 'robots'"),
+        (lambda d: d["cameras"]["cam0"].pop("robot"), r"cameras.cam0.robot.*several robots"),
+        (lambda d: d["tools"]["gripper"].pop("robot"), r"tools.gripper.robot"),
+        (lambda d: d["cameras"]["cam1"].update(robot="r1"), r"cameras.cam1.robot.*flange"),
+        (lambda d: d["robots"].update(world={}), r"robot name 'world'"),
+        (lambda d: d["robots"].update(cam1={}), r"robots.cam1.*name of a camera"),
+        (lambda d: d["robots"]["r2"].update(base=[[1, 0], [0, 1]]), r"robots.r2.base"),
+        (lambda d: d["robots"]["r1"].update(reach=2.0), r"robots.r1.*reach"),
+    ],
+)
+def test_bad_two_robot_cell_names_the_key(mutate, needle):
+    import yaml
+
+    data = yaml.safe_load(TWO_ROBOT_CELL)
+    mutate(data)
+    with pytest.raises(BadInputError, match=needle):
+        parse_cell(data, source="cell.yaml")
+
+
+def test_world_mount_and_base_need_several_robots():
+    import yaml
+
+    data = yaml.safe_load(DESIGN_CELL)
+    data["cameras"]["cam1"]["mount"] = "world"
+    with pytest.raises(BadInputError, match=r"cameras.cam1.mount.*use mount: base"):
+        parse_cell(data)
+    data = yaml.safe_load(DESIGN_CELL)
+    data["robots"] = {"r1": dict(data.pop("robot"), base=np.eye(4).tolist())}
+    with pytest.raises(BadInputError, match=r"robots.r1.base.*one-robot"):
+        parse_cell(data)
+    data = yaml.safe_load(DESIGN_CELL)
+    data["cameras"]["cam0"]["robot"] = "r1"  # robot: names a robot, the cell's robot: has no name
+    with pytest.raises(BadInputError, match=r"cameras.cam0.robot.*no named robots"):
+        parse_cell(data)
+
+
+def test_flange_poses_round_trip_and_are_validated(tmp_path):
+    data = json.loads(json.dumps(DESIGN_OBS))
+    T = data["stations"][0].pop("T_base_flange")
+    data["stations"][0]["flange_poses"] = {"r1": T, "r2": np.eye(4).tolist()}
+    obs = parse_observations(data)
+    assert obs.stations[0].T_base_flange is None
+    np.testing.assert_array_equal(obs.stations[0].flange_poses["r1"], np.asarray(T, np.float64))
+    again = load_observations(save_observations(tmp_path / "obs.json", obs))
+    assert again.to_dict() == obs.to_dict() == data | {"schema": "jcalib.observations/1"}
+    for bad, needle in [({"r1": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}, r"flange_poses.r1.*rotation"),
+                        ({"r1": [[1, 0, 0], [0, 1, 0]]}, r"flange_poses.r1"),
+                        ({"r1": [[float("nan")] * 4] * 4}, r"flange_poses.r1.*NaN"),
+                        ([T], r"flange_poses.*mapping")]:
+        d = json.loads(json.dumps(data))
+        d["stations"][0]["flange_poses"] = bad
+        with pytest.raises(BadInputError, match=needle) as info:
+            parse_observations(d, source="obs.json")
+        assert "station 's000'" in str(info.value)
+    d = json.loads(json.dumps(data))
+    d["stations"][0]["T_base_flange"] = T
+    with pytest.raises(BadInputError, match="both T_base_flange .* and flange_poses"):
+        parse_observations(d)
