@@ -1,16 +1,8 @@
 """Test configuration: float64 and strict JAX promotion, so a silent float32 or a broadcast bug fails."""
 
-import atexit
 import os
-import shutil
-import tempfile
 
 os.environ["JAX_ENABLE_X64"] = "1"
-# In-process CLI tests turn on JAX's persistent compilation cache: give each test process its own
-# (fresh) directory instead of the user's ~/.cache/jcalib/jax, which other processes (benchmarks, a
-# concurrent run) write to at the same time and whose entries a test must not depend on.
-os.environ["JCALIB_CACHE_DIR"] = tempfile.mkdtemp(prefix="jcalib-test-jax-cache-")
-atexit.register(shutil.rmtree, os.environ["JCALIB_CACHE_DIR"], ignore_errors=True)
 
 import jax  # noqa: E402
 
