@@ -36,3 +36,15 @@ def real_data() -> Path:
     """``../shared/data/real`` beside the repository (present in every checkout and in CI)."""
     assert REAL_DATA.is_dir(), f"real calibration data not found at {REAL_DATA}"
     return REAL_DATA
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_code():
+    """Drop JAX's compiled functions after every test module.
+
+    Every XLA:CPU executable keeps memory mappings for its code (thousands per big solve); a test
+    process that keeps every executable of the suite reaches the kernel's ``vm.max_map_count``
+    (65530) and then crashes inside a later compilation. Clearing the caches frees them.
+    """
+    yield
+    jax.clear_caches()
