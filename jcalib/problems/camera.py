@@ -137,16 +137,20 @@ def _reprojection_fn(model_cls: type, image_size: tuple[int, int], skew: bool):
 
 
 @functools.cache
-def _reprojection_jacobian(model_cls: type, image_size: tuple[int, int], skew: bool):
-    """Hand-derived linearisation of :func:`_reprojection_fn` (the engine's ``FactorGroup.jacobian``).
+def _chain_reprojection_jacobian(model_cls: type, image_size: tuple[int, int], skew: bool,
+                                 chain: tuple[tuple[int, bool], ...]):
+    """Hand-derived linearisation (the engine's ``FactorGroup.jacobian``) of a reprojection through a
+    chain of poses: ``fn(intrinsics, *poses, obs)`` with ``obs = (p (3,), pixel (2,), aspect (2,))``
+    and ``p_cam = A_1 · A_2 ⋯ A_n · p``, where ``A_j`` is ``poses[chain[j][0]]``, inverted when
+    ``chain[j][1]`` (first entry on the camera side).
 
-    Autodiff runs through the lens model only, ``(p_cam, intrinsics) -> pixel`` (any model); the
-    poses enter by the chain rule in closed form. With ``p_ref = T_ref_target · p`` and
-    ``p_cam = T_cam_ref · p_ref`` and the engine's right perturbation ``T · Exp(ω, v)``:
-    ``∂p_cam/∂(ω, v)_target = R_cam_ref · [−R_ref_target [p]×, R_ref_target]`` and
-    ``∂p_cam/∂(ω, v)_rig = [−R_cam_ref [p_ref]×, R_cam_ref]``. With reverse-mode autodiff of the
-    whole chain (quaternion rotations included) a calibration's jitted solve takes ~20 % longer
-    (``benchmarks/bench_linearize_floor.py``).
+    Autodiff runs through the lens model only, ``(p_cam, intrinsics) -> pixel`` (any model, skew,
+    fixed aspect); the poses enter by the chain rule in closed form. With the engine's right
+    perturbation ``A · Exp(ω, v)``, ``q_j`` the point on the target side of ``A_j`` and ``u_j = A_j q_j``,
+    and ``L_j`` the rotation of ``A_1 ⋯ A_{j-1}``:
+    ``∂p_cam/∂(ω, v)_j = L_j R_j [−[q_j]×, I]``, or ``L_j [[u_j]×, −I]`` when ``A_j`` is inverted.
+    With reverse-mode autodiff of the whole chain (quaternion rotations included) a camera
+    calibration's jitted solve takes ~20 % longer (``benchmarks/bench_linearize_floor.py``).
     """
 
     def project(p_cam, intrinsics, obs):
@@ -156,18 +160,33 @@ def _reprojection_jacobian(model_cls: type, image_size: tuple[int, int], skew: b
         r = model.project(p_cam) - pixel
         return r, r
 
-    def jacobian(intrinsics, T_cam_ref, T_ref_target, obs):
-        p_target = obs[0]
-        R_rt, R_cr = lie.so3_to_matrix(T_ref_target[:4]), lie.so3_to_matrix(T_cam_ref[:4])
-        p_ref = R_rt @ p_target + T_ref_target[4:]
-        p_cam = R_cr @ p_ref + T_cam_ref[4:]
-        (J_cam, J_intr), r = jax.jacrev(project, argnums=(0, 1), has_aux=True)(p_cam, intrinsics, obs)
-        R_ct = R_cr @ R_rt
-        J_target = J_cam @ jnp.concatenate([-(R_ct @ _skew(p_target)), R_ct], axis=1)
-        J_rig = J_cam @ jnp.concatenate([-(R_cr @ _skew(p_ref)), R_cr], axis=1)
-        return r, (J_intr, J_rig, J_target)
+    def jacobian(intrinsics, *rest):
+        *poses, obs = rest
+        q = obs[0]
+        blocks = []  # (pose index, rotation to the left applied later, 3x6 block in the local frame)
+        for a, inverted in reversed(chain):  # target side first
+            R, t = lie.so3_to_matrix(poses[a][:4]), poses[a][4:]
+            if inverted:
+                u = R.T @ (q - t)
+                blocks.append((a, R.T, jnp.concatenate([_skew(u), -jnp.eye(3, dtype=u.dtype)], axis=1)))
+            else:
+                u = R @ q + t
+                blocks.append((a, R, R @ jnp.concatenate([-_skew(q), jnp.eye(3, dtype=q.dtype)], axis=1)))
+            q = u
+        (J_cam, J_intr), r = jax.jacrev(project, argnums=(0, 1), has_aux=True)(q, intrinsics, obs)
+        J_poses = [jnp.zeros((r.shape[0], 6), r.dtype) for _ in poses]
+        left = J_cam  # (2, 3): the camera-side rotations folded in, walking towards the target
+        for a, R_a, block in reversed(blocks):
+            J_poses[a] = J_poses[a] + left @ block
+            left = left @ R_a
+        return r, (J_intr, *J_poses)
 
     return jacobian
+
+
+def _reprojection_jacobian(model_cls: type, image_size: tuple[int, int], skew: bool):
+    """:func:`_chain_reprojection_jacobian` of :func:`_reprojection_fn`: ``p_cam = T_cam_ref · T_ref_target · p``."""
+    return _chain_reprojection_jacobian(model_cls, image_size, skew, ((0, False), (1, False)))
 
 
 def _skew(p):

@@ -66,6 +66,7 @@ from jcalib.io.observations import Observations
 from jcalib.problems.camera import (
     MIN_POINTS_PER_VIEW,
     _CameraData,
+    _chain_reprojection_jacobian,
     _initial_model,
     _intrinsics_fixed_mask,
     _reprojection_fn,
@@ -307,6 +308,18 @@ def _handeye_reprojection_fn(model_cls: type, image_size: tuple[int, int], skew:
             return project(intrinsics, T_cam_flange, T_flange_target, obs)
 
     return fn
+
+
+def _handeye_reprojection_jacobian(model_cls: type, image_size: tuple[int, int], skew: bool, camera_mount: str):
+    """Hand-derived linearisation of :func:`_handeye_reprojection_fn` (``FactorGroup.jacobian``):
+    ``p_cam = T_flange_cam⁻¹ · T_base_flange⁻¹ · T_base_target · p`` (flange camera) or
+    ``T_base_cam⁻¹ · T_base_flange · T_flange_target · p`` (fixed camera); see
+    :func:`jcalib.problems.camera._chain_reprojection_jacobian`."""
+    if camera_mount == "flange":  # args (intrinsics, X = T_flange_cam, Y = T_base_target, F = T_base_flange)
+        chain = ((0, True), (2, True), (1, False))
+    else:  # args (intrinsics, C = T_base_cam, T = T_flange_target, F = T_base_flange)
+        chain = ((0, True), (2, False), (1, False))
+    return _chain_reprojection_jacobian(model_cls, image_size, skew, chain)
 
 
 def _axis_translation_prior(T_hand_eye, obs):
@@ -591,6 +604,7 @@ class _Prepared:
     meas: np.ndarray  # (N, 7) measured flange poses, wxyz_xyz (m)
     variables: list[Variable]
     fns: list
+    jacobians: list  # per camera, the hand-derived linearisation of its fn (FactorGroup.jacobian)
     obs_arrays: list[tuple]  # per camera, padded layout: (points (P, 3), pixels (P, 2), aspect (P, 2))
     station_flat: list[np.ndarray]  # per camera (K_c,) station index of each corner
     station_runs: list[np.ndarray]  # per camera (P,) station index in the padded layout
@@ -611,15 +625,15 @@ class _Prepared:
         sigma_px = self.options.sigma_px if sigma_px is None else sigma_px
         loss = _loss(self.options)
         factors = []
-        for cam, fn, intr_name, he_name, st, o, w, pi in zip(self.d.cameras, self.fns, self.intr_names,
-                                                             self.he_names, self.station_runs, self.obs_arrays,
-                                                             weights, self.pad_index):
+        for cam, fn, jac, intr_name, he_name, st, o, w, pi in zip(self.d.cameras, self.fns, self.jacobians,
+                                                                  self.intr_names, self.he_names, self.station_runs,
+                                                                  self.obs_arrays, weights, self.pad_index):
             w_pad = np.zeros(st.shape[0])
             w_pad[pi] = w
             factors.append(FactorGroup(
                 f"reprojection:{cam.name}", fn, (intr_name, he_name, self.target_name, "T_base_flange"),
                 (np.zeros_like(st), np.zeros_like(st), np.zeros_like(st), st), o,
-                sigma=sigma_px, sqrt_weight=w_pad, loss=loss, chunk=self.chunk))
+                sigma=sigma_px, sqrt_weight=w_pad, loss=loss, chunk=self.chunk, jacobian=jac))
         return Problem(self.variables, factors + self.extra_factors)
 
     def residuals(self, sol) -> list[np.ndarray]:
@@ -690,7 +704,7 @@ def _prepare(cell: CellSpec, obs: Observations, options: HandEyeOptions) -> _Pre
         Variable(target_name, SE3(), _se3_params(init_ref.T_other if tg_pose is None else tg_pose), fixed=tg_fixed),
         flange,
     ]
-    fns, obs_arrays, station_flat, station_runs, pad_index = [], [], [], [], []
+    fns, jacobians, obs_arrays, station_flat, station_runs, pad_index = [], [], [], [], [], []
     chunk = int(-(-obs.targets[d.target_name].shape[0] // 8) * 8)
     for cam, cd, s, init, intr_name, he_name in zip(d.cameras, d.cds, starts, inits, intr_names, he_names):
         he_pose, he_fixed = _known_pose(cell, cam, he_name)
@@ -712,8 +726,9 @@ def _prepare(cell: CellSpec, obs: Observations, options: HandEyeOptions) -> _Pre
         station_runs.append(np.repeat(np.asarray(cd.stations, np.int32), chunk))
         pad_index.append(pi)
         obs_arrays.append((points, pixels, aspect))
-        fns.append(_handeye_reprojection_fn(type(s.model), tuple(int(v) for v in s.model.image_size),
-                                            bool(s.model.has_skew), mount))
+        config = (type(s.model), tuple(int(v) for v in s.model.image_size), bool(s.model.has_skew), mount)
+        fns.append(_handeye_reprojection_fn(*config))
+        jacobians.append(_handeye_reprojection_jacobian(*config))
     extra_factors = []
     unobservable_fixed = None
     warnings = []
@@ -736,7 +751,7 @@ def _prepare(cell: CellSpec, obs: Observations, options: HandEyeOptions) -> _Pre
     return _Prepared(
         cell=cell, options=options, d=d, use_pose_model=use_pose_model, target_name=target_name,
         he_names=he_names, intr_names=intr_names, starts=starts, inits=inits, meas=meas, variables=variables,
-        fns=fns, obs_arrays=obs_arrays, station_flat=station_flat, station_runs=station_runs, pad_index=pad_index,
+        fns=fns, jacobians=jacobians, obs_arrays=obs_arrays, station_flat=station_flat, station_runs=station_runs, pad_index=pad_index,
         chunk=chunk, extra_factors=extra_factors,
         unobservable_fixed=unobservable_fixed, warnings=warnings,
         solve_options=SolveOptions(max_iterations=options.max_iterations),

@@ -47,7 +47,7 @@ def _pose(rng, scale_t: float) -> np.ndarray:
     return np.concatenate([q * np.sign(q[0]), scale_t * rng.standard_normal(3)])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _both(model_cls, skew):
     """Jitted: the hand-derived Jacobian, and forward-mode autodiff through the exact retraction."""
     fn = C._reprojection_fn(model_cls, SIZE, skew)
@@ -132,3 +132,59 @@ def test_engine_linearisation_with_the_hand_jacobian_equals_autodiff():
     for mine, theirs in zip(jax.tree.leaves(sys_hand), jax.tree.leaves(sys_ad)):
         scale = max(float(jnp.max(jnp.abs(theirs))), 1e-300)
         np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-10 * scale)
+
+
+@functools.cache
+def _both_hand_eye(model_cls, skew, mount):
+    """Jitted: the hand-eye factor's hand-derived Jacobian, and autodiff through the exact retraction."""
+    from jcalib.problems.handeye import (
+        _handeye_reprojection_fn,
+        _handeye_reprojection_jacobian,
+    )
+
+    fn = _handeye_reprojection_fn(model_cls, SIZE, skew, mount)
+    jac = _handeye_reprojection_jacobian(model_cls, SIZE, skew, mount)
+
+    def both(intr, A, B, F, obs):
+        r, hand = jac(intr, A, B, F, obs)
+        se3, euc = SE3(), Euclidean(intr.shape[0])
+
+        def through_retract(d_intr, d_a, d_b, d_f):
+            return fn(euc.retract(intr, d_intr), se3.retract(A, d_a), se3.retract(B, d_b), se3.retract(F, d_f), obs)
+
+        zeros = (jnp.zeros(intr.shape[0]), jnp.zeros(6), jnp.zeros(6), jnp.zeros(6))
+        return r, hand, through_retract(*zeros), jax.jacfwd(through_retract, argnums=(0, 1, 2, 3))(*zeros)
+
+    return jax.jit(both)
+
+
+def _matrix(pose):
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = np.asarray(lie.so3_to_matrix(pose[:4])), pose[4:]
+    return T
+
+
+@given(st.sampled_from(("opencv5", "fisheye", "opencv14")), st.sampled_from(("flange", "base")),
+       st.integers(0, 2**31 - 1))
+def test_hand_eye_jacobian_equals_autodiff_through_the_exact_retraction(name, mount, seed):
+    """Both chains: ``X⁻¹ F⁻¹ Y p`` (camera on the flange) and ``C⁻¹ F T p`` (fixed camera)."""
+    rng = np.random.default_rng(seed)
+    model_cls, intr = _intrinsics(name, False, rng)
+    A, F = _pose(rng, 0.1), _pose(rng, 0.5)  # hand-eye transform, flange pose
+    p = np.array([0.01, -0.02, 0.0])
+    p_cam = np.array([*(0.15 * rng.uniform(-1, 1, 2)), rng.uniform(0.4, 1.0)])  # inside the valid disc
+    # choose the target pose B so that p lands at p_cam: solve the chain for B's translation
+    B = _pose(rng, 0.0)
+    T_A, T_F, R_B = _matrix(A), _matrix(F), _matrix(B)[:3, :3]
+    if mount == "flange":  # p_cam = A⁻¹ F⁻¹ B p  ->  B p = F A p_cam
+        want = (T_F @ T_A @ np.append(p_cam, 1.0))[:3]
+    else:  # p_cam = A⁻¹ F B p  ->  B p = F⁻¹ A p_cam
+        want = (np.linalg.inv(T_F) @ T_A @ np.append(p_cam, 1.0))[:3]
+    B[4:] = want - R_B @ p
+    obs = (jnp.asarray(p), jnp.array([600.0, 500.0]), jnp.array([0.0, 1.0]))
+    r, hand, r_ref, ref = _both_hand_eye(model_cls, False, mount)(
+        jnp.asarray(intr), jnp.asarray(A), jnp.asarray(B), jnp.asarray(F), obs)
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-9)  # pixels
+    scale = max(float(jnp.max(jnp.abs(x))) for x in ref)
+    for mine, theirs in zip(hand, ref):
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-9 * scale)
