@@ -20,7 +20,7 @@ pose ``base: [[4x4]]`` = ``T_world_<robot>``, m). ``robot:`` and ``robots:`` are
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -326,8 +326,6 @@ def _parse_robots(data: dict, source: str) -> dict[str, RobotSpec]:
 def _check_robot_refs(cameras: dict, targets: dict, tools: dict, points: dict, robots: dict[str, RobotSpec],
                       source: str) -> tuple[dict, dict, dict]:
     """Check mounts and ``robot:`` references against the robots; fill the default robot (the only one)."""
-    import dataclasses
-
     several = len(robots) > 1
     names = ", ".join(robots)
     for n in robots:
@@ -355,7 +353,7 @@ def _check_robot_refs(cameras: dict, targets: dict, tools: dict, points: dict, r
             if several:
                 raise _fail(where + ".robot", f"a cell with several robots ({names}) needs robot: <name> on every "
                                               f"flange-mounted {kind} and tool")
-            return dataclasses.replace(spec, robot=next(iter(robots))) if robots else spec
+            return replace(spec, robot=next(iter(robots))) if robots else spec
         if not robots:
             raise _fail(where + ".robot", f"robot: {spec.robot!r} names a robot, but the cell has no named robots; "
                                           "name them under robots: {name: {...}} (robot: {...} is one unnamed robot)")

@@ -85,8 +85,8 @@ from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import lie
 from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
 from jcalib.init.handeye import HAND_EYE_METHODS, average_poses, solve_hand_eye
-from jcalib.init.robot_world import solve_robot_world_hand_eye
 from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, _check_rotations
+from jcalib.init.robot_world import solve_robot_world_hand_eye
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 from jcalib.problems.camera import (
@@ -100,7 +100,16 @@ from jcalib.problems.camera import (
 )
 from jcalib.problems.tcp import _tip_fn
 from jcalib.residuals.priors import gaussian_prior_residual
-from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, linear, solve
+from jcalib.solve import (
+    SE3,
+    Euclidean,
+    FactorGroup,
+    Problem,
+    SolveOptions,
+    Variable,
+    linear,
+    solve,
+)
 from jcalib.solve.covariance import covariance as _covariance
 
 __all__ = ["CellCalibration", "CellOptions", "calibrate_cell", "is_cell_problem", "synthetic_cell",
@@ -397,11 +406,9 @@ class _Robots:
         return r == gauge or (s.base is not None and listed)
 
 
-def _station_pose(rb: _Robots, station, r: str, source: str) -> np.ndarray | None:
+def _station_pose(rb: _Robots, station, r: str) -> np.ndarray | None:
     """The measured flange pose of robot ``r`` at ``station`` (None when the station has none)."""
-    if rb.multi:
-        return station.flange_poses.get(r)
-    if station.flange_poses:
+    if rb.multi or station.flange_poses:
         return station.flange_poses.get(r)
     return station.T_base_flange
 
@@ -489,7 +496,7 @@ def _gather(cell: CellSpec, obs: Observations, rb: _Robots):
                     )
         else:  # one robot: every used station needs the flange pose, as always
             need = {rb.names[0]}
-            if _station_pose(rb, station, rb.names[0], obs.source) is None:
+            if _station_pose(rb, station, rb.names[0]) is None:
                 raise BadInputError(
                     f"{obs.source}: station '{station.id}' has no T_base_flange; a robot cell needs the flange pose "
                     "of every station"
@@ -505,7 +512,7 @@ def _gather(cell: CellSpec, obs: Observations, rb: _Robots):
         T = np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy()
         for k, station in enumerate(stations):
             if mask[k]:
-                T[k] = np.asarray(_station_pose(rb, station, r, obs.source), np.float64)
+                T[k] = np.asarray(_station_pose(rb, station, r), np.float64)
         poses[r], need_mask[r] = T, mask
     for (cam_name, target_name), p in pairs.items():
         if rb.holder(cell.cameras[cam_name]) == rb.holder(cell.targets[target_name]) and len(p.views) > 1:
@@ -1435,6 +1442,16 @@ def _perturb(T, rng, sigma_m, sigma_deg):
     return T @ _se3_matrix(np.asarray(lie.se3_exp(jnp.asarray(d))))
 
 
+def _synth_project(model, T_cam_x, P):
+    """Pixels ``(n, 2)`` of points ``P (n, 3)`` in frame x seen by ``model`` at ``T_cam_x``, and whether each
+    is in front of the camera and 5 px inside the synthetic image."""
+    p = P @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
+    u = np.asarray(model.project(jnp.asarray(p)))
+    w, h = SYNTH_IMAGE_SIZE
+    ok = (p[:, 2] > 0.05) & (u[:, 0] > 5) & (u[:, 0] < w - 6) & (u[:, 1] > 5) & (u[:, 1] < h - 6)
+    return u, ok
+
+
 def synthetic_cell(
     seed: int = 0,
     *,
@@ -1487,11 +1504,7 @@ def synthetic_cell(
     cams = {c: camera_model_from_name("opencv5", SYNTH_IMAGE_SIZE, true[c]) for c in ("cam0", "cam1")}
 
     def project(cam, T_cam_x, P):
-        p = P @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
-        u = np.asarray(cams[cam].project(jnp.asarray(p)))
-        w, h = SYNTH_IMAGE_SIZE
-        ok = (p[:, 2] > 0.05) & (u[:, 0] > 5) & (u[:, 0] < w - 6) & (u[:, 1] > 5) & (u[:, 1] < h - 6)
-        return u, ok
+        return _synth_project(cams[cam], T_cam_x, P)
 
     stations = []
     T_bf_true = []
@@ -1610,11 +1623,7 @@ def synthetic_two_robot_cell(
     cams = {c: camera_model_from_name("opencv5", SYNTH_IMAGE_SIZE, true[c]) for c in ("cam0", "cam1")}
 
     def project(cam, T_cam_x, P):
-        p = P @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
-        u = np.asarray(cams[cam].project(jnp.asarray(p)))
-        w, h = SYNTH_IMAGE_SIZE
-        ok = (p[:, 2] > 0.05) & (u[:, 0] > 5) & (u[:, 0] < w - 6) & (u[:, 1] > 5) & (u[:, 1] < h - 6)
-        return u, ok
+        return _synth_project(cams[cam], T_cam_x, P)
 
     def look(eye, at):  # a camera pose at eye looking at `at`, rolled at random
         T = _look_at(eye, at + geo.normal(scale=0.03, size=3), up=(1.0, 0.0, 0.0))
@@ -1655,7 +1664,7 @@ def synthetic_two_robot_cell(
 
     out = []
     for i, (F1, F2) in enumerate(stations):
-        W1 = None if F1 is None else F1
+        W1 = F1
         W2 = None if F2 is None else T_world_r2 @ F2
         dets = []
         views = []
