@@ -59,7 +59,11 @@ def test_chunked_group_solves_to_the_same_optimum_and_pads_whole_runs():
     data, K0, P0 = _data()
     plain = solve(_problem(data, K0, P0, None))
     chunked = solve(_problem(data, K0, P0, POINTS_PER_VIEW))
-    np.testing.assert_allclose(chunked.values["intrinsics"], plain.values["intrinsics"], rtol=1e-9)
+    # one optimum up to where each solve stops inside the float64 resolution of the cost (~1e-7 of a
+    # standard deviation; the two sum in different orders): compared in units of σ
+    sigma = np.sqrt(np.diag(plain.covariance("intrinsics")))
+    assert np.all(np.abs(np.asarray(chunked.values["intrinsics"][0]) - np.asarray(plain.values["intrinsics"][0]))
+                  < 1e-5 * sigma)
     np.testing.assert_allclose(chunked.covariance("intrinsics"), plain.covariance("intrinsics"), rtol=1e-7)
     padded = pad_problem(_problem(data, K0, P0, POINTS_PER_VIEW), size_fn=lambda n: n + 3)
     assert padded.factors[0].num_obs == (NUM_VIEWS + 3) * POINTS_PER_VIEW  # whole runs added
