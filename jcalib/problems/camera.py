@@ -33,7 +33,7 @@ from jcalib.init.zhang_jax import zhang_start
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
-from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, bucket_size, linear
+from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, batch_width, bucket_size, linear
 from jcalib.solve.lm import Status, lm_solve, unobservable_names
 
 #: Fewest target points per view: a homography has 8 degrees of freedom (4 points), and fewer
@@ -237,7 +237,7 @@ def _gather(cell: CellSpec, obs: Observations) -> tuple[list[_CameraData], str, 
     if target.name not in obs.targets:
         raise BadInputError(f"{obs.source}: the observations have no target '{target.name}'")
     points = obs.targets[target.name]
-    if not np.allclose(points[:, 2], 0.0):
+    if not np.all(np.abs(points[:, 2]) <= 1e-8):  # np.allclose(z, 0), without its overhead
         raise BadInputError(
             f"{obs.source}: target '{target.name}' is not planar (z != 0); camera calibration "
             "needs a planar target"
@@ -358,6 +358,13 @@ def _intrinsics_fixed_mask(model: AbstractCameraModel, fix: tuple[str, ...]) -> 
     if "aspect" in fix:
         mask[names.index("fy")] = True
     return mask
+
+
+@functools.lru_cache(maxsize=16)
+def _solve_options(max_iterations: int) -> SolveOptions:
+    # mu0 1e-6: the Zhang start is close enough that near-Gauss-Newton steps are accepted at
+    # once (6 instead of 9 iterations on benchmarks/bench_calibrate.py's data, same optimum)
+    return SolveOptions(max_iterations=max_iterations, mu0=1e-6)
 
 
 def _loss(options: CameraCalibrationOptions):
@@ -543,7 +550,8 @@ def _arrays(p: _Prepared, pose: np.ndarray, rig: np.ndarray, intr: dict[str, np.
         a[f"intr_fixed{ci}"] = p.fixed_masks[cd.name]
         a[f"station{ci}"] = np.repeat(_pad_rows(np.asarray(cd.stations, np.int32), p.num_obs_padded[ci]), cd.chunk)
         for key, flat in (("points", cd.points_flat), ("pixels", cd.pixels_flat)):
-            full = np.repeat(flat[:1], Kp, axis=0)
+            full = np.empty((Kp, flat.shape[1]))
+            full[:] = flat[0]
             full[cd.pad_index] = flat
             a[f"{key}{ci}"] = full
         a[f"aspect{ci}"] = np.broadcast_to(np.array([flag, ratio]), (Kp, 2))
@@ -569,6 +577,7 @@ class _Outcome:
     sigma2: float
     arrays: dict
     start_ok: bool = True
+    view_rms: tuple | None = None  # (weights, rms) cache of :func:`_view_rms`
 
 
 def _outcome(p: _Prepared, a: dict, out) -> _Outcome:
@@ -716,9 +725,7 @@ def _prepare(cell: CellSpec, obs: Observations, options: CameraCalibrationOption
         ),
         loss=_loss(options),
         sigma_px=float(options.sigma_px),
-        # mu0 1e-6: the Zhang start is close enough that near-Gauss-Newton steps are accepted at
-        # once (6 instead of 9 iterations on benchmarks/bench_calibrate.py's data, same optimum)
-        solve_options=SolveOptions(max_iterations=options.max_iterations, mu0=1e-6),
+        solve_options=_solve_options(options.max_iterations),
     )
     return _Prepared(
         config=config,
@@ -753,8 +760,15 @@ def _start_arrays(p: _Prepared) -> dict:
     return a
 
 
-def _view_rms(p: _Prepared, res: dict[str, np.ndarray], weights: dict[str, np.ndarray]) -> dict:
-    """(camera, view index) -> RMS of the corners with nonzero weight (pixels)."""
+def _view_rms(p: _Prepared, o: _Outcome) -> dict:
+    """(camera, view index) -> RMS of the corners with nonzero weight (pixels), of outcome ``o``
+    under the current weights ``p.weights`` (computed once for both)."""
+    if o.view_rms is None or o.view_rms[0] is not p.weights:
+        o.view_rms = (p.weights, _compute_view_rms(p, o.residuals, p.weights))
+    return o.view_rms[1]
+
+
+def _compute_view_rms(p: _Prepared, res: dict[str, np.ndarray], weights: dict[str, np.ndarray]) -> dict:
     out = {}
     for cd in p.data:
         sq = np.sum(res[cd.name] ** 2, axis=1) * (weights[cd.name] > 0)
@@ -773,7 +787,7 @@ def _intrinsics_now(p: _Prepared, o: _Outcome) -> dict[str, np.ndarray]:
 
 def _reseed_arrays(p: _Prepared, o: _Outcome):
     """Start arrays with suspect views re-seeded by their other planar-PnP pose, or None."""
-    rms = _view_rms(p, o.residuals, p.weights)
+    rms = _view_rms(p, o)
     median = float(np.median(list(rms.values())))
     suspects = sorted({s for (c, s), v in rms.items() if v > 3.0 * max(median, 1e-3)})
     if not suspects:
@@ -807,8 +821,36 @@ def _outlier_update(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions
     return (weights if changed else None), outliers
 
 
-def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outliers, reseeded) -> CameraCalibration:
-    """Assemble the :class:`CameraCalibration` from the final solve (covariances: blocks of Σ_ss)."""
+@functools.lru_cache(maxsize=1)
+def _host_device():
+    """The CPU device: results are built there, also when the solves run on a GPU (each small
+    array put on the GPU would be a transfer of its own)."""
+    return jax.local_devices(backend="cpu")[0]
+
+
+def _final_params(p: _Prepared, o: _Outcome, cd: _CameraData) -> np.ndarray:
+    """A camera's model parameters at the solution (``fy`` from ``fx`` under a fixed aspect ratio)."""
+    prm = o.values[f"intrinsics:{cd.name}"][0].copy()
+    flag, ratio = p.aspects[cd.name]
+    if flag:
+        prm[1] = prm[0] / ratio
+    return prm
+
+
+def _pose_params(o: _Outcome) -> np.ndarray:
+    """``(V + C, 7)``: the target poses ``T_ref_target``, then the rig poses ``T_cam_ref``."""
+    return np.concatenate([o.values["T_ref_target"], o.values["T_cam_ref"]])
+
+
+def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outliers, reseeded,
+            cameras: dict[str, AbstractCameraModel] | None = None,
+            pose_matrices: np.ndarray | None = None) -> CameraCalibration:
+    """Assemble the :class:`CameraCalibration` from the final solve (covariances: blocks of Σ_ss).
+
+    A batch passes what it built for all its members at once: ``cameras``, the calibrated models
+    (:meth:`~jcalib.geometry.AbstractCameraModel.with_params_many`), and ``pose_matrices``, the 4x4
+    matrices of :func:`_pose_params`.
+    """
     if options.noise == "a_posteriori":
         if not o.sigma2 == o.sigma2:
             raise NotObservableError(
@@ -820,37 +862,41 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
     else:
         scale = 1.0
     C = len(p.data)
-    cameras, intr_cov, T_ref_cam, T_ref_cam_cov = {}, {}, {}, {}
+    build = cameras is None
+    cameras = {} if build else dict(cameras)
+    intr_cov, T_ref_cam, T_ref_cam_cov = {}, {}, {}
     T_cam_target: dict[str, dict[str, np.ndarray]] = {}
     off = 6 * C
     rig_fixed = np.zeros((C, 6), bool)
     rig_fixed[0] = True
-    T_ref_target_all = conversions.pose_to_matrix(np.asarray(o.values["T_ref_target"], np.float64))
+    V = o.values["T_ref_target"].shape[0]
+    T_all = conversions.pose_to_matrix(_pose_params(o)) if pose_matrices is None else pose_matrices
+    T_ref_target_all, T_cam_ref_all = T_all[:V], T_all[V:]
     for i, cd in enumerate(p.data):
-        prm = o.values[f"intrinsics:{cd.name}"][0].copy()
-        n = prm.shape[0]
+        n = len(p.models[cd.name].param_names)
         f = (~p.fixed_masks[cd.name]).astype(np.float64)
         cov = scale * o.sigma_ss[off : off + n, off : off + n] * f[:, None] * f[None, :]
         off += n
         flag, ratio = p.aspects[cd.name]
         if flag:
-            prm[1] = prm[0] / ratio
             cov[1, :] = cov[0, :] / ratio
             cov[:, 1] = cov[:, 0] / ratio
             cov[1, 1] = cov[0, 0] / ratio**2
-        cameras[cd.name] = p.models[cd.name].with_params(jnp.asarray(prm))
+        if build:
+            with jax.default_device(_host_device()):  # a result's model lives on the host (CPU)
+                cameras[cd.name] = p.models[cd.name].with_params(_final_params(p, o, cd))
         intr_cov[cd.name] = cov
-        T_cr = _se3_matrix(o.values["T_cam_ref"][i])
+        T_cr = T_cam_ref_all[i]
         T_ref_cam[cd.name] = np.linalg.inv(T_cr)
         fr = (~rig_fixed[i]).astype(np.float64)
         cov_cr = scale * o.sigma_ss[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] * fr[:, None] * fr[None, :]
         # Cov of T_ref_cam = inv(T_cam_ref): right perturbation maps by -Ad(T_cam_ref).
         Ad = _adjoint_rot_first(T_cr)
         T_ref_cam_cov[cd.name] = Ad @ cov_cr @ Ad.T
-        for s in cd.stations:
-            T_cam_target.setdefault(p.station_ids[p.used[s]], {})[cd.name] = T_cr @ T_ref_target_all[s]
+        for s, T_ct in zip(cd.stations, T_cr @ T_ref_target_all[cd.stations]):
+            T_cam_target.setdefault(p.station_ids[p.used[s]], {})[cd.name] = T_ct
 
-    rms = _view_rms(p, o.residuals, p.weights)
+    rms = _view_rms(p, o)
     all_res = np.concatenate([o.residuals[cd.name][p.weights[cd.name] > 0] for cd in p.data])
     return CameraCalibration(
         cameras=cameras,
@@ -881,16 +927,20 @@ def _run_one(p: _Prepared, a: dict) -> _Outcome:
 
 
 def _solve_prepared(cell: CellSpec, obs: Observations, options: CameraCalibrationOptions,
-                    p: _Prepared, o: _Outcome) -> CameraCalibration:
-    """Finish a first solve; when its in-jit start was rejected, start again from the host's closed form."""
+                    p: _Prepared, o: _Outcome) -> tuple[_Prepared, _Outcome, list, list]:
+    """Refine a first solve (:func:`_refine`); when its in-jit start was rejected, start again from
+    the host's closed form first. Returns what :func:`_finish` takes."""
     if not o.start_ok:
         p = _prepare(cell, obs, options, fast=False)  # names what is wrong, or starts it properly
         o = _run_one(p, _start_arrays(p))
-    return _refine(p, o, options)
+    return (p, *_refine(p, o, options))
 
 
-def _refine(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, run=None) -> CameraCalibration:
-    """Re-seed check and outlier rejection after the first solve (each re-solves only when needed)."""
+def _refine(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, run=None) -> tuple[_Outcome, list, list]:
+    """Re-seed check and outlier rejection after the first solve (each re-solves only when needed).
+
+    Returns the final outcome, the rejected corners and the re-seeded station ids.
+    """
     run = run or _run_one
     reseeded = []
     if options.reseed_views:
@@ -905,7 +955,7 @@ def _refine(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, run=No
         if weights is not None:
             p.weights = weights
             o = run(p, _arrays(p, o.values["T_ref_target"], o.values["T_cam_ref"], _intrinsics_now(p, o), weights))
-    return _finish(p, o, options, outliers, reseeded)
+    return o, outliers, reseeded
 
 
 def calibrate_cameras(
@@ -926,10 +976,8 @@ def calibrate_cameras(
             sharing no station with the others), naming them.
     """
     p = _prepare(cell, obs, options)
-    return _solve_prepared(cell, obs, options, p, _run_one(p, _start_arrays(p)))
-
-
-_BATCH = 8
+    p, o, outliers, reseeded = _solve_prepared(cell, obs, options, p, _run_one(p, _start_arrays(p)))
+    return _finish(p, o, options, outliers, reseeded)
 
 
 def calibrate_cameras_batch(
@@ -938,6 +986,7 @@ def calibrate_cameras_batch(
     options: CameraCalibrationOptions = CameraCalibrationOptions(),
     *,
     raise_errors: bool = True,
+    batch_size: int | None = None,
 ) -> list[CameraCalibration | Exception]:
     """Calibrate many data sets of one cell (e.g. a Monte-Carlo study) with one vmapped solve.
 
@@ -953,12 +1002,16 @@ def calibrate_cameras_batch(
         options: :class:`CameraCalibrationOptions`, shared.
         raise_errors: raise the first data set's error (default); ``False`` returns the exception
             (``BadInputError`` / ``NotObservableError``) in that data set's place instead.
+        batch_size: data sets per vmapped call (the last call is filled with copies); default
+            :func:`jcalib.solve.batch_width`: 8 on the CPU, all of them on a GPU.
 
     Returns:
         One :class:`CameraCalibration` (or exception) per data set, in order.
     """
     if len(observations) == 0:
         raise BadInputError("observations: got an empty list, expected at least one data set")
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+        raise BadInputError(f"batch_size: got {batch_size!r}, expected a positive integer or None (automatic)")
     results: list = [None] * len(observations)
     prepared = []
     for i, obs in enumerate(observations):
@@ -982,18 +1035,20 @@ def calibrate_cameras_batch(
                 p.num_views_padded, p.num_obs_padded = Vp, Kp
                 a = _start_arrays(p)
             fixed.append((i, p, a))
-        # sub-batches of _BATCH data sets (the last one padded with copies): one compiled shape,
-        # and XLA:CPU gains nothing from wider batches here (it stalled at 64+ in a while loop)
+        # calls of `width` data sets (the last one filled with copies): one compiled shape; 8 on
+        # XLA:CPU, the whole group on an accelerator (jcalib.solve.batch_width)
+        width = batch_size or batch_width(len(fixed))
         outs = []
-        for start in range(0, len(fixed), _BATCH):
-            part = fixed[start:start + _BATCH]
-            part = part + [part[0]] * (_BATCH - len(part)) if len(fixed) > _BATCH else part
+        for start in range(0, len(fixed), width):
+            part = fixed[start:start + width]
+            part = part + [part[0]] * (width - len(part))
             stacked = {k: np.stack([a[k] for _, _, a in part]) for k in part[0][2]}
             outs.append(jax.device_get(_core_batch_jit(fixed[0][1].config, stacked)))
+        flat = [jax.tree.flatten(out) for out in outs]  # once per call, not per member
         for j, (i, p, a) in enumerate(fixed):
             try:
-                out = outs[j // _BATCH]
-                o = _outcome(p, a, jax.tree.map(lambda x, j=j % _BATCH: x[j], out))
+                leaves, treedef = flat[j // width]
+                o = _outcome(p, a, jax.tree.unflatten(treedef, [x[j % width] for x in leaves]))
                 if o.start_ok:
                     _raise_if_unobservable(p, o)
                 results[i] = _solve_prepared(cell, observations[i], options, p, o)
@@ -1001,6 +1056,30 @@ def calibrate_cameras_batch(
                 if raise_errors:
                     raise
                 results[i] = err
+    # every member's calibrated models in one batched build per camera (and model configuration)
+    finals = [(i, r) for i, r in enumerate(results) if isinstance(r, tuple)]
+    stacks: dict = {}
+    for i, (p, o, _, _) in finals:
+        for cd in p.data:
+            m = p.models[cd.name]
+            stacks.setdefault((cd.name, type(m), m.image_size, m.has_skew), []).append((i, _final_params(p, o, cd)))
+    cameras: dict[int, dict] = {i: {} for i, _ in finals}
+    with jax.default_device(_host_device()):  # results live on the host (CPU)
+        for (name, *_), members in stacks.items():
+            template = results[members[0][0]][0].models[name]
+            for (i, _), model in zip(members, template.with_params_many(np.stack([prm for _, prm in members]))):
+                cameras[i][name] = model
+    # and every member's pose matrices in one conversion
+    poses = [_pose_params(o) for _, (_, o, _, _) in finals]
+    matrices = np.split(conversions.pose_to_matrix(np.concatenate(poses)) if poses else np.zeros((0, 4, 4)),
+                        np.cumsum([len(x) for x in poses])[:-1])
+    for (i, (p, o, outliers, reseeded)), T_all in zip(finals, matrices):
+        try:
+            results[i] = _finish(p, o, options, outliers, reseeded, cameras[i], T_all)
+        except (BadInputError, NotObservableError) as err:
+            if raise_errors:
+                raise
+            results[i] = err
     return results
 
 

@@ -84,6 +84,7 @@ from jcalib.solve import (
     SolveOptions,
     Status,
     Variable,
+    batch_width,
     bucket_size,
     linear,
     lm_solve,
@@ -934,11 +935,6 @@ def calibrate_hand_eye(
 
 # ------------------------------------------------------------------------------------ batch
 
-#: Data sets per vmapped call (as ``jcalib.problems.camera._BATCH``): XLA:CPU gains nothing from
-#: wider batches inside a while loop, and stalled at 64+ members.
-_BATCH = 8
-
-
 def _inverse_blocks(system: linear.System):
     """``(Σ_ss, V_i⁻¹)`` of an information system: what :mod:`jcalib.solve.covariance` caches."""
     S, Vinvs = linear.reduced_system(system, None, None)
@@ -982,7 +978,7 @@ def _raise_if_unobservable(sol: Solution) -> None:
 
 
 def _solve_batch(problems: list[Problem], options: SolveOptions) -> list[tuple[Solution, list[np.ndarray]]]:
-    """Solve problems in vmapped calls of :data:`_BATCH`: one group per problem structure, padded to
+    """Solve problems in vmapped calls of :func:`jcalib.solve.batch_width`: one group per problem structure, padded to
     the group's largest bucket (:func:`jcalib.solve.bucket_size`) of every count. Returns per problem
     its :class:`Solution` (covariance blocks already cached) and its per-camera residuals (px) in
     the batch's padded layout (the problem's own layout is a prefix of it).
@@ -1003,17 +999,17 @@ def _solve_batch(problems: list[Problem], options: SolveOptions) -> list[tuple[S
                                for k in members for g in problems[k].factors if g.name == f.name)
                    for f in first.factors}
         padded = [pad_problem(problems[k], num_entries=var_num, num_obs=obs_num) for k in members]
-        for start in range(0, len(members), _BATCH):
-            part = padded[start:start + _BATCH]
-            if len(members) > _BATCH:  # one compiled width: fill the last call with copies
-                part = part + [part[0]] * (_BATCH - len(part))
+        width = batch_width(len(members))  # 8 on XLA:CPU, the whole group on an accelerator
+        for start in range(0, len(members), width):
+            part = padded[start:start + width]
+            part = part + [part[0]] * (width - len(part))  # one compiled width: fill with copies
             stacked = jax.tree.map(lambda *xs: np.stack(xs), *part)
             if system_only:
                 (cost, system, m_eff), inv = jax.device_get(_system_core_jit(stacked))
                 res = ()
             else:
                 raw, res, inv = jax.device_get(_batch_core_jit(stacked, options))
-            for j, k in enumerate(members[start:start + _BATCH]):
+            for j, k in enumerate(members[start:start + width]):
                 def pick(a, j=j):
                     return a[j]
 
@@ -1045,7 +1041,7 @@ def calibrate_hand_eye_batch(
     Each data set is gathered and started on the host (intrinsics, per-view poses, closed form) as in
     :func:`calibrate_hand_eye`; the main solves of all of them are padded to one shape (the largest
     bucket of the batch, so different numbers of stations and dropped corners still batch) and run by
-    ``jax.vmap`` of one jitted solve, :data:`_BATCH` data sets per call. Outlier re-solves run per data
+    ``jax.vmap`` of one jitted solve, :func:`jcalib.solve.batch_width` data sets per call. Outlier re-solves run per data
     set; the covariance re-solves of the robot pose model (a-posteriori noise) are batched again.
     Results equal :func:`calibrate_hand_eye` on each data set to solver tolerance.
 

@@ -28,7 +28,7 @@ from jcalib.solve.lm import (
     stack_problems,
 )
 from jcalib.solve.manifolds import SE3, SO3, Euclidean
-from jcalib.solve.problem import FactorGroup, Problem, Variable, bucket_size, pad_problem
+from jcalib.solve.problem import FactorGroup, Problem, Variable, batch_width, bucket_size, pad_problem
 
 __all__ = [
     "SE3",
@@ -41,6 +41,7 @@ __all__ = [
     "SolveOptions",
     "Status",
     "Variable",
+    "batch_width",
     "bucket_size",
     "covariance",
     "lm_solve",

@@ -400,6 +400,18 @@ def bucket_size(n: int) -> int:
     return int(-(-n // step) * step)
 
 
+def batch_width(num: int) -> int:
+    """Data sets per vmapped call when ``num`` same-shape problems are solved in batches.
+
+    On XLA:CPU a batch costs what its members cost one by one (the work is compute, not dispatch)
+    and a ``while_loop`` over 64+ members stalled, so calls take at most 8 members. On an
+    accelerator (GPU/TPU) one call takes the whole group, rounded up to a :func:`bucket_size` so that
+    groups of similar size share one compiled width. Callers fill a call that has fewer members than
+    the width with copies of one of them.
+    """
+    return min(num, 8) if jax.default_backend() == "cpu" else bucket_size(num)
+
+
 def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size, *,
                 num_entries: dict[str, int] | None = None, num_obs: dict[str, int] | None = None) -> Problem:
     """Pad every variable kind and factor group to ``size_fn(count)`` entries / observations.

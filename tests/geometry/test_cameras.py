@@ -418,6 +418,27 @@ def test_params_round_trip_and_names(name, skew):
     )
 
 
+@pytest.mark.parametrize(("name", "skew"), VARIANTS, ids=IDS)
+def test_with_params_many_equals_with_params_one_by_one(name, skew):
+    """The batched builder (results of batched calibrations) gives the models ``with_params`` gives:
+    same class, configuration, field shapes and dtypes, parameters and projections."""
+    model = random_camera(name, 7, IMAGE_SIZE, skew=skew)
+    thetas = np.stack([np.asarray(random_camera(name, s, IMAGE_SIZE, skew=skew).params) for s in (1, 2, 3)])
+    many = model.with_params_many(thetas)
+    assert len(many) == 3
+    p = _pad(np.array([[0.1, 0.2, 1.0], [-0.3, 0.1, 2.0]]))
+    for got, theta in zip(many, thetas):
+        one = model.with_params(theta)
+        assert type(got) is type(one) and got.image_size == one.image_size and got.has_skew == skew
+        assert jax.tree.structure(got) == jax.tree.structure(one)
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(one)):
+            assert a.shape == b.shape and a.dtype == b.dtype == jnp.float64
+        assert np.array_equal(np.asarray(got.params), theta)
+        np.testing.assert_array_equal(np.asarray(_project(got, p)[0]), np.asarray(_project(one, p)[0]))
+    with pytest.raises(BadInputError, match="shape"):
+        model.with_params_many(thetas[:, :-1])
+
+
 def test_default_model_from_name():
     model = camera_model_from_name("opencv5", (1600, 1200))
     K, dist = model.to_opencv()

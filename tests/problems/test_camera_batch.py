@@ -5,11 +5,11 @@ different sizes share one padded shape, and a bad member is reported in its plac
 import numpy as np
 import pytest
 
-from jcalib.errors import NotObservableError
+from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras_batch
+from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras, calibrate_cameras_batch
 from jcalib.sim.scene import project_target, random_calibration_views
 
 BOARD = Checkerboard(cols=9, rows=6, square=0.03)
@@ -20,12 +20,16 @@ CELL = parse_cell({"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "ope
                    "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.03}}})
 
 
-def make_obs(poses, rng, sigma_px):
+def make_obs(poses, rng, sigma_px, offsets=None):
+    """Observations of ``poses`` with noise; ``offsets``: {(view, corner): px added} (outliers)."""
     stations, pixels = [], []
     for i, T in enumerate(poses):
         pix, vis = project_target(CAM, T, BOARD.points)
         assert vis.all()
         pix = pix + sigma_px * rng.standard_normal(pix.shape)
+        for (v, c), d in (offsets or {}).items():
+            if v == i:
+                pix[c] += d
         pixels.append(pix)
         stations.append({"id": f"v{i:03d}", "detections": [{"camera": "cam0", "target": "board",
                          "point_index": list(range(len(BOARD.points))), "pixels": pix.tolist()}]})
@@ -98,3 +102,40 @@ def test_raise_errors_raises_the_members_error(batch):
     bad, _ = make_obs([T] * 5, rng, sigma_px=0.1)
     with pytest.raises(NotObservableError):
         calibrate_cameras_batch(CELL, [sets[0][0], bad])
+
+
+def test_members_equal_calibrate_cameras_across_calls_and_refinements():
+    """Calls of 2 members (the last one filled with copies), a member with gross outliers (re-solved
+    after the batch), models built for the whole batch at once: every member's result is what
+    ``calibrate_cameras`` gives on its own data set."""
+    rng = np.random.default_rng(5)
+    obs = []
+    for k in range(3):
+        poses = random_calibration_views(CAM, BOARD.points, 9, rng=rng)
+        # member 1: two corners 40 px off, rejected, then re-solved
+        o, _ = make_obs(poses, rng, sigma_px=0.2, offsets={(2, 5): 40.0, (6, 11): -40.0} if k == 1 else None)
+        obs.append(o)
+    batch = calibrate_cameras_batch(CELL, obs, batch_size=2)
+    assert len(batch[1].outliers) == 2
+    for o, got in zip(obs, batch):
+        want = calibrate_cameras(CELL, o)
+        assert got.outliers == want.outliers and got.reseeded_views == want.reseeded_views
+        assert type(got.cameras["cam0"]) is type(want.cameras["cam0"])
+        sigma = np.sqrt(np.diag(want.intrinsics_covariance["cam0"]))
+        # same optimum up to the solver's tolerance under padding (< 1e-4 of a standard deviation)
+        assert np.all(np.abs(np.asarray(got.cameras["cam0"].params) - np.asarray(want.cameras["cam0"].params))
+                      < 1e-4 * sigma)
+        np.testing.assert_allclose(got.intrinsics_covariance["cam0"], want.intrinsics_covariance["cam0"], rtol=1e-5)
+        assert got.view_rms_px.keys() == want.view_rms_px.keys()
+        np.testing.assert_allclose(list(got.view_rms_px.values()), list(want.view_rms_px.values()), rtol=1e-6)
+        assert got.T_cam_target.keys() == want.T_cam_target.keys()
+        for sid in want.T_cam_target:
+            np.testing.assert_allclose(got.T_cam_target[sid]["cam0"], want.T_cam_target[sid]["cam0"], atol=1e-8)
+        assert abs(got.rms_px - want.rms_px) < 1e-9 and got.num_residuals == want.num_residuals
+
+
+def test_batch_size_must_be_a_positive_integer():
+    rng = np.random.default_rng(2)
+    o, _ = make_obs(random_calibration_views(CAM, BOARD.points, 6, rng=rng), rng, sigma_px=0.2)
+    with pytest.raises(BadInputError, match="batch_size"):
+        calibrate_cameras_batch(CELL, [o], batch_size=0)

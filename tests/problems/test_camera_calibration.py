@@ -190,7 +190,11 @@ def test_in_jit_start_reaches_the_host_starts_optimum(options):
     o_host = C._run_one(host, C._start_arrays(host))
     assert o_fast.start_ok
     # the two starts differ (h33 = 1 vs homogeneous DLT); the optimum does not (solver tolerance)
-    cal_fast, cal_host = C._refine(fast, o_fast, opts), C._refine(host, o_host, opts)
+    def refine_and_finish(p, o):
+        o, outliers, reseeded = C._refine(p, o, opts)
+        return C._finish(p, o, opts, outliers, reseeded)
+
+    cal_fast, cal_host = refine_and_finish(fast, o_fast), refine_and_finish(host, o_host)
     # one optimum to solver tolerance, in units of each parameter's σ (k3's 2e-10 is 1e-7 σ)
     sigma = np.sqrt(np.diag(cal_host.intrinsics_covariance["cam"]))
     diff = np.abs(np.asarray(cal_fast.cameras["cam"].params) - np.asarray(cal_host.cameras["cam"].params))
