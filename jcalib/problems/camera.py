@@ -843,13 +843,11 @@ def _pose_params(o: _Outcome) -> np.ndarray:
 
 
 def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outliers, reseeded,
-            cameras: dict[str, AbstractCameraModel] | None = None,
-            pose_matrices: np.ndarray | None = None) -> CameraCalibration:
+            cameras: dict[str, AbstractCameraModel], pose_matrices: np.ndarray) -> CameraCalibration:
     """Assemble the :class:`CameraCalibration` from the final solve (covariances: blocks of Σ_ss).
 
-    A batch passes what it built for all its members at once: ``cameras``, the calibrated models
-    (:meth:`~jcalib.geometry.AbstractCameraModel.with_params_many`), and ``pose_matrices``, the 4x4
-    matrices of :func:`_pose_params`.
+    ``cameras`` (the calibrated models) and ``pose_matrices`` (the 4x4 matrices of
+    :func:`_pose_params`) come from :func:`_finish_all`, which builds them for all data sets at once.
     """
     if options.noise == "a_posteriori":
         if not o.sigma2 == o.sigma2:
@@ -862,16 +860,13 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
     else:
         scale = 1.0
     C = len(p.data)
-    build = cameras is None
-    cameras = {} if build else dict(cameras)
     intr_cov, T_ref_cam, T_ref_cam_cov = {}, {}, {}
     T_cam_target: dict[str, dict[str, np.ndarray]] = {}
     off = 6 * C
     rig_fixed = np.zeros((C, 6), bool)
     rig_fixed[0] = True
     V = o.values["T_ref_target"].shape[0]
-    T_all = conversions.pose_to_matrix(_pose_params(o)) if pose_matrices is None else pose_matrices
-    T_ref_target_all, T_cam_ref_all = T_all[:V], T_all[V:]
+    T_ref_target_all, T_cam_ref_all = pose_matrices[:V], pose_matrices[V:]
     for i, cd in enumerate(p.data):
         n = len(p.models[cd.name].param_names)
         f = (~p.fixed_masks[cd.name]).astype(np.float64)
@@ -882,9 +877,6 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
             cov[1, :] = cov[0, :] / ratio
             cov[:, 1] = cov[:, 0] / ratio
             cov[1, 1] = cov[0, 0] / ratio**2
-        if build:
-            with jax.default_device(_host_device()):  # a result's model lives on the host (CPU)
-                cameras[cd.name] = p.models[cd.name].with_params(_final_params(p, o, cd))
         intr_cov[cd.name] = cov
         T_cr = T_cam_ref_all[i]
         T_ref_cam[cd.name] = np.linalg.inv(T_cr)
@@ -916,6 +908,35 @@ def _finish(p: _Prepared, o: _Outcome, options: CameraCalibrationOptions, outlie
         reseeded_views=reseeded,
         solution=o.raw,
     )
+
+
+def _finish_all(finals: dict, options: CameraCalibrationOptions, raise_errors: bool = True) -> dict:
+    """:func:`_finish` of data sets ``key -> (p, o, outliers, reseeded)``: their calibrated models
+    in one build per camera (:meth:`~jcalib.geometry.AbstractCameraModel.with_params_many`, on the
+    host CPU device) and their pose matrices in one conversion. Returns ``key -> CameraCalibration``
+    (or the data set's error, with ``raise_errors=False``)."""
+    stacks: dict = {}
+    for key, (p, o, _, _) in finals.items():
+        for cd in p.data:
+            m = p.models[cd.name]
+            stacks.setdefault((cd.name, type(m), m.image_size, m.has_skew), []).append((key, _final_params(p, o, cd)))
+    cameras: dict = {key: {} for key in finals}
+    with jax.default_device(_host_device()):  # results live on the host, also when solving on a GPU
+        for (name, *_), members in stacks.items():
+            template = finals[members[0][0]][0].models[name]
+            for (key, _), model in zip(members, template.with_params_many(np.stack([prm for _, prm in members]))):
+                cameras[key][name] = model
+    poses = [_pose_params(o) for _, o, _, _ in finals.values()]
+    matrices = np.split(conversions.pose_to_matrix(np.concatenate(poses)), np.cumsum([len(x) for x in poses])[:-1])
+    out = {}
+    for (key, (p, o, outliers, reseeded)), T_all in zip(finals.items(), matrices):
+        try:
+            out[key] = _finish(p, o, options, outliers, reseeded, cameras[key], T_all)
+        except (BadInputError, NotObservableError) as err:
+            if raise_errors:
+                raise
+            out[key] = err
+    return out
 
 
 def _run_one(p: _Prepared, a: dict) -> _Outcome:
@@ -976,8 +997,7 @@ def calibrate_cameras(
             sharing no station with the others), naming them.
     """
     p = _prepare(cell, obs, options)
-    p, o, outliers, reseeded = _solve_prepared(cell, obs, options, p, _run_one(p, _start_arrays(p)))
-    return _finish(p, o, options, outliers, reseeded)
+    return _finish_all({0: _solve_prepared(cell, obs, options, p, _run_one(p, _start_arrays(p)))}, options)[0]
 
 
 def calibrate_cameras_batch(
@@ -1056,30 +1076,10 @@ def calibrate_cameras_batch(
                 if raise_errors:
                     raise
                 results[i] = err
-    # every member's calibrated models in one batched build per camera (and model configuration)
-    finals = [(i, r) for i, r in enumerate(results) if isinstance(r, tuple)]
-    stacks: dict = {}
-    for i, (p, o, _, _) in finals:
-        for cd in p.data:
-            m = p.models[cd.name]
-            stacks.setdefault((cd.name, type(m), m.image_size, m.has_skew), []).append((i, _final_params(p, o, cd)))
-    cameras: dict[int, dict] = {i: {} for i, _ in finals}
-    with jax.default_device(_host_device()):  # results live on the host (CPU)
-        for (name, *_), members in stacks.items():
-            template = results[members[0][0]][0].models[name]
-            for (i, _), model in zip(members, template.with_params_many(np.stack([prm for _, prm in members]))):
-                cameras[i][name] = model
-    # and every member's pose matrices in one conversion
-    poses = [_pose_params(o) for _, (_, o, _, _) in finals]
-    matrices = np.split(conversions.pose_to_matrix(np.concatenate(poses)) if poses else np.zeros((0, 4, 4)),
-                        np.cumsum([len(x) for x in poses])[:-1])
-    for (i, (p, o, outliers, reseeded)), T_all in zip(finals, matrices):
-        try:
-            results[i] = _finish(p, o, options, outliers, reseeded, cameras[i], T_all)
-        except (BadInputError, NotObservableError) as err:
-            if raise_errors:
-                raise
-            results[i] = err
+    finals = {i: r for i, r in enumerate(results) if isinstance(r, tuple)}  # refined, not yet finished
+    if finals:
+        for i, r in _finish_all(finals, options, raise_errors).items():
+            results[i] = r
     return results
 
 

@@ -191,8 +191,7 @@ def test_in_jit_start_reaches_the_host_starts_optimum(options):
     assert o_fast.start_ok
     # the two starts differ (h33 = 1 vs homogeneous DLT); the optimum does not (solver tolerance)
     def refine_and_finish(p, o):
-        o, outliers, reseeded = C._refine(p, o, opts)
-        return C._finish(p, o, opts, outliers, reseeded)
+        return C._finish_all({0: (p, *C._refine(p, o, opts))}, opts)[0]
 
     cal_fast, cal_host = refine_and_finish(fast, o_fast), refine_and_finish(host, o_host)
     # one optimum to solver tolerance, in units of each parameter's σ (k3's 2e-10 is 1e-7 σ)
