@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jcalib.acquisition import capture, make_plan
+from jcalib.acquisition import capture
+from jcalib.io.plan import make_plan
 from jcalib.acquisition.cameras import FakeGigECamera, GigECamera, SimulatedCamera, aravis_available
 from jcalib.acquisition.robots import (
     AbbRobot,

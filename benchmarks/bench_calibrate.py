@@ -181,7 +181,7 @@ def bench_cli(num_views=25):
         with open(os.path.join(tmp, "obs.json"), "w") as f:
             json.dump(data, f)
         env = dict(os.environ, JCALIB_CACHE_DIR=os.path.join(tmp, "jax-cache"))
-        cmd = [sys.executable, "-c", "from jcalib.cli import main; main()", "calibrate", "cell.json", "obs.json",
+        cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "calibrate", "cell.json", "obs.json",
                "-o", "result.json"]
         times = []
         for _ in range(3):  # cold cache, then warm twice

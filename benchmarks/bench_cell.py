@@ -78,11 +78,11 @@ def main() -> None:
     args = ap.parse_args()
 
     import jcalib  # noqa: F401  (float64)
-    from jcalib.calibration import cell_result
+    from jcalib.problems.calibrate import cell_result
     from jcalib.io.cell import load_cell
     from jcalib.io.observations import load_observations
     from jcalib.problems.cell import CellOptions, calibrate_cell, synthetic_cell
-    from jcalib.reoptimise import compare_results
+    from jcalib.problems.reoptimise import compare_results
 
     options = CellOptions(sigma_px=0.2, tip_sigma_px=0.2)
     names = ("T_flange_cam0", "T_base_board", "T_base_cam1", "T_flange_needle")

@@ -28,8 +28,8 @@ from jcalib.errors import (  # noqa: E402
 
 #: Public names imported on first use (keeps ``import jcalib`` and ``jcalib --help`` fast).
 _LAZY = {
-    "calibrate": "jcalib.calibration",
-    "Result": "jcalib.calibration",
+    "calibrate": "jcalib.problems.calibrate",
+    "Result": "jcalib.problems.calibrate",
     "calibrate_cameras": "jcalib.problems.camera",
     "CameraCalibrationOptions": "jcalib.problems.camera",
     "calibrate_hand_eye": "jcalib.problems.handeye",
@@ -41,7 +41,7 @@ _LAZY = {
     "refine_pivot": "jcalib.problems.pivot",
     "calibrate_cell": "jcalib.problems.cell",
     "CellOptions": "jcalib.problems.cell",
-    "reoptimise": "jcalib.reoptimise",
+    "reoptimise": "jcalib.problems.reoptimise",
     "load_cell": "jcalib.io.cell",
     "load_observations": "jcalib.io.observations",
     "load_result": "jcalib.io.result",

@@ -53,7 +53,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import jcalib  # noqa: F401  (float64)
-from jcalib.cli import enable_compilation_cache
+from jcalib.solve.cache import enable_compilation_cache
 from jcalib.errors import NotObservableError
 from jcalib.geometry.cameras import camera_model_from_name
 from jcalib.init.handeye import HAND_EYE_METHODS, solve_hand_eye

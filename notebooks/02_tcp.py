@@ -51,7 +51,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import jcalib  # noqa: F401  (float64)
-from jcalib.cli import enable_compilation_cache
+from jcalib.solve.cache import enable_compilation_cache
 from jcalib.errors import NotObservableError
 from jcalib.geometry.cameras import Pinhole
 from jcalib.init.pivot import pivot_calibration, pivot_sphere_fit

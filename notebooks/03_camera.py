@@ -49,8 +49,9 @@ from matplotlib.colors import LogNorm
 
 import jcalib  # noqa: F401  (float64)
 from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.robocalib import viewing_distance, viewset_stations
-from jcalib.cli import enable_compilation_cache
+from jcalib.acquisition.robocalib import viewset_stations
+from jcalib.geometry.views import viewing_distance
+from jcalib.solve.cache import enable_compilation_cache
 from jcalib.geometry.cameras import camera_from_opencv
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations

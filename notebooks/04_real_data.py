@@ -47,7 +47,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import jcalib  # noqa: F401  (float64)
-from jcalib.cli import enable_compilation_cache
+from jcalib.solve.cache import enable_compilation_cache
 from jcalib.init.pivot import pivot_calibration
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations

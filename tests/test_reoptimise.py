@@ -8,11 +8,11 @@ import pytest
 from scipy.stats import binom
 
 import jcalib
-from jcalib.calibration import cell_result
+from jcalib.problems.calibrate import cell_result
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
 from jcalib.problems.cell import CellOptions, _rot, calibrate_cell, synthetic_cell
-from jcalib.reoptimise import compare_results, reoptimise
+from jcalib.problems.reoptimise import compare_results, reoptimise
 
 SIZES = dict(num_board_stations=10, num_tool_stations=20)
 OPTIONS = CellOptions(sigma_px=0.2, tip_sigma_px=0.2)

@@ -18,9 +18,9 @@ from typing import Callable, Mapping
 import numpy as np
 
 from jcalib.acquisition.cameras.base import Camera
-from jcalib.acquisition.plan import Plan, Station
+from jcalib.io.plan import Plan, Station
 from jcalib.acquisition.robots.base import MotionRefusedError, Robot
-from jcalib.acquisition.session import SessionWriter, utc_now
+from jcalib.io.session import SessionWriter, utc_now
 from jcalib.errors import BadInputError, DeviceError
 
 #: ``check(camera_id, image, station) -> None`` when the image is usable, else the reason it is not.

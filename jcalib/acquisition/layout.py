@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from jcalib.acquisition.robots.poses import invert, make_pose, rot_x
+from jcalib.geometry.se3 import invert, make_pose, rot_x
 from jcalib.errors import BadInputError
 
 DEFAULT_ROBOT = "kuka_kr10_r1100_sixx"

@@ -34,15 +34,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jcalib.acquisition.layout import CellLayout, presentation_pose
-from jcalib.acquisition.plan import Plan, make_plan
-from jcalib.acquisition.robots.poses import exp_so3, invert, make_pose, rot_z
+from jcalib.io.plan import Plan, make_plan
+from jcalib.geometry.se3 import exp_so3, invert, make_pose, rot_z
 from jcalib.errors import BadInputError
 
 KINDS = ("viewsets", "handeye", "tcp")
 DEFAULT_STATIONS = {"viewsets": 14, "handeye": 19, "tcp": 13}
 DEFAULT_AMPLITUDE_DEG = {"viewsets": 30.0, "handeye": 30.0, "tcp": 30.0}
 #: ``tcp`` plans hold the tool tip this far in front of the base camera observing the tool, m (the
-#: simulated cell's backlit tool zone is centred there too: :mod:`jcalib.acquisition.simcell`).
+#: simulated cell's backlit tool zone is centred there too: :mod:`jcalib.app.simcell`).
 TOOL_VIEW_DISTANCE_M = 0.35
 
 

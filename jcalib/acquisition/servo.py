@@ -105,17 +105,16 @@ def servo_tool_tip(
     robot: Robot,
     camera: Camera,
     R_base_cam: Any,
+    detect: Callable[[np.ndarray, str], np.ndarray],
     *,
     target_px: Any = None,
     image_jacobian: Any = None,
-    camera_model: Any = None,
     tolerance_px: float = 0.5,
     max_iterations: int = 10,
     gain: float = 1.0,
     probe_m: float = 0.002,
     max_step_m: float = 0.02,
     move_kind: str = "linear",
-    detect: Callable[[np.ndarray, str], np.ndarray] | None = None,
 ) -> ServoResult:
     """Move the flange (translations only) until the tool tip is on ``target_px`` (algorithm 4.1).
 
@@ -123,18 +122,18 @@ def servo_tool_tip(
         robot: the robot driver (KUKA, ABB or simulated), with the tool mounted.
         camera: the fixed camera watching the tip (a driver of :mod:`jcalib.acquisition.cameras`).
         R_base_cam: ``(3, 3)`` camera axes in the base frame (or the ``(4, 4)`` ``T_base_cam``).
+        detect: ``detect(image, name) -> (2,) pixel``, the tip detector (e.g. a closure over
+            :func:`jcalib.vision.tooltip.detect_tool_tip` with the camera model); the acquisition
+            layer does not import the vision layer.
         target_px: ``(2,)`` pixel to bring the tip to; None = the image centre.
         image_jacobian: ``(2, 2)`` px per m of flange translation along the camera x and y axes
             (e.g. ``diag(fx, fy) / depth``); None = measured by two probing moves.
-        camera_model: optional camera model (:mod:`jcalib.geometry.cameras`) for distortion-exact
-            tip detection.
         tolerance_px: stop when the tip is closer than this to the target, px.
         max_iterations: at most this many correction moves.
         gain: fraction of the predicted correction applied per move, in (0, 1].
         probe_m: length of each probing move, m.
         max_step_m: largest correction move, m (a bad detection cannot throw the robot far).
         move_kind: ``"linear"`` (LIN / MoveL, default) or ``"joint"``.
-        detect: ``detect(image, name) -> (2,) pixel`` instead of :func:`detect_tool_tip`.
 
     Returns:
         :class:`ServoResult` (``converged`` False when ``max_iterations`` ran out).
@@ -156,12 +155,6 @@ def servo_tool_tip(
         raise BadInputError(f"max_iterations: expected a non-negative int, got {max_iterations!r}")
     if move_kind not in ("linear", "joint"):
         raise BadInputError(f"move_kind: expected 'linear' or 'joint', got {move_kind!r}")
-    if detect is None:
-        from jcalib.vision.tooltip import detect_tool_tip
-
-        def detect(image: np.ndarray, name: str) -> np.ndarray:
-            return detect_tool_tip(image, camera=camera_model, name=name).pixel
-
     steps: list[ServoStep] = []
     target: np.ndarray | None = None if target_px is None else np.asarray(target_px, dtype=np.float64)
     if target is not None and (target.shape != (2,) or not np.isfinite(target).all()):

@@ -5,24 +5,35 @@ Conventions (DESIGN.md): ``T_a_b`` maps points of frame *b* into frame *a*; pose
 right perturbation ``T · Exp(δ)``.
 """
 
-from jcalib.geometry import conversions, lie
-from jcalib.geometry.cameras import (
-    CAMERA_MODELS,
-    AbstractCameraModel,
-    Fisheye,
-    OpenCV4,
-    OpenCV5,
-    OpenCV8,
-    OpenCV12,
-    OpenCV14,
-    Pinhole,
-    camera_from_opencv,
-    camera_model_from_name,
-)
-from jcalib.geometry.kinematics import DHRobot, forward_kinematics, inverse_kinematics
-from jcalib.geometry.robots import PRESETS as ROBOT_PRESETS
-from jcalib.geometry.robots import robot_preset
-from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid, target_from_spec
+import importlib
+
+#: Public names and the module that defines each, imported on first use: NumPy-only users (robot
+#: servers, :mod:`jcalib.geometry.se3`) do not pay for JAX.
+_LAZY = {
+    "conversions": None,
+    "lie": None,
+    "se3": None,
+    "views": None,
+    **dict.fromkeys(("CAMERA_MODELS", "AbstractCameraModel", "Fisheye", "OpenCV4", "OpenCV5", "OpenCV8", "OpenCV12",
+                     "OpenCV14", "Pinhole", "camera_from_opencv", "camera_model_from_name"), "cameras"),
+    **dict.fromkeys(("DHRobot", "forward_kinematics", "inverse_kinematics"), "kinematics"),
+    "ROBOT_PRESETS": "robots",
+    "robot_preset": "robots",
+    **dict.fromkeys(("Charuco", "Checkerboard", "CircleGrid", "target_from_spec"), "targets"),
+}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'jcalib.geometry' has no attribute {name!r}")
+    module = _LAZY[name]
+    if module is None:
+        value = importlib.import_module(f"jcalib.geometry.{name}")
+    else:
+        value = getattr(importlib.import_module(f"jcalib.geometry.{module}"), "PRESETS" if name == "ROBOT_PRESETS" else name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "CAMERA_MODELS",
@@ -46,5 +57,7 @@ __all__ = [
     "inverse_kinematics",
     "lie",
     "robot_preset",
+    "se3",
     "target_from_spec",
+    "views",
 ]

@@ -9,6 +9,7 @@ import os
 from pathlib import Path
 
 from jcalib.errors import BadInputError
+from jcalib.solve.cache import enable_compilation_cache
 from jcalib.study.backends import batches, run_dask, run_local
 from jcalib.study.estimators import columns, run_trials
 from jcalib.study.scenario import Scenario, load_scenario
@@ -26,20 +27,9 @@ def _run_batch(scenario_data: dict, seed: int, trials: list[int]) -> list[dict]:
     return run_trials(load_scenario(scenario_data), seed, trials)
 
 
-def _enable_compilation_cache() -> None:
-    """JAX's persistent compilation cache, where the CLI keeps it (``$JCALIB_CACHE_DIR`` or
-    ~/.cache/jcalib/jax): a Dask worker then loads a solve another process compiled."""
-    import jax
-
-    cache_dir = os.environ.get("JCALIB_CACHE_DIR") or str(Path.home() / ".cache" / "jcalib" / "jax")
-    if jax.config.jax_compilation_cache_dir != cache_dir:
-        jax.config.update("jax_compilation_cache_dir", cache_dir)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
-
-
 def _run_batch_worker(scenario_data: dict, seed: int, trials: list[int]) -> list[dict]:
     """:func:`_run_batch` in a Dask worker, with the persistent compilation cache on."""
-    _enable_compilation_cache()
+    enable_compilation_cache()
     return _run_batch(scenario_data, seed, trials)
 
 

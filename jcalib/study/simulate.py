@@ -117,7 +117,7 @@ def _rot(axis: str, a: float) -> np.ndarray:
 
 def target_cam_views(scenario: Scenario, rng: np.random.Generator, camera, points: np.ndarray) -> np.ndarray:
     """(N, 4, 4) ``T_target_cam`` of the station strategy (hand-eye and camera cells), m."""
-    from jcalib.acquisition import robocalib as rc
+    from jcalib.geometry import views as rc
     from jcalib.sim.scene import random_calibration_views
 
     st = scenario.stations

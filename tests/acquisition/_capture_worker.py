@@ -10,7 +10,8 @@ import sys
 
 import numpy as np
 
-from jcalib.acquisition import capture, make_plan
+from jcalib.acquisition import capture
+from jcalib.io.plan import make_plan
 from jcalib.acquisition.cameras import SimulatedCamera
 from jcalib.acquisition.robots import SimulatedController, SimulatedRobot
 

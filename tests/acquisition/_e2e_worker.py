@@ -19,12 +19,12 @@ import sys
 import time
 from pathlib import Path
 
-JCALIB = [sys.executable, "-c", "from jcalib.cli import main; main()"]
+JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
 
 
 def cli(*args: str) -> tuple[int, str]:
     """Run ``jcalib ARGS`` in this process; (exit status, stderr + stdout)."""
-    from jcalib.cli import main
+    from jcalib.app.cli import main
 
     err, out = io.StringIO(), io.StringIO()
     old = sys.argv

@@ -14,18 +14,12 @@ import cv2
 import numpy as np
 import pytest
 
-from jcalib.acquisition import (
-    CaptureInterrupted,
-    SessionWriter,
-    capture,
-    load_plan,
-    make_plan,
-    read_session,
-    save_plan,
-)
+from jcalib.acquisition import CaptureInterrupted, capture
 from jcalib.acquisition.cameras import ReplayCamera, SimulatedCamera
 from jcalib.acquisition.robots import KukaRobot, KukaSimServer, SimulatedController, SimulatedRobot
 from jcalib.errors import BadInputError, DeviceError
+from jcalib.io.plan import load_plan, make_plan, save_plan
+from jcalib.io.session import SessionWriter, read_session
 
 HERE = Path(__file__).parent
 

@@ -10,10 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from jcalib.acquisition import make_plan, read_session, save_plan
-from jcalib.acquisition.commands import open_camera, open_robot, run_capture, run_simulated_cell
+from jcalib.io.plan import make_plan, save_plan
+from jcalib.io.session import read_session
+from jcalib.app.commands import open_camera, open_robot, run_capture, run_simulated_cell
 from jcalib.acquisition.robots import SixAxisArm
-from jcalib.acquisition.robots.poses import make_pose
+from jcalib.geometry.se3 import make_pose
 from jcalib.errors import BadInputError
 
 

@@ -23,7 +23,7 @@ def test_demo_runs_the_whole_cell_and_its_estimates_agree_with_the_truth(aravis,
     out = tmp_path / "demo"
     env = {**os.environ, "JCALIB_CACHE_DIR": str(tmp_path / "jax-cache"), "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(
-        [sys.executable, "-c", "from jcalib.cli import main; main()", "demo", "-o", str(out),
+        [sys.executable, "-c", "from jcalib.app.cli import main; main()", "demo", "-o", str(out),
          "--stations", "10", "--image-size", "480x360"],
         capture_output=True, text=True, timeout=600, env=env,
     )  # fmt: skip
@@ -32,7 +32,7 @@ def test_demo_runs_the_whole_cell_and_its_estimates_agree_with_the_truth(aravis,
         assert (out / name).stat().st_size > 0, name
     assert "session.json" in {p.name for p in (out / "session").iterdir()}
 
-    from jcalib.demo_cell import compare_with_truth
+    from jcalib.app.demo_cell import compare_with_truth
     from jcalib.io.result import load_result
 
     result = load_result(out / "result.json")

@@ -105,7 +105,9 @@ def test_cameras_are_opened_by_address_only(aravis):
 
 
 def test_capture_with_packet_loss_stores_only_complete_frames(rig, tmp_path):
-    from jcalib.acquisition import capture, make_plan, read_session
+    from jcalib.acquisition import capture
+    from jcalib.io.plan import make_plan
+    from jcalib.io.session import read_session
     from jcalib.acquisition.robots import SimulatedController, SimulatedRobot
 
     import cv2

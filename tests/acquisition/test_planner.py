@@ -8,7 +8,7 @@ import pytest
 
 from jcalib.acquisition.layout import cell_layout
 from jcalib.acquisition.planner import plan_cell, reachable
-from jcalib.acquisition.robots.poses import invert, rotation_angle
+from jcalib.geometry.se3 import invert, rotation_angle
 from jcalib.errors import BadInputError
 
 CELL = {

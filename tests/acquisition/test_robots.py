@@ -26,7 +26,7 @@ from jcalib.acquisition.robots import (
 )
 from jcalib.acquisition.robots.abb import MAX_LINE, encode_line, format_pose_args, parse_pose_args
 from jcalib.acquisition.robots.kuka import encode_request, format_frame, parse_krl_struct
-from jcalib.acquisition.robots.poses import (
+from jcalib.geometry.se3 import (
     kuka_abc_from_matrix,
     make_pose,
     matrix_from_kuka_abc,

@@ -15,11 +15,11 @@ import pytest
 
 from jcalib.acquisition.layout import cell_layout
 from jcalib.acquisition.planner import plan_cell
-from jcalib.acquisition.robots.poses import invert
-from jcalib.acquisition.session import SessionWriter, utc_now
-from jcalib.acquisition.simcell import scene_from_layout
+from jcalib.geometry.se3 import invert
+from jcalib.io.session import SessionWriter, utc_now
+from jcalib.app.simcell import scene_from_layout
 from jcalib.errors import BadInputError
-from jcalib.session_detect import detect_session
+from jcalib.pipeline.session import detect_session
 
 CELL = {
     "schema": "jcalib.cell/1",
@@ -77,7 +77,7 @@ def test_detections_match_the_ground_truth_and_failures_are_listed(session):
 
 
 def _cli(*args):
-    from jcalib.cli import main
+    from jcalib.app.cli import main
 
     err = io.StringIO()
     old, sys.argv = sys.argv, ["jcalib", *args]

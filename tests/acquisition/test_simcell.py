@@ -11,8 +11,8 @@ import pytest
 
 from jcalib.acquisition.cameras import SimulatedCamera
 from jcalib.acquisition.robots import SimulatedController, SimulatedRobot
-from jcalib.acquisition.robots.poses import make_pose, rot_z
-from jcalib.acquisition.simcell import SceneTarget, robot_scene_source
+from jcalib.geometry.se3 import make_pose, rot_z
+from jcalib.app.simcell import SceneTarget, robot_scene_source
 from jcalib.geometry.cameras.factory import camera_from_opencv
 from jcalib.geometry.targets import Checkerboard
 from jcalib.sim.textures import target_texture
@@ -61,7 +61,7 @@ def test_scene_frame_source_matches_render_view():
     from jcalib.sim.scene import Scene, SceneCamera, View, render_view
     from jcalib.sim.scene import SceneTarget as SimTarget
 
-    from jcalib.acquisition.simcell import scene_frame_source
+    from jcalib.app.simcell import scene_frame_source
 
     K = np.array([[300.0, 0.0, 79.5], [0.0, 300.0, 59.5], [0.0, 0.0, 1.0]])
     camera = camera_from_opencv(K, np.zeros(5), (160, 120))
@@ -85,7 +85,7 @@ def _tool_cell(size=(320, 240)):
     """A controller at home, a board beside the work area, a 0.15 m tool along the flange z axis, and a
     base camera ``cam1`` looking at the tip side-on (along base +y) from the tool-zone distance."""
     from jcalib.acquisition.planner import TOOL_VIEW_DISTANCE_M
-    from jcalib.acquisition.simcell import CellScene, SceneTool
+    from jcalib.app.simcell import CellScene, SceneTool
     from jcalib.sim.scene import Scene, SceneCamera
     from jcalib.sim.scene import SceneTarget as SimTarget
     from jcalib.sim.tool import SymmetricTool
@@ -120,7 +120,7 @@ def _tool_cell(size=(320, 240)):
 def test_a_base_camera_shows_the_tool_tip_in_its_zone_and_the_scene_elsewhere():
     """In the zone: a silhouette whose detected tip is where OpenCV projects the true TCP; out of it:
     exactly what jcalib.sim renders for the targets at that pose."""
-    from jcalib.acquisition.simcell import scene_frame_source
+    from jcalib.app.simcell import scene_frame_source
     from jcalib.sim.scene import Scene, View, render_view
     from jcalib.vision.tooltip import detect_tool_tip
 
@@ -157,7 +157,7 @@ def test_a_base_camera_shows_the_tool_tip_in_its_zone_and_the_scene_elsewhere():
 
 def test_scene_tools_from_a_layout_and_bad_tools():
     from jcalib.acquisition.layout import cell_layout
-    from jcalib.acquisition.simcell import CellScene, SceneTool, scene_from_layout
+    from jcalib.app.simcell import CellScene, SceneTool, scene_from_layout
     from jcalib.errors import BadInputError
 
     cell = {

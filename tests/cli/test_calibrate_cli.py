@@ -10,7 +10,7 @@ import pytest
 from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.sim.scene import project_target, random_calibration_views
 
-JCALIB = [sys.executable, "-c", "from jcalib.cli import main; main()"]
+JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
 BOARD = Checkerboard(cols=9, rows=6, square=0.025)
 CELL = """schema: jcalib.cell/1
 cameras:
@@ -88,7 +88,7 @@ def test_demo_short_run_matches_truth(tmp_path):
     """A shortened `jcalib demo --camera-only`: rendered images -> detection -> calibration within its σ of truth."""
     proc = run("demo", "--camera-only", "--views", "8", "--out", tmp_path / "demo", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    from jcalib.demo import DEMO_DIST, DEMO_K
+    from jcalib.app.demo_camera import DEMO_DIST, DEMO_K
 
     result = json.loads((tmp_path / "demo" / "result.json").read_text())
     cam = result["cameras"]["cam0"]

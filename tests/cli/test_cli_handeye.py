@@ -18,7 +18,7 @@ _spec = importlib.util.spec_from_file_location("_handeye_degenerate_helpers_cli"
 D = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(D)
 
-JCALIB = [sys.executable, "-c", "from jcalib.cli import main; main()"]
+JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
 
 
 def _few_stations():

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 from typer.testing import CliRunner
 
-from jcalib.cli import app
+from jcalib.app.cli import app
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.lie import local, se3_from_matrix
 
@@ -115,7 +115,7 @@ def test_triangulate_noise_free_in_every_frame(files):
     r = invoke("triangulate", files / "clean.json", *common, "-o", files / "base.json")
     assert r.exit_code == 0, r.output
     doc = json.loads((files / "base.json").read_text())
-    assert doc["schema"] == "jcalib.points/1" and doc["frame"] == "base" and list(doc["points"]) == NAMES
+    assert doc["schema"] == "jcalib.pipeline.points/1" and doc["frame"] == "base" and list(doc["points"]) == NAMES
     got = np.array([doc["points"][n]["position"] for n in NAMES])
     np.testing.assert_allclose(got, P_BASE, atol=1e-9)  # exact pixels, float64: 1e-9 m
     assert doc["points"]["q"]["num_views"] == 3 and doc["points"]["o"]["num_views"] == 4
@@ -219,7 +219,7 @@ def test_exit_statuses_of_the_installed_command(tmp_path):
     (tmp_path / "line.json").write_text(json.dumps(pts))
     (tmp_path / "broken.json").write_text('{"schema": "jcalib.pixels/1", "stations": [}')
     (tmp_path / "cell.yaml").write_text(CELL)
-    jcalib = [sys.executable, "-c", "from jcalib.cli import main; main()"]
+    jcalib = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
     proc = subprocess.run([*jcalib, "frame", "line.json", "-o", "f.json"], capture_output=True, text=True, cwd=tmp_path, check=False)
     assert proc.returncode == 3 and "collinear" in proc.stderr and "Traceback" not in proc.stderr
     proc = subprocess.run([*jcalib, "triangulate", "broken.json", "--cell", "cell.yaml", "-o", "p.json"],

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-JCALIB = [sys.executable, "-c", "from jcalib.cli import main; main()"]
+JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
 
 CELL = """schema: jcalib.cell/1
 cameras:

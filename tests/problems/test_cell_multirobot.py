@@ -178,7 +178,7 @@ def test_station_poses_are_checked_against_the_robots(case):
 def test_cli_calibrate_writes_the_robot_base(tmp_path, noiseless):
     from typer.testing import CliRunner
 
-    from jcalib.cli import app
+    from jcalib.app.cli import app
 
     cell, obs, truth, _ = noiseless
     (tmp_path / "cell.yaml").write_text(json.dumps(cell))  # JSON is YAML

@@ -239,7 +239,7 @@ def test_cli_calibrate_hand_eye_cell(tmp_path):
     cell, obs, truth = make_data(13, "flange", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
     (tmp_path / "obs.json").write_text(json.dumps(obs))
-    cmd = [sys.executable, "-c", "from jcalib.cli import main; main()", "calibrate", "cell.yaml", "obs.json",
+    cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "calibrate", "cell.yaml", "obs.json",
            "-o", "result.json", "--sigma-px", "0.2"]
     proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, check=False)
     assert proc.returncode == 0, proc.stderr

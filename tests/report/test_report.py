@@ -28,7 +28,7 @@ CELL = {
     "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025}},
 }
 CHROMIUM = "/usr/bin/chromium"
-JCALIB = [sys.executable, "-c", "from jcalib.cli import main; main()"]
+JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
 
 
 @pytest.fixture(scope="module")

@@ -237,7 +237,7 @@ def test_file_strategy_reads_poses_relative_to_the_scenario(tmp_path):
     stations are exactly those poses (the trial's camera poses in the target frame)."""
     import yaml
 
-    from jcalib.acquisition.robocalib import frontal_view, recentre, rotate_camera
+    from jcalib.geometry.views import frontal_view, recentre, rotate_camera
 
     centre = np.array([0.1, 0.0625, 0.0])  # the 9x6 board's centre (25 mm squares)
     T0 = frontal_view(centre, 0.5)
@@ -260,10 +260,10 @@ def test_study_command_writes_the_table(tmp_path, monkeypatch):
     import typer
     from typer.testing import CliRunner
 
-    import jcalib.cli
-    from jcalib.study.cli import study_command
+    import jcalib.solve.cache
+    from jcalib.app.study import study_command
 
-    monkeypatch.setattr(jcalib.cli, "enable_compilation_cache", lambda: None)
+    monkeypatch.setattr(jcalib.solve.cache, "enable_compilation_cache", lambda: None)
     app = typer.Typer()
     app.command("study")(study_command)
     app.command("other")(lambda: None)  # two commands: typer keeps the subcommand name

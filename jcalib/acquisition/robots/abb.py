@@ -32,7 +32,7 @@ import threading
 import numpy as np
 
 from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
-from jcalib.acquisition.robots.poses import pose_from_mm_quat, pose_to_mm_quat
+from jcalib.geometry.se3 import pose_from_mm_quat, pose_to_mm_quat
 from jcalib.errors import DeviceError
 
 DEFAULT_PORT = 5515

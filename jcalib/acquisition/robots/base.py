@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jcalib.acquisition.robots.poses import check_pose, pose_distance
+from jcalib.geometry.se3 import check_pose, pose_distance
 from jcalib.errors import BadInputError, DeviceError
 
 

@@ -39,7 +39,7 @@ import time
 import numpy as np
 
 from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
-from jcalib.acquisition.robots.poses import pose_from_kuka, pose_to_kuka
+from jcalib.geometry.se3 import pose_from_kuka, pose_to_kuka
 from jcalib.errors import DeviceError
 
 HEADER = struct.Struct("!HH")

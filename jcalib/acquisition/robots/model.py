@@ -16,7 +16,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from jcalib.acquisition.robots.poses import make_pose, rot_x, rot_y, rot_z
+from jcalib.geometry.se3 import make_pose, rot_x, rot_y, rot_z
 
 
 @dataclass(frozen=True)

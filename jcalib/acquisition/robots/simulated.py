@@ -25,7 +25,7 @@ import numpy as np
 
 from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
 from jcalib.acquisition.robots.model import ControllerModel, default_model
-from jcalib.acquisition.robots.poses import (
+from jcalib.geometry.se3 import (
     check_pose,
     exp_so3,
     interpolate_pose,

@@ -14,6 +14,7 @@ from typing import Annotated, Optional
 import typer
 
 import jcalib
+from jcalib.solve.cache import enable_compilation_cache
 from jcalib.errors import JcalibError
 
 app = typer.Typer(
@@ -23,15 +24,6 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-
-
-def enable_compilation_cache() -> None:
-    """Turn on JAX's persistent compilation cache (``$JCALIB_CACHE_DIR`` or ~/.cache/jcalib/jax)."""
-    import jax
-
-    cache_dir = os.environ.get("JCALIB_CACHE_DIR") or str(Path.home() / ".cache" / "jcalib" / "jax")
-    jax.config.update("jax_compilation_cache_dir", cache_dir)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
 @app.callback()
@@ -68,11 +60,11 @@ def demo(
     """
     enable_compilation_cache()
     if camera_only:
-        from jcalib.demo import run_demo
+        from jcalib.app.demo_camera import run_demo
 
         run_demo(out_dir=out, num_views=views, seed=seed)
         return
-    from jcalib.demo_cell import demo as run_cell
+    from jcalib.app.demo_cell import demo as run_cell
 
     run_cell(out, stations=stations, protocol=protocol, image_size=image_size, seed=seed)
 
@@ -93,7 +85,7 @@ def detect(
 ) -> None:
     """Detect the cell's calibration target in images (or a capture session) and write observations.json."""
     if session is not None:
-        from jcalib.session_detect import detect_session_to_file
+        from jcalib.pipeline.session import detect_session_to_file
 
         detect_session_to_file(session, cell, out, target=target)
         return
@@ -101,7 +93,7 @@ def detect(
         from jcalib.errors import BadInputError
 
         raise BadInputError("detect: give IMAGES with --cell, --camera and -o, or --session SESSION")
-    from jcalib.detect import detect_images_to_file
+    from jcalib.pipeline.images import detect_images_to_file
 
     detect_images_to_file(
         cell_path=cell, camera=camera, image_paths=images, out_path=out, target=target
@@ -142,7 +134,7 @@ def calibrate(
 ) -> None:
     """Calibrate a cell from observations and write result.json."""
     enable_compilation_cache()
-    from jcalib.calibration import calibrate as run
+    from jcalib.problems.calibrate import calibrate as run
     from jcalib.io.cell import load_cell
     from jcalib.problems.camera import CameraCalibrationOptions
     from jcalib.problems.handeye import HandEyeOptions, is_hand_eye_cell
@@ -206,7 +198,7 @@ def report(
 def triangulate(
     observations: Annotated[Path, typer.Argument(help="Pixels of named points (jcalib.pixels/1 JSON).")],
     cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Points JSON (jcalib.points/1) to write.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Points JSON (jcalib.pipeline.points/1) to write.")],
     result: Annotated[Optional[Path], typer.Option("--result", help="Calibration result with the cameras.")] = None,
     frame: Annotated[str, typer.Option(help="Output frame: base, flange, a camera id or a target id.")] = "base",
     station: Annotated[Optional[str], typer.Option(help="Station the frame refers to (not for base).")] = None,
@@ -224,11 +216,11 @@ def triangulate(
 
     Cameras (intrinsics, T_base_<cam> / T_flange_<cam>, covariances) come from --result, else from
     the cell; the cell's robot.pose_noise is each station's pose covariance. The σ includes pixel
-    noise, intrinsics, camera and robot poses, with their correlations. OUT (jcalib.points/1) holds
+    noise, intrinsics, camera and robot poses, with their correlations. OUT (jcalib.pipeline.points/1) holds
     the points, their joint covariance and the pairwise distances with σ.
     """
     enable_compilation_cache()
-    from jcalib.points import triangulate_file
+    from jcalib.pipeline.points import triangulate_file
 
     summary = triangulate_file(observations, cell, out, result=result, frame=frame, station=station,
                                sigma_px=sigma_px)  # fmt: skip
@@ -241,7 +233,7 @@ def triangulate(
 
 @app.command()
 def frame(
-    points: Annotated[Path, typer.Argument(help="Points JSON (jcalib.points/1, as triangulate writes).")],
+    points: Annotated[Path, typer.Argument(help="Points JSON (jcalib.pipeline.points/1, as triangulate writes).")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Frame as a result JSON (jcalib.result/1).")],
     method: Annotated[str, typer.Option(help="three-point (origin, +X, +Y side) or plane (N-point fit).")] = "three-point",
     use: Annotated[Optional[str], typer.Option("--points", help="Point names to use, comma separated, in order.")] = None,
@@ -254,7 +246,7 @@ def frame(
     """Fit a work-object frame to points; write it with its 6x6 covariance as a result file.
 
     \b
-    POINTS (jcalib.points/1 as triangulate writes it; m, m²; covariances optional):
+    POINTS (jcalib.pipeline.points/1 as triangulate writes it; m, m²; covariances optional):
       {"points": {"p1": {"position": \\[x, y, z], "frame": "base",
                          "covariance": [[3x3]]}, ...},
        "joint_covariance": {"points": \\[names], "matrix": [[3M x 3M]]}}
@@ -267,7 +259,7 @@ def frame(
     enable_compilation_cache()
     import math
 
-    from jcalib.points import frame_file
+    from jcalib.pipeline.points import frame_file
 
     names = None if use is None else [s.strip() for s in use.split(",") if s.strip()]
     summary = frame_file(points, out, method=method, use=names, name=name, origin=origin, sigma_mm=sigma_mm,
@@ -297,7 +289,7 @@ def plan(
 ) -> None:
     """Plan robot stations (flange poses) for camera, hand-eye or TCP calibration."""
     enable_compilation_cache()
-    from jcalib.acquisition.commands import parse_image_size, run_plan
+    from jcalib.app.commands import parse_image_size, run_plan
 
     planned = run_plan(cell, kind, out, robot=robot, num_stations=stations, camera=camera, target=target,
                        tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size))  # fmt: skip
@@ -323,7 +315,7 @@ def simulate(
     import signal
     import threading
 
-    from jcalib.acquisition.commands import parse_image_size, parse_named, run_simulate
+    from jcalib.app.commands import parse_image_size, parse_named, run_simulate
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -349,7 +341,7 @@ def capture(
     packet_size: Annotated[Optional[int], typer.Option(help="GigE packet size, bytes (jumbo: 8000+).")] = None,
 ) -> None:
     """Drive the robot through a plan, grab every camera at every station, write a session."""
-    from jcalib.acquisition.commands import parse_named, run_capture
+    from jcalib.app.commands import parse_named, run_capture
 
     res = run_capture(robot_url=robot, camera_urls=parse_named(camera), plan_path=plan, out=out, cell=cell,
                       resume=resume, packet_size=packet_size)  # fmt: skip
@@ -362,7 +354,7 @@ def capture(
 
 
 def _register_study() -> None:
-    from jcalib.study.cli import study_command
+    from jcalib.app.study import study_command
 
     app.command("study")(study_command)
 

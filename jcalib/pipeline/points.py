@@ -28,9 +28,9 @@ and intrinsics and poses of a result are taken as independent of each other).
 (that camera's frame) or a target id (the target's frame, RoboCalib's Phys3D); all but ``base``
 refer to one station (``--station``, or the only one).
 
-**Output** (``jcalib.points/1``, written atomically)::
+**Output** (``jcalib.pipeline.points/1``, written atomically)::
 
-    {"schema": "jcalib.points/1", "frame": "base", "sigma_px": 0.3,
+    {"schema": "jcalib.pipeline.points/1", "frame": "base", "sigma_px": 0.3,
      "points": {"p1": {"position": [x, y, z], "frame": "base", "covariance": [[3x3]],
                        "std_mm": [sx, sy, sz], "rms_px": 0.21, "num_views": 3, "parallax_deg": 31.0}},
      "joint_covariance": {"points": ["p1", "p2"], "matrix": [[3M x 3M]]},
@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 PIXELS_SCHEMA = "jcalib.pixels/1"
-POINTS_SCHEMA = "jcalib.points/1"
+POINTS_SCHEMA = "jcalib.pipeline.points/1"
 #: Pixel noise (px, per coordinate) when neither the file nor the command gives one.
 DEFAULT_SIGMA_PX = 0.5
 #: Pairwise distances are written for at most this many points.
@@ -232,7 +232,7 @@ def triangulate_file(
     station: str | None = None,
     sigma_px: float | None = None,
 ) -> TriangulateSummary:
-    """Triangulate the named points of a ``jcalib.pixels/1`` file and write ``jcalib.points/1``.
+    """Triangulate the named points of a ``jcalib.pixels/1`` file and write ``jcalib.pipeline.points/1``.
 
     Args:
         observations: the pixels file (format in the module docstring).
@@ -459,7 +459,7 @@ def frame_file(
     """A work-object frame from a points file, written as a ``jcalib.result/1`` file.
 
     Args:
-        points: a ``jcalib.points/1`` file (or any JSON with ``points`` of that form).
+        points: a ``jcalib.pipeline.points/1`` file (or any JSON with ``points`` of that form).
         out: the result file to write (atomically), holding ``T_<frame>_<name>`` with covariance.
         method: ``"three-point"`` (origin, a point on +X, a point on the +Y side; ABB/KUKA) or
             ``"plane"`` (plane fit to all the points; +X from the first to the second, the third on

@@ -8,10 +8,10 @@ The chain is the one a cell integrator runs on hardware, with simulators standin
 2. serve a simulated robot controller (KUKAVARPROXY or ABB line protocol) and two fake GigE Vision
    cameras — ``cam_hand`` on the flange, ``cam_fixed`` on the base — rendering the scene at the
    robot's *true* pose (repeatability noise included); ``cam_fixed`` shows the tool's silhouette on a
-   backlight while the tip is in its tool zone (:mod:`jcalib.acquisition.simcell`), the board otherwise;
+   backlight while the tip is in its tool zone (:mod:`jcalib.app.simcell`), the board otherwise;
 3. capture the session through the real drivers (Aravis over GVCP/GVSP, the robot protocol over TCP);
 4. detect the board in every image, and the tool tip in ``cam_fixed`` images without a board
-   (:mod:`jcalib.session_detect`); 5. calibrate the cell jointly (:func:`jcalib.calibrate`): both
+   (:mod:`jcalib.pipeline.session`); 5. calibrate the cell jointly (:func:`jcalib.calibrate`): both
    cameras, both poses, the board and the TCP ``T_flange_torch`` in one least-squares problem;
 6. write ``result.json``, the HTML report and the RAPID / KRL / OpenCV exports, and print every
    estimate next to the simulator's ground truth and its σ.
@@ -72,14 +72,14 @@ def _in_private_namespace() -> bool:
 
 
 def _reexec_in_namespace(argv: list[str]) -> int:
-    """Run ``python -m jcalib.demo_cell ARGV`` in a new network namespace with 127.0.0.2 on lo."""
+    """Run ``python -m jcalib.app.demo_cell ARGV`` in a new network namespace with 127.0.0.2 on lo."""
     if shutil.which("unshare") is None or shutil.which("ip") is None:
         raise DeviceError(
             "the demo's second fake camera needs a private network namespace (util-linux `unshare` and "
             "iproute2 `ip`); install them (./scripts/setup does) or run `jcalib demo --camera-only`"
         )
     flags = "-n" if os.geteuid() == 0 else "-rn"
-    inner = f"ip link set lo up && ip addr add 127.0.0.2/8 dev lo && exec {sys.executable} -m jcalib.demo_cell "
+    inner = f"ip link set lo up && ip addr add 127.0.0.2/8 dev lo && exec {sys.executable} -m jcalib.app.demo_cell "
     inner += " ".join(_quote(a) for a in argv)
     env = {**os.environ, _NETNS_ENV: "1"}
     return subprocess.call(["unshare", flags, "sh", "-c", inner], env=env)
@@ -113,12 +113,12 @@ def run_cell_demo(
     Returns:
         ``{quantity: (truth, estimate, σ)}`` in the units printed (px, mm, deg).
     """
-    from jcalib.acquisition.commands import parse_image_size, run_capture
-    from jcalib.calibration import calibrate
+    from jcalib.app.commands import parse_image_size, run_capture
+    from jcalib.problems.calibrate import calibrate
     from jcalib.io.atomic import write_text_atomic
     from jcalib.io.export import export_result
     from jcalib.report.html import write_report
-    from jcalib.session_detect import detect_session_to_file
+    from jcalib.pipeline.session import detect_session_to_file
 
     console = console or Console()
     out_dir = Path(out_dir)
@@ -140,7 +140,7 @@ def run_cell_demo(
     # The simulator runs as its own process (`jcalib simulate`), like the real controller and
     # cameras: Aravis' fake cameras and its client do not share one process reliably.
     t0 = time.perf_counter()
-    cmd = [sys.executable, "-c", "from jcalib.cli import main; main()", "simulate", "--cell", str(cell_path),
+    cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "simulate", "--cell", str(cell_path),
            "--robot-protocol", protocol, "--robot-port", "0", "--time-scale", "0", "--truth",
            str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed)]
     for name, addr in ADDRESSES.items():
@@ -227,7 +227,7 @@ def plan_demo(
     hand-eye and tool stations kept (reachable, in view).
     """
     from jcalib.acquisition.layout import cell_layout
-    from jcalib.acquisition.plan import make_plan
+    from jcalib.io.plan import make_plan
     from jcalib.acquisition.planner import plan_cell
     from jcalib.io.atomic import write_json_atomic
 
@@ -296,7 +296,7 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point inside the namespace: ``python -m jcalib.demo_cell OUT STATIONS PROTOCOL SIZE SEED``."""
+    """Entry point inside the namespace: ``python -m jcalib.app.demo_cell OUT STATIONS PROTOCOL SIZE SEED``."""
     argv = list(sys.argv[1:] if argv is None else argv)
     out, stations, protocol, size, seed = argv
     run_cell_demo(Path(out), stations=int(stations), protocol=protocol, image_size=size, seed=int(seed))
@@ -317,7 +317,7 @@ def demo(out_dir: Path, *, stations: int = 16, protocol: str = "kuka", image_siz
 
 if __name__ == "__main__":
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
-    from jcalib.cli import enable_compilation_cache
+    from jcalib.solve.cache import enable_compilation_cache
 
     enable_compilation_cache()
     try:

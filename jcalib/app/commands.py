@@ -17,7 +17,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from jcalib.acquisition.cameras.base import Camera
 from jcalib.acquisition.capture import CaptureResult, capture
-from jcalib.acquisition.plan import load_plan
+from jcalib.io.plan import load_plan
 from jcalib.acquisition.robots.base import Robot
 from jcalib.errors import BadInputError, DeviceError
 
@@ -200,7 +200,7 @@ def run_simulate(
         robot_protocol: "kuka" or "abb".
         robot_port: TCP port (0: any free one; the ready info says which).
         camera_addresses: camera id -> 127.x.y.z address.
-        truth: write the ground truth (:func:`jcalib.acquisition.simcell.layout_truth`) here.
+        truth: write the ground truth (:func:`jcalib.app.simcell.layout_truth`) here.
         robot, image_size: passed to :func:`~jcalib.acquisition.layout.cell_layout`.
         time_scale: motion-time scale (0: instantaneous moves).
         seed: noise seed (robot repeatability, sensor noise).
@@ -211,7 +211,7 @@ def run_simulate(
 
     from jcalib.acquisition.layout import cell_layout
     from jcalib.acquisition.robots.model import preset_model
-    from jcalib.acquisition.simcell import layout_truth, scene_from_layout
+    from jcalib.app.simcell import layout_truth, scene_from_layout
     from jcalib.io.atomic import write_json_atomic
 
     if robot_protocol not in ("kuka", "abb"):
@@ -287,7 +287,7 @@ def run_simulated_cell(
     from jcalib.acquisition.cameras.fake_gige import FakeGigECamera
     from jcalib.acquisition.robots.serve import make_server
     from jcalib.acquisition.robots.simulated import SimulatedController
-    from jcalib.acquisition.simcell import scene_frame_source
+    from jcalib.app.simcell import scene_frame_source
     from jcalib.sim.render import camera_image_size
 
     unknown = set(camera_addresses) - set(scene.cameras)

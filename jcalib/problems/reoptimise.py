@@ -255,7 +255,7 @@ def reoptimise(cell, observations, prior, options=None, *, alpha: float = 0.01, 
     Returns:
         :class:`Reoptimisation`.
     """
-    from jcalib.calibration import cell_result
+    from jcalib.problems.calibrate import cell_result
     from jcalib.io.cell import load_cell
     from jcalib.io.observations import load_observations
     from jcalib.problems.cell import CellOptions, calibrate_cell, is_cell_problem

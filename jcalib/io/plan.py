@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jcalib.acquisition.robots.poses import check_pose
+from jcalib.geometry.se3 import check_pose
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_json_atomic
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from jcalib.acquisition.cameras.base import FrameRequest, FrameSource
 from jcalib.acquisition.planner import TOOL_VIEW_DISTANCE_M
-from jcalib.acquisition.robots.poses import check_pose, invert, make_pose
+from jcalib.geometry.se3 import check_pose, invert, make_pose
 from jcalib.errors import BadInputError
 
 #: Shape of a simulated tool: (shaft radius m, cone half-angle deg); its length runs to the flange.
@@ -157,7 +157,7 @@ class CellScene:
     """A simulated robot cell: a :class:`jcalib.sim.scene.Scene` (cameras, targets) plus its tools.
 
     ``cameras``, ``targets`` and ``views`` are the scene's, so a ``CellScene`` serves wherever a
-    scene's cameras are listed (:func:`jcalib.acquisition.commands.run_simulated_cell`).
+    scene's cameras are listed (:func:`jcalib.app.commands.run_simulated_cell`).
 
     Attributes:
         scene: cameras and targets on "base" / "flange" (views unused).

@@ -1,6 +1,6 @@
 """The body of ``jcalib study SCENARIO --trials N [--scheduler ADDR] -o TABLE``.
 
-Register it in :mod:`jcalib.cli` with ``app.command("study")(study_command)`` (typer reads the
+Register it in :mod:`jcalib.app.cli` with ``app.command("study")(study_command)`` (typer reads the
 annotations below).
 """
 
@@ -25,7 +25,7 @@ def study_command(
     seed: Annotated[int, typer.Option(help="Study seed: trial i uses SeedSequence(seed).spawn(...)[i].")] = 0,
 ) -> None:
     """Run a strategy study (every estimator on every simulated trial) and write its table."""
-    from jcalib.cli import enable_compilation_cache
+    from jcalib.solve.cache import enable_compilation_cache
     from jcalib.study.run import run_study
 
     enable_compilation_cache()

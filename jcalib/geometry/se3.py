@@ -1,6 +1,10 @@
-"""Pose conversions at the robot-controller boundary (plain numpy: servers must start fast, no JAX).
+"""SE(3) on 4x4 matrices in plain NumPy, and the conversions at the robot-controller boundary.
 
-Internally a pose is a (4, 4) homogeneous matrix ``T_a_b`` in metres (maps points from b to a).
+The one place for NumPy pose helpers (``make_pose``, ``invert``, rotations, ``exp_so3`` / ``log_so3``);
+:mod:`jcalib.geometry.lie` is the same algebra on ``wxyz_xyz`` vectors in JAX. No JAX here: robot servers
+and drivers must start fast.
+
+A pose is a (4, 4) homogeneous matrix ``T_a_b`` in metres (maps points from b to a).
 Controllers speak millimetres and either KUKA ``A, B, C`` (intrinsic Z-Y'-X'' angles, degrees) or
 ABB ``q1..q4`` (a unit quaternion in ``wxyz`` order). Quaternions leave here sign-normalised (w >= 0).
 """

@@ -76,7 +76,7 @@ def calibrate(cell, observations, options=None, *, prior=None) -> Result:
             to switch the cell's robot pose model off; for whole cells, mixed mounts or tools, a
             :class:`~jcalib.problems.cell.CellOptions`).
         prior: a previous result (path, :class:`~jcalib.io.result.ResultFile` or :class:`Result`) of the
-            same robot cell: re-optimisation (:func:`jcalib.reoptimise.reoptimise`). The new data are
+            same robot cell: re-optimisation (:func:`jcalib.problems.reoptimise.reoptimise`). The new data are
             solved on their own, every unknown is compared with the old value by a χ² test on the
             difference (both covariances), and the final solve keeps the old values as priors for the
             unknowns that did not move. ``stats["reoptimisation"]`` lists each test and what moved.
@@ -92,7 +92,7 @@ def calibrate(cell, observations, options=None, *, prior=None) -> Result:
     cell_spec = load_cell(cell)
     obs = load_observations(observations)
     if prior is not None:
-        from jcalib.reoptimise import reoptimise
+        from jcalib.problems.reoptimise import reoptimise
 
         return reoptimise(cell_spec, obs, prior, options, input_hash=_input_hash(cell, observations, cell_spec, obs)).result
     has_robot = any(c.mount != "free" for c in cell_spec.cameras.values()) or any(

@@ -81,7 +81,7 @@ def detect_session(
         BadInputError: not a session, no cell spec, an unknown target or tool, a station image naming
             a camera the cell lacks, or images of one camera with different sizes.
     """
-    from jcalib.acquisition.session import read_session
+    from jcalib.io.session import read_session
     from jcalib.io.cell import load_cell
     from jcalib.io.observations import Detection, Observations, Station
     from jcalib.vision import detect_many

@@ -1,0 +1,1 @@
+"""The ``jcalib`` command and the demos: parse arguments, call one function, print; wires the simulators."""
