@@ -187,3 +187,21 @@ def interpolate_pose(T0: np.ndarray, T1: np.ndarray, s: float) -> np.ndarray:
     """Straight-line position and geodesic (slerp) orientation between two poses, ``s`` in [0, 1]."""
     R = T0[:3, :3] @ exp_so3(s * log_so3(T0[:3, :3].T @ T1[:3, :3]))
     return make_pose(R, (1 - s) * T0[:3, 3] + s * T1[:3, 3])
+
+
+def log_se3(T: np.ndarray) -> np.ndarray:
+    """``(..., 4, 4)`` rigid transforms -> ``(..., 6)`` tangent ``(rx, ry, rz, tx, ty, tz)`` (rad, m), the
+    SE(3) logarithm in jcalib's order: ``T = Exp(δ)`` with the translation part ``V(ω)⁻¹ t``."""
+    T = np.asarray(T, dtype=np.float64)
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    flat_R = R.reshape(-1, 3, 3)
+    w = np.stack([log_so3(r) for r in flat_R]).reshape(R.shape[:-2] + (3,))
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    zero = np.zeros(w.shape[:-1])
+    K = np.stack([np.stack([zero, -w[..., 2], w[..., 1]], -1), np.stack([w[..., 2], zero, -w[..., 0]], -1),
+                  np.stack([-w[..., 1], w[..., 0], zero], -1)], -2)
+    small = th < 1e-8
+    th_safe = np.where(small, 1.0, th)
+    coef = np.where(small, 1.0 / 12.0, (1.0 - th_safe * np.sin(th_safe) / (2.0 * (1.0 - np.cos(th_safe)))) / th_safe**2)
+    V_inv = np.eye(3) - 0.5 * K + coef * (K @ K)
+    return np.concatenate([w, np.einsum("...ij,...j->...i", V_inv, t)], axis=-1)

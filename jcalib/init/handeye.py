@@ -189,7 +189,7 @@ def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     )
 
 
-def _rotvec(R: np.ndarray) -> np.ndarray:
+def rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` -> rotation vectors (axis * angle, rad), angle in [0, pi]."""
     q = _quat_wxyz(R)
     s = np.linalg.norm(q[..., 1:], axis=-1)
@@ -223,7 +223,7 @@ def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     """Angle (deg) of ``Ra^T Rb`` (batched), accurate for small angles."""
-    return np.degrees(np.linalg.norm(_rotvec(np.swapaxes(Ra, -1, -2) @ Rb), axis=-1))
+    return np.degrees(np.linalg.norm(rotvec(np.swapaxes(Ra, -1, -2) @ Rb), axis=-1))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -322,8 +322,8 @@ def _tsai(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def _park_martin(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Park & Martin 1994: ``R = (M^T M)^(-1/2) M^T`` with ``M = sum b a^T`` of rotation vectors."""
-    a = _rotvec(A[:, :3, :3])
-    b = _rotvec(B[:, :3, :3])
+    a = rotvec(A[:, :3, :3])
+    b = rotvec(B[:, :3, :3])
     M = b.T @ a
     evals, evecs = np.linalg.eigh(M.T @ M)
     if evals.min() <= 0.0:
@@ -498,7 +498,7 @@ def _sign_normalise_axes(v: np.ndarray) -> np.ndarray:
     return np.where(s < 0.0, -v, v)
 
 
-def _fmt_axis(a: np.ndarray) -> str:
+def fmt_axis(a: np.ndarray) -> str:
     vals = []
     for x in a:
         r = round(float(x), 3)
@@ -544,7 +544,7 @@ def analyse_motion(
     i, j = _pair_indices(n, pairs)
     R = T[:, :3, :3]
     R_flange = np.swapaxes(R[j], -1, -2) @ R[i]  # rotation of T_base_flange_j^-1 T_base_flange_i
-    r_flange = _rotvec(R_flange)
+    r_flange = rotvec(R_flange)
     r_base = np.einsum("kab,kb->ka", R[j], r_flange)  # same axis expressed in the base frame
     r = r_flange if frame == "flange" else r_base
     K = len(r)
@@ -629,7 +629,7 @@ def check_observable(motion: MotionDiagnostics, unknown: str = "T_flange_cam") -
     n = motion.num_stations
     if n < 3:
         if n == 2 and motion.rank >= 1:
-            ax = _fmt_axis(motion.dominant_axis)
+            ax = fmt_axis(motion.dominant_axis)
             unknowns = [
                 f"rotation of {unknown} about the rotation axis of the single motion (axis = {ax} {where})",
                 f"translation of {unknown} along the rotation axis of the single motion "
@@ -662,7 +662,7 @@ def check_observable(motion: MotionDiagnostics, unknown: str = "T_flange_cam") -
             unknowns=unknowns,
         )
     if motion.rank == 1:
-        ax = _fmt_axis(motion.dominant_axis)
+        ax = fmt_axis(motion.dominant_axis)
         unknowns = [
             f"rotation of {unknown} about the common rotation axis (axis = {ax} {where})",
             f"translation of {unknown} along the common rotation axis (axis = {ax} {where})",

@@ -145,7 +145,7 @@ def _fmt(v: np.ndarray) -> str:
     return "[" + ", ".join(f"{c:.4f}" for c in v) + "]"
 
 
-def _check_rotations(R: np.ndarray, min_rotation_deg: float, what: str) -> None:
+def check_rotations(R: np.ndarray, min_rotation_deg: float, what: str) -> None:
     """Raise NotObservableError when the rotations leave the tip (partly) undetermined."""
     n = R.shape[0]
     if n < MIN_PIVOT_POSES:
@@ -266,7 +266,7 @@ def pivot_calibration(
     if sigma is not None and not (np.isfinite(sigma) and sigma > 0):
         raise BadInputError(f"sigma: expected a positive noise level (input length unit) or None, got {sigma!r}")
     R, t = T[:, :3, :3], T[:, :3, 3]
-    _check_rotations(R, min_rotation_deg, "pivot calibration")
+    check_rotations(R, min_rotation_deg, "pivot calibration")
     n = R.shape[0]
     # Eliminate the pivot: (R_i - Rbar) x = -(t_i - tbar).
     D = R - R.mean(axis=0)
@@ -343,7 +343,7 @@ def pivot_sphere_fit(T_base_flange, min_rotation_deg: float = DEFAULT_MIN_ROTATI
             f"pivot sphere fit needs at least 4 poses (a sphere has 4 parameters); got {R.shape[0]}",
             unknowns=["pivot position (too few poses)"],
         )
-    _check_rotations(R, min_rotation_deg, "pivot sphere fit")
+    check_rotations(R, min_rotation_deg, "pivot sphere fit")
     mean = t.mean(axis=0)
     tc = t - mean
     A = np.concatenate([2.0 * tc, np.ones((tc.shape[0], 1))], axis=1)

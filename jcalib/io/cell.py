@@ -34,7 +34,7 @@ CAMERA_MOUNTS = ("flange", "base", "world", "free")
 TARGET_MOUNTS = ("flange", "base", "world", "free")
 #: Names a robot cannot take (frame names).
 RESERVED_ROBOT_NAMES = ("world", "base", "flange", "free")
-TARGET_TYPES = ("checkerboard", "charuco", "circles")
+TARGET_TYPES = ("checkerboard", "charuco", "circles", "points")
 
 
 @dataclass(frozen=True)
@@ -88,11 +88,16 @@ class TargetSpec:
 @dataclass(frozen=True)
 class ToolSpec:
     """A tool whose TCP (``T_flange_<name>``) is unknown; ``observed_by`` lists camera ids;
-    ``robot``: the robot that carries it (cells with named ``robots:``)."""
+    ``robot``: the robot that carries it (cells with named ``robots:``). A known orientation of the
+    TCP in the flange frame: ``orientation`` (3, 3), or ``axis`` (3,), the tool's z axis (the rotation
+    about it by the convention "smallest rotation from the flange z"); otherwise it is estimated where
+    imaged tool axes determine it and reported as not calibrated where nothing does."""
 
     name: str
     observed_by: tuple[str, ...] = ()
     robot: str | None = None
+    orientation: np.ndarray | None = None
+    axis: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -249,6 +254,11 @@ def _parse_target(name: str, entry: Any, where: str) -> TargetSpec:
     pose = _pose(entry["pose"], where + ".pose") if "pose" in entry else None
     params = {k: v for k, v in entry.items() if k not in ("type", "mount", "pose", "robot")}
     spec = TargetSpec(name=name, type=ttype, mount=mount, params=params, pose=pose, robot=_robot_ref(entry, where))
+    if ttype == "points":  # the points come with the observations (observations.targets.<id>.points)
+        if params:
+            raise _fail(where, f"a target of type points takes no grid fields, got {sorted(params)}; its points are "
+                               "listed in the observations (targets.<id>.points)")
+        return spec
     try:
         spec.geometry()  # validates the geometry fields (cols, rows, square, ...)
     except BadInputError as e:
@@ -396,7 +406,22 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
         for c in observed:
             if c not in cameras:
                 raise _fail(f"{source}: tools.{n}.observed_by", f"camera '{c}' is not in 'cameras'")
-        tools[str(n)] = ToolSpec(name=str(n), observed_by=observed, robot=_robot_ref(e, f"{source}: tools.{n}"))
+        where = f"{source}: tools.{n}"
+        orientation = axis = None
+        if e.get("orientation") is not None:
+            orientation = _matrix(e["orientation"], (3, 3), where + ".orientation")
+            if not np.allclose(orientation.T @ orientation, np.eye(3), atol=1e-6) or np.linalg.det(orientation) < 0:
+                raise _fail(where + ".orientation", "expected a rotation matrix (orthonormal, det +1): the TCP axes in "
+                                                    "the flange frame")
+        if e.get("axis") is not None:
+            axis = _matrix(e["axis"], (3,), where + ".axis")
+            if not np.linalg.norm(axis) > 0:
+                raise _fail(where + ".axis", "expected a non-zero vector: the tool's z axis in the flange frame")
+            axis = axis / np.linalg.norm(axis)
+        if orientation is not None and axis is not None:
+            raise _fail(where, "give orientation or axis, not both")
+        tools[str(n)] = ToolSpec(name=str(n), observed_by=observed, robot=_robot_ref(e, where),
+                                 orientation=orientation, axis=axis)
     points = {}
     for n, e in (data.get("points") or {}).items():
         e = e or {}
@@ -470,7 +495,9 @@ def cell_to_dict(cell: CellSpec) -> dict:
             entry["robot"] = t.robot
         out["targets"][t.name] = entry
     if cell.tools:
-        out["tools"] = {t.name: {"observed_by": list(t.observed_by), **({"robot": t.robot} if t.robot else {})}
+        out["tools"] = {t.name: {"observed_by": list(t.observed_by), **({"robot": t.robot} if t.robot else {}),
+                                 **({"orientation": t.orientation.tolist()} if t.orientation is not None else {}),
+                                 **({"axis": t.axis.tolist()} if t.axis is not None else {})}
                         for t in cell.tools.values()}
     if cell.points:
         out["points"] = {

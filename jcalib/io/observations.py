@@ -30,6 +30,8 @@ class Detection:
         point_index: (n,) int, indices into the target's points.
         pixels: (n, 2) float64, pixels (OpenCV convention).
         tool: tool id for a tool-tip detection (then ``pixels`` is (1, 2), ``point_index`` empty).
+        axis: tool-tip detections only: optional ``(L, 2)`` points on the imaged tool axis (pixels), e.g.
+            along the axis direction the tip detector found; they determine the tool's orientation.
     """
 
     camera: str
@@ -37,12 +39,15 @@ class Detection:
     target: str | None = None
     point_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     tool: str | None = None
+    axis: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"camera": self.camera}
         if self.tool is not None:
             out["tool"] = self.tool
             out["pixel"] = self.pixels.reshape(2).tolist()
+            if self.axis is not None and len(self.axis):
+                out["axis"] = self.axis.tolist()
         else:
             out["target"] = self.target
             out["point_index"] = self.point_index.astype(int).tolist()
@@ -59,6 +64,16 @@ class Contact:
 
 
 @dataclass(frozen=True)
+class PoseMeasurement:
+    """A 6-DOF pose of ``target`` measured by ``camera`` (or any sensor named as a camera of the cell):
+    ``T_cam_target`` (4, 4), m (a marker's pose from another tool, a laser tracker, a 3D camera)."""
+
+    camera: str
+    target: str
+    T_cam_target: np.ndarray
+
+
+@dataclass(frozen=True)
 class Station:
     """One robot station (or one free view when there is no robot).
 
@@ -68,6 +83,7 @@ class Station:
             (and in cells with several robots, which use ``flange_poses``).
         detections: what the cameras saw.
         contacts: tool-tip contacts with cell points.
+        poses: 6-DOF pose measurements (``"poses": [{"camera", "target", "T_cam_target"}]``).
         flange_poses: robot name -> (4, 4) measured flange pose of that robot in its own base
             (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
             the station gives ``T_base_flange``. Which robots a station must give is checked against
@@ -79,6 +95,7 @@ class Station:
     T_base_flange: np.ndarray | None = None
     contacts: tuple[Contact, ...] = ()
     flange_poses: dict[str, np.ndarray] = field(default_factory=dict)
+    poses: tuple[PoseMeasurement, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"id": self.id}
@@ -89,6 +106,9 @@ class Station:
         out["detections"] = [d.to_dict() for d in self.detections]
         if self.contacts:
             out["contacts"] = [{"tool": c.tool, "point": c.point} for c in self.contacts]
+        if self.poses:
+            out["poses"] = [{"camera": m.camera, "target": m.target, "T_cam_target": m.T_cam_target.tolist()}
+                            for m in self.poses]
         return out
 
 
@@ -162,7 +182,10 @@ def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict) -
             pixel = np.zeros(0)
         if pixel.shape != (2,) or not np.all(np.isfinite(pixel)):
             raise _fail(where + ".pixel", f"a tool-tip detection needs one finite pixel [u, v], got {raw!r}")
-        return Detection(camera=camera, tool=str(d["tool"]), pixels=pixel.reshape(1, 2))
+        axis = None
+        if d.get("axis") is not None:
+            axis = _array(d["axis"], where + ".axis", ndim=2, last=2)
+        return Detection(camera=camera, tool=str(d["tool"]), pixels=pixel.reshape(1, 2), axis=axis)
     target = d.get("target")
     if target not in obs_targets:
         raise _fail(where, f"target {target!r} is not listed in 'targets' ({', '.join(obs_targets)})")
@@ -241,8 +264,15 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
         contacts = tuple(
             Contact(tool=str(c["tool"]), point=str(c["point"])) for c in (s.get("contacts") or [])
         )
+        poses = []
+        for j, m in enumerate(s.get("poses") or []):
+            w = f"{where}.poses[{j}]"
+            if not isinstance(m, dict) or not {"camera", "target", "T_cam_target"} <= set(m):
+                raise _fail(w, "a pose measurement is {camera: <id>, target: <id>, T_cam_target: [[4x4]]} (m)")
+            poses.append(PoseMeasurement(str(m["camera"]), str(m["target"]),
+                                         _flange_pose(m["T_cam_target"], w + ".T_cam_target")))
         stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts,
-                                flange_poses=flange_poses))
+                                flange_poses=flange_poses, poses=tuple(poses)))
     return Observations(cameras=cameras, targets=targets, stations=tuple(stations), source=source)
 
 

@@ -1,30 +1,15 @@
-"""User-facing calibration problems built from residuals, initialisers and the engine."""
+"""The one problem builder and its presets: every calibration of a cell is one joint problem.
 
-from jcalib.problems.camera import (
-    CameraCalibration,
-    CameraCalibrationOptions,
-    calibrate_cameras,
-    calibrate_cameras_batch,
-)
-from jcalib.problems.handeye import HandEyeCalibration, HandEyeOptions, calibrate_hand_eye, calibrate_hand_eye_batch
-from jcalib.problems.handeye_pairs import HandEyePairsCalibration, PoseNoise, calibrate_hand_eye_pairs
-from jcalib.problems.pivot import PivotRefinement, refine_pivot
-from jcalib.problems.tcp import TCPCalibration, calibrate_tcp
+Public API::
 
-__all__ = [
-    "CameraCalibration",
-    "CameraCalibrationOptions",
-    "HandEyeCalibration",
-    "HandEyeOptions",
-    "HandEyePairsCalibration",
-    "PivotRefinement",
-    "PoseNoise",
-    "TCPCalibration",
-    "calibrate_cameras",
-    "calibrate_cameras_batch",
-    "calibrate_hand_eye",
-    "calibrate_hand_eye_batch",
-    "calibrate_hand_eye_pairs",
-    "calibrate_tcp",
-    "refine_pivot",
-]
+    calibrate(cell, observations, options=None, *, prior=None) -> Result    # every cell
+    calibrate_cell(cell_spec, obs, options) -> Calibration                  # the pipeline
+    CalibrationOptions(...)                                                 # one options type
+"""
+
+from jcalib.problems.api import calibrate
+from jcalib.problems.assemble import Calibration
+from jcalib.problems.calibrate import Result, calibrate_cell, result_file
+from jcalib.problems.options import CalibrationOptions
+
+__all__ = ["Calibration", "CalibrationOptions", "Result", "calibrate", "calibrate_cell", "result_file"]

@@ -1,7 +1,15 @@
-"""``jcalib.calibrate(cell, observations) -> Result``: the one entry point from data to a result file."""
+"""Every cell, one path from data to a result: :func:`calibrate_cell` and :func:`result_file`.
+
+:func:`calibrate_cell` is the pipeline: the graph (:mod:`jcalib.problems.graph`), the closed-form
+start (:mod:`jcalib.problems.start`, :mod:`jcalib.problems.tools`), the one builder
+(:mod:`jcalib.problems.build`), the solve and its rounds (:mod:`jcalib.problems.refine`) and the one
+assembler (:mod:`jcalib.problems.assemble`). Camera-only, stereo rigs, eye-in-hand, eye-to-hand, TCP
+from tips or contacts, pivots, pose-pair hand-eye and multi-robot cells are all cell specs of it.
+"""
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import asdict
 from pathlib import Path
@@ -13,6 +21,13 @@ from jcalib.errors import BadInputError
 from jcalib.io.cell import CellSpec, cell_to_dict, load_cell
 from jcalib.io.observations import Observations, load_observations
 from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TransformResult, hash_inputs
+from jcalib.problems.assemble import Calibration, assemble
+from jcalib.problems.build import build, se3_params, sqrt_info
+from jcalib.problems.graph import Graph
+from jcalib.problems.options import CalibrationOptions, check_applicable
+from jcalib.problems.refine import refine
+from jcalib.problems.start import Start, start_intrinsics, start_poses
+from jcalib.problems.tools import start_tools
 
 
 class Result:
@@ -20,8 +35,8 @@ class Result:
 
     Attributes:
         file: the :class:`~jcalib.io.result.ResultFile` (what ``to_json`` writes).
-        details: the problem-specific outcome (e.g. :class:`~jcalib.problems.camera.CameraCalibration`),
-            with per-view residuals and the solver's solution.
+        details: the :class:`~jcalib.problems.assemble.Calibration` (residuals, per-view statistics,
+            the solver's :class:`~jcalib.solve.Solution`).
     """
 
     def __init__(self, file: ResultFile, details: Any = None):
@@ -33,12 +48,8 @@ class Result:
         return self.file.save(path)
 
     def covariance(self, name: str) -> np.ndarray:
-        """Covariance of a named unknown.
-
-        ``name`` is a camera id (covariance of its intrinsic vector, order of the camera's
-        ``param_names``) or a transform name such as ``T_cam0_cam1`` (6x6, tangent order
-        rx, ry, rz, tx, ty, tz, right perturbation; rad and m).
-        """
+        """Covariance of a camera's intrinsic vector (order of its ``param_names``) or of a transform
+        (6x6, tangent order rx, ry, rz, tx, ty, tz, right perturbation; rad and m)."""
         if name in self.file.cameras and self.file.cameras[name].covariance is not None:
             return np.asarray(self.file.cameras[name].covariance)
         if name in self.file.transforms and self.file.transforms[name].covariance is not None:
@@ -50,233 +61,179 @@ class Result:
         return f"Result(cameras={list(self.file.cameras)}, transforms={list(self.file.transforms)})"
 
 
-def _input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
-    import json
-
+def input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
+    """Hash of the inputs as given (files by content, objects by their JSON form)."""
     parts = []
     for arg, obj in ((cell_arg, cell_to_dict(cell)), (obs_arg, obs.to_dict())):
-        if isinstance(arg, (str, os.PathLike)):
-            parts.append(Path(arg))
-        else:
-            parts.append(json.dumps(obj, sort_keys=True).encode())
+        parts.append(Path(arg) if isinstance(arg, (str, os.PathLike)) else json.dumps(obj, sort_keys=True).encode())
     return hash_inputs(*parts)
 
 
-def calibrate(cell, observations, options=None, *, prior=None) -> Result:
-    """Calibrate a cell from observations.
+def options_and_given(options) -> tuple[CalibrationOptions, set[str]]:
+    if options is None:
+        return CalibrationOptions(), set()
+    """The options and the names set to something other than their default (for the applicability check)."""
+    if isinstance(options, CalibrationOptions):
+        defaults = CalibrationOptions()
+        return options, {k for k in asdict(options) if getattr(options, k) != getattr(defaults, k)}
+    if isinstance(options, dict):
+        return CalibrationOptions().replace(**options), set(options)
+    raise BadInputError(f"options: got {type(options).__name__}, expected CalibrationOptions or a dict of its fields")
+
+
+def _priors(prior, names, graph: Graph, start: Start) -> dict:
+    """Gaussian priors (mean, sqrt information) from an old result on the unknowns ``names`` (all: None)."""
+    out = {}
+    if prior is None:
+        return out
+    wanted = None if names is None else set(names)
+    for n, tr in prior.transforms.items():
+        if tr.covariance is not None and (wanted is None or n in wanted):
+            out[n] = (se3_params(tr.matrix), sqrt_info(tr.covariance))
+    for n, cr in prior.cameras.items():
+        if cr.covariance is not None and (wanted is None or n in wanted) and n in start.models \
+                and tuple(cr.param_names) == tuple(start.models[n].param_names):
+            out[n] = (np.asarray(cr.params, np.float64), sqrt_info(cr.covariance))
+    for n, pr in prior.points.items():
+        if pr.covariance is not None and (wanted is None or n in wanted):
+            out[f"point:{n}"] = (np.asarray(pr.position, np.float64), sqrt_info(pr.covariance))
+    return out
+
+
+def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOptions | None = None, *,
+                   prior=None, prior_names=None, start=None, given: set[str] | None = None) -> Calibration:
+    """Calibrate any cell jointly (see the module docstring).
 
     Args:
-        cell: a ``jcalib.cell/1`` spec: path, dict or :class:`~jcalib.io.cell.CellSpec`.
-        observations: a ``jcalib.observations/1`` document: path, dict or
-            :class:`~jcalib.io.observations.Observations`.
-        options: problem options (for camera-only cells a
-            :class:`~jcalib.problems.camera.CameraCalibrationOptions`; for hand-eye cells, cameras on
-            the flange and one target on the base or the reverse, a
-            :class:`~jcalib.problems.handeye.HandEyeOptions`, e.g. ``HandEyeOptions(pose_model=False)``
-            to switch the cell's robot pose model off; for whole cells, mixed mounts or tools, a
-            :class:`~jcalib.problems.cell.CellOptions`).
-        prior: a previous result (path, :class:`~jcalib.io.result.ResultFile` or :class:`Result`) of the
-            same robot cell: re-optimisation (:func:`jcalib.problems.reoptimise.reoptimise`). The new data are
-            solved on their own, every unknown is compared with the old value by a χ² test on the
-            difference (both covariances), and the final solve keeps the old values as priors for the
-            unknowns that did not move. ``stats["reoptimisation"]`` lists each test and what moved.
+        cell, obs: the parsed cell spec and observations.
+        options: :class:`CalibrationOptions`.
+        prior: an old :class:`jcalib.io.result.ResultFile`: its values start the solve and its
+            covariances become Gaussian priors on the unknowns in ``prior_names`` (None: all it holds).
+        start: an old result whose values only start the solve.
+        given: option names the user set explicitly; those the cell cannot use are refused.
 
     Returns:
-        :class:`Result`. Uncertainties are sampling noise (pixel noise propagated to the
-        unknowns, scaled by the a-posteriori σ by default), not model error.
+        :class:`Calibration`. Covariances are sampling noise (every measurement kind's noise and the
+        stated priors, first order, with each kind's a-posteriori variance component), not model error.
 
     Raises:
-        BadInputError: malformed input, naming the file, station and camera.
-        NotObservableError: the data cannot determine some unknowns, naming them.
+        BadInputError: malformed input (missing poses, too few points, an option the cell cannot use).
+        NotObservableError: unknowns the data cannot determine, named.
     """
-    cell_spec = load_cell(cell)
-    obs = load_observations(observations)
-    if prior is not None:
-        from jcalib.problems.reoptimise import reoptimise
+    options = options or CalibrationOptions()
+    g = Graph(cell, obs, options.reference_camera)
+    check_applicable(options, g, set(given or ()))
+    if cell.tools and not g.has_robot:
+        raise BadInputError(f"{cell.source}: tools need a robot (their TCP is on its flange); add robot: {{}}")
+    pose_model = {r: g.has_noise(r) if options.pose_model is None else bool(options.pose_model) for r in g.used_robots}
+    seed = prior if prior is not None else start
+    s = Start()
+    start_intrinsics(g, s, seed)
+    for spec in list(cell.cameras.values()) + list(cell.targets.values()):
+        m = g.mount_name(spec)
+        if spec.pose is not None and m is not None:
+            s.known[m], s.how[m] = np.asarray(spec.pose, np.float64), "cell"
+    if g.reference_camera is not None:
+        ref = g.mount_name(cell.cameras[g.reference_camera])
+        s.known[ref], s.how[ref] = np.eye(4), "gauge"
+    gauge, _ = g.gauge()
+    for r in g.robot_names:
+        b = g.base_name(r)
+        if b is None:
+            continue
+        if g.robot_specs[r].base is not None:
+            s.known[b], s.how[b] = np.asarray(g.robot_specs[r].base, np.float64), "gauge:cell" if r == gauge else "cell"
+        elif r == gauge:
+            s.known[b], s.how[b] = np.eye(4), "gauge"
+        if (r in cell.fixed or b in cell.fixed) and g.robot_specs[r].base is None and r != gauge:
+            raise BadInputError(f"{cell.source}: fixed lists '{r}' ({b}) but the cell gives it no base; add "
+                                f"robots.{r}.base: [[4x4]] (m) or remove it from fixed")
+    if seed is not None:
+        for n, tr in seed.transforms.items():
+            if n not in s.known:
+                s.known[n], s.how[n] = np.asarray(tr.matrix, np.float64), "prior"
+    noisy = [r for r in g.used_robots if g.has_noise(r) and g.robot_specs[r].pose_noise_rotation_deg is not None]
+    rot_noise = max([0.02] + [float(np.max(g.robot_specs[r].pose_noise_rotation_deg)) for r in noisy])
+    tool_robots = frozenset(g.holder(cell.tools[t]) for (_, t) in g.tips) | frozenset(
+        g.holder(cell.tools[t]) for (t, _) in g.contacts)
+    start_poses(g, s, method=options.method, rot_noise=rot_noise, fix_unobservable=options.fix_unobservable,
+                prior_m=options.unobservable_prior_m, prior_sigma_m=options.unobservable_prior_sigma_m,
+                tool_robots=tool_robots)
+    start_tools(g, s)
+    built = build(g, s, options, pose_model, _priors(prior, prior_names, g, s))
+    return assemble(g, s, built, refine(g, s, built, options))
 
-        return reoptimise(cell_spec, obs, prior, options, input_hash=_input_hash(cell, observations, cell_spec, obs)).result
-    has_robot = any(c.mount != "free" for c in cell_spec.cameras.values()) or any(
-        t.mount != "free" for t in cell_spec.targets.values()
-    )
-    if has_robot:
-        from jcalib.problems.handeye import is_hand_eye_cell
 
-        if is_hand_eye_cell(cell_spec) and not isinstance(options, _cell_options_type()):
-            return _calibrate_hand_eye(cell, observations, cell_spec, obs, options)
-    from jcalib.problems.cell import is_cell_problem
-
-    if is_cell_problem(cell_spec):
-        return _calibrate_cell(cell_spec, obs, options, _input_hash(cell, observations, cell_spec, obs))
-    if has_robot or cell_spec.tools or cell_spec.points:
-        raise BadInputError(
-            f"{cell_spec.source}: this version calibrates cameras with free-moving targets "
-            "(mount: free); robot-mounted cameras, targets, tools and points come with the "
-            "hand-eye and TCP problems"
-        )
-    from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
-
-    options = options or CameraCalibrationOptions()
-    cal = calibrate_cameras(cell_spec, obs, options)
-    cameras = {
-        name: CameraResult.from_model(model, covariance=cal.intrinsics_covariance[name])
-        for name, model in cal.cameras.items()
-    }
-    transforms = {
-        f"T_{cal.reference_camera}_{name}": TransformResult(T, cal.T_ref_cam_covariance[name])
-        for name, T in cal.T_ref_cam.items()
-        if name != cal.reference_camera
-    }
-    stats = {
-        "rms_px": cal.rms_px,
+def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra_stats: dict | None = None) -> ResultFile:
+    """The ``jcalib.result/1`` contents of a :class:`Calibration`."""
+    cameras = {n: CameraResult.from_model(m, covariance=cal.intrinsics_covariance[n]) for n, m in cal.cameras.items()}
+    transforms = {}
+    for n, T in cal.transforms.items():
+        extra = {}
+        if len(cal.calibrated.get(n, [])) < 6:
+            extra["calibrated"] = list(cal.calibrated.get(n, []))
+        if n.startswith("T_flange_") and n[9:] in cal.tool_orientation:
+            extra["orientation"] = cal.tool_orientation[n[9:]]
+            extra["calibrated"] = list(cal.calibrated.get(n, []))
+        transforms[n] = TransformResult(T, cal.transform_covariance[n], extra)
+    frame = cal.frame if cal.graph is None or cal.graph.has_robot else cal.frame
+    points = {n: PointResult(p, frame, cal.point_covariance[n]) for n, p in cal.points.items()}
+    stats: dict[str, Any] = {
         "num_residuals": cal.num_residuals,
-        "sigma_px": cal.sigma_px,
-        "iterations": cal.iterations,
-        "status": cal.status,
-        "num_outliers": len(cal.outliers),
-        "view_rms_px": {f"{c}/{s}": v for (c, s), v in cal.view_rms_px.items()},
-    }
-    if cal.reseeded_views:
-        stats["reseeded_views"] = cal.reseeded_views
-    warnings = []
-    if cal.rms_px > 5.0 * options.sigma_px:
-        warnings.append(
-            f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise "
-            f"({options.sigma_px:g} px): the lens model is probably too simple for this lens (try a model "
-            "with more distortion terms, or fisheye) or detections are wrong; the reported σ describe "
-            "noise only, not this model error"
-        )
-    if warnings:
-        stats["warnings"] = warnings
-    provenance = Provenance.now(
-        input_hash=_input_hash(cell, observations, cell_spec, obs), options=asdict(options)
-    )
-    # Per-view target poses (an optional key; the report re-projects residuals with them).
-    poses = {station: {c: T.tolist() for c, T in per_cam.items()} for station, per_cam in cal.T_cam_target.items()}
-    file = ResultFile(
-        cameras=cameras, transforms=transforms, stats=stats, provenance=provenance, extra={"T_cam_target": poses}
-    )
-    return Result(file, cal)
-
-
-def _calibrate_hand_eye(cell_arg, obs_arg, cell_spec: CellSpec, obs: Observations, options) -> Result:
-    """Hand-eye cells (cameras on the flange and one target on the base, or the reverse).
-
-    ``options``: a :class:`~jcalib.problems.handeye.HandEyeOptions` (``pose_model`` overrides the
-    cell's robot pose model, ``fix_unobservable`` etc.), or the CLI's
-    :class:`~jcalib.problems.camera.CameraCalibrationOptions`, of which ``sigma_px``, ``noise``,
-    ``loss``, ``loss_scale``, ``outlier_threshold`` and ``max_iterations`` carry over.
-    """
-    from jcalib.problems.camera import CameraCalibrationOptions
-    from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
-
-    options = options or HandEyeOptions()
-    if isinstance(options, CameraCalibrationOptions):  # e.g. from the CLI: keep what applies
-        options = HandEyeOptions.from_camera_options(options)
-    if not isinstance(options, HandEyeOptions):
-        raise BadInputError(
-            f"options: got {type(options).__name__}, expected HandEyeOptions for a hand-eye cell"
-        )
-    cal = calibrate_hand_eye(cell_spec, obs, options)
-    cameras = {
-        name: CameraResult.from_model(c.model, covariance=c.intrinsics_covariance) for name, c in cal.cameras.items()
-    }
-    transforms = {c.hand_eye_name: TransformResult(c.T_hand_eye, c.T_hand_eye_covariance) for c in cal.cameras.values()}
-    transforms[cal.target_name] = TransformResult(cal.T_target, cal.T_target_covariance)
-    stats = {
-        "rms_px": cal.rms_px,
-        "num_residuals": cal.num_residuals,
-        "sigma_px": cal.sigma_px,
-        # overall a-posteriori variance factor of all residuals (pixels and robot prior together);
-        # with the pose model the covariance uses the pixels' own factor, (sigma_px / stated)^2
-        "variance_factor": cal.sigma2,
         "iterations": cal.iterations,
         "status": cal.status,
         "num_stations": len(cal.station_ids),
         "num_outliers": len(cal.outliers),
-        "view_rms_px": {f"{c.camera}/{s}": v for c in cal.cameras.values() for s, v in c.view_rms_px.items()},
-        "hand_eye_init": cal.init.method,
-        "robot_pose_model": cal.pose_model,
     }
-    if cal.outliers:
-        stats["outliers"] = [{"camera": c, "station": s, "point_index": i} for c, s, i in cal.outliers]
-    if cal.unobservable_fixed is not None:
-        stats["unobservable_fixed"] = cal.unobservable_fixed
-    if cal.robot:
-        stats["robot"] = cal.robot
-    warnings = list(cal.warnings)
-    if cal.rms_px > 5.0 * options.sigma_px:
-        warnings.append(
-            f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise ({options.sigma_px:g} px): "
-            "the lens model is probably too simple, detections are wrong, or the robot poses are worse "
-            "than stated; the reported σ describe noise only, not this model error"
-        )
-    if warnings:
-        stats["warnings"] = warnings
-    provenance = Provenance.now(
-        input_hash=_input_hash(cell_arg, obs_arg, cell_spec, obs), options=asdict(options)
-    )
-    file = ResultFile(cameras=cameras, transforms=transforms, stats=stats, provenance=provenance)
-    return Result(file, cal)
-
-
-def _cell_options_type():
-    from jcalib.problems.cell import CellOptions
-
-    return CellOptions
-
-
-def cell_result(cal, cell_spec: CellSpec, options, input_hash: str, extra_stats: dict | None = None) -> Result:
-    """The :class:`Result` of a :class:`~jcalib.problems.cell.CellCalibration`."""
-    cameras = {
-        name: CameraResult.from_model(model, covariance=cal.intrinsics_covariance[name])
-        for name, model in cal.cameras.items()
-    }
-    transforms = {n: TransformResult(T, cal.transform_covariance[n]) for n, T in cal.transforms.items()}
-    frame = getattr(cal, "frame", "base")  # "world" in cells with several robots
-    points = {n: PointResult(p, frame, cal.point_covariance[n]) for n, p in getattr(cal, "points", {}).items()}
-    stats = {
-        "num_residuals": cal.num_residuals,
-        "iterations": cal.iterations,
-        "status": cal.status,
-        "num_stations": len(cal.station_ids),
-        "robot_pose_model": cal.pose_model,
-        "start": dict(cal.start_method),
-        "problem": "cell",
-    }
-    if cal.rms_px == cal.rms_px:  # a cell calibrated by contacts alone has no pixels
+    if cal.rms_px == cal.rms_px:  # cells calibrated by contacts or poses alone have no corners
         stats.update(rms_px=cal.rms_px, sigma_px=cal.sigma_px)
+    for kind, key, scale in (("tip", "tip_rms_px", 1.0), ("axis", "axis_rms_px", 1.0), ("contact", "contact_rms_m", 1.0),
+                             ("pose_rotation", "pose_rms_deg", float(np.degrees(1.0))),
+                             ("pose_translation", "pose_rms_m", 1.0)):
+        if kind in cal.rms and cal.rms[kind] == cal.rms[kind]:
+            stats[key] = cal.rms[kind] * scale
     if cal.sigma2 == cal.sigma2:
         stats["variance_factor"] = cal.sigma2
-    if getattr(cal, "variance_components", None):
+    if cal.variance_components:
         stats["variance_components"] = {k: float(v) for k, v in cal.variance_components.items()}
-    if cal.tip_rms_px == cal.tip_rms_px:
-        stats["tip_rms_px"] = cal.tip_rms_px
-    if getattr(cal, "contact_rms_m", float("nan")) == cal.contact_rms_m:
-        stats["contact_rms_m"] = cal.contact_rms_m
-    if getattr(cal, "outliers", None) is not None:
-        stats["num_outliers"] = len(cal.outliers)
-        if cal.outliers:
-            stats["outliers"] = [f"{who}/{sid}/{idx}" for who, sid, idx in cal.outliers]
+    if cal.view_rms_px:
+        stats["view_rms_px"] = {f"{c}/{s}": v for (c, s), v in cal.view_rms_px.items()}
+    if cal.graph is not None and cal.graph.has_robot:
+        stats["robot_pose_model"] = cal.pose_model
+        stats["start"] = dict(cal.start_method)
+    if cal.outliers:
+        stats["outliers"] = [{"of": who, "station": sid, "point_index": idx} for who, sid, idx in cal.outliers]
+    if cal.reseeded_views:
+        stats["reseeded_views"] = list(cal.reseeded_views)
+    if cal.robot:
+        stats["robot"] = next(iter(cal.robot.values())) if len(cal.robot) == 1 and not cal.graph.multi else cal.robot
+    if cal.unobservable_fixed is not None:
+        stats["unobservable_fixed"] = cal.unobservable_fixed
     if cal.priors:
         stats["priors"] = list(cal.priors)
-    if cal.warnings:
-        stats["warnings"] = list(cal.warnings)
+    warnings = list(cal.warnings)
+    if cal.rms_px == cal.rms_px and cal.rms_px > 5.0 * options.sigma_px:
+        warnings.append(
+            f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise ({options.sigma_px:g} px): the "
+            "lens model is probably too simple for this lens (try a model with more distortion terms, or fisheye), "
+            "detections are wrong, or the robot poses are worse than stated; the reported σ describe noise only, "
+            "not this model error")
+    for tool, how in cal.tool_orientation.items():
+        if how == "not calibrated":
+            warnings.append(f"tool '{tool}': only its tip (the TCP translation) is calibrated; its orientation is not "
+                            "(no imaged tool axis): state it in the cell (tools.<name>.orientation or axis) before "
+                            "exporting the tool to a controller")
+    if warnings:
+        stats["warnings"] = warnings
     stats.update(extra_stats or {})
-    provenance = Provenance.now(input_hash=input_hash, options=asdict(options))
-    extra = {}
-    if cal.joint_covariance:
-        jc = cal.joint_covariance
+    extra: dict[str, Any] = {}
+    jc = cal.joint_covariance
+    if jc and jc["names"]:
         extra["joint_covariance"] = {"names": list(jc["names"]), "dims": [int(d) for d in jc["dims"]],
                                      "matrix": np.asarray(jc["matrix"]).tolist(),
                                      "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, tz"}
-    file = ResultFile(cameras=cameras, transforms=transforms, points=points, stats=stats, provenance=provenance,
+    if cal.T_cam_target:
+        extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
+    provenance = Provenance.now(input_hash=hash_, options=asdict(options))
+    return ResultFile(cameras=cameras, transforms=transforms, points=points, stats=stats, provenance=provenance,
                       extra=extra)
-    return Result(file, cal)
-
-
-def _calibrate_cell(cell_spec: CellSpec, obs: Observations, options, input_hash: str) -> Result:
-    """Whole robot cells: mixed flange/base cameras and targets, tools seen by fixed cameras."""
-    from jcalib.problems.cell import CellOptions, calibrate_cell
-
-    options = CellOptions.from_options(options)
-    return cell_result(calibrate_cell(cell_spec, obs, options), cell_spec, options, input_hash)

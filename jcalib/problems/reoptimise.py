@@ -241,7 +241,8 @@ def _as_file(x, what: str) -> ResultFile:
         raise BadInputError(f"{what}: got {type(x).__name__}, expected a jcalib.result/1 file, ResultFile or Result") from err
 
 
-def reoptimise(cell, observations, prior, options=None, *, alpha: float = 0.01, input_hash: str | None = None) -> Reoptimisation:
+def reoptimise(cell, observations, prior, options=None, *, alpha: float = 0.01, input_hash: str | None = None,
+               given: set[str] | None = None) -> Reoptimisation:
     """Re-calibrate a robot cell from new observations with a previous result as the prior.
 
     Args:
@@ -249,35 +250,33 @@ def reoptimise(cell, observations, prior, options=None, *, alpha: float = 0.01, 
         observations: the new ``jcalib.observations/1`` data (path, dict or Observations).
         prior: the old result (path, :class:`~jcalib.io.result.ResultFile` or :class:`jcalib.Result`)
             with covariances.
-        options: :class:`~jcalib.problems.cell.CellOptions` (or options carrying ``sigma_px`` etc.).
+        options: :class:`~jcalib.problems.options.CalibrationOptions`.
         alpha: family-wise significance level of the change tests (default 1 %).
+        input_hash: the inputs' hash for the provenance (computed when None).
+        given: option names the user set explicitly (refused where the cell cannot use them).
 
     Returns:
         :class:`Reoptimisation`.
     """
-    from jcalib.problems.calibrate import cell_result
-    from jcalib.io.cell import load_cell
+    import json
+
+    from jcalib.io.cell import cell_to_dict, load_cell
     from jcalib.io.observations import load_observations
-    from jcalib.problems.cell import CellOptions, calibrate_cell, is_cell_problem
+    from jcalib.io.result import hash_inputs
+    from jcalib.problems.calibrate import Result, calibrate_cell, result_file
+    from jcalib.problems.options import CalibrationOptions
 
     cell_spec = load_cell(cell)
     obs = load_observations(observations)
     old = _as_file(prior, "prior")
-    if not is_cell_problem(cell_spec):
-        raise BadInputError(
-            f"{cell_spec.source}: prior= (re-optimisation) works on robot cells (cameras/targets on the base or "
-            "flange, tools); this cell has free-moving cameras or targets or contact points"
-        )
-    options = CellOptions.from_options(options)
+    if not (cell_spec.robot is not None or cell_spec.robots):
+        raise BadInputError(f"{cell_spec.source}: prior= (re-optimisation) works on robot cells; this cell has no robot")
+    options = options or CalibrationOptions()
     if input_hash is None:
-        import json
-
-        from jcalib.io.cell import cell_to_dict
-        from jcalib.io.result import hash_inputs
-
         input_hash = hash_inputs(json.dumps(cell_to_dict(cell_spec), sort_keys=True).encode(),
                                  json.dumps(obs.to_dict(), sort_keys=True).encode())
-    data_only = cell_result(calibrate_cell(cell_spec, obs, options, start=old), cell_spec, options, input_hash)
+    first = calibrate_cell(cell_spec, obs, options, start=old, given=given)
+    data_only = Result(result_file(first, options, input_hash), first)
     changes = compare_results(old, data_only.file, alpha=alpha)
     moved = [c.name for c in changes if c.moved]
     keep = [c.name for c in changes if not c.moved]
@@ -289,6 +288,6 @@ def reoptimise(cell, observations, prior, options=None, *, alpha: float = 0.01, 
         "moved": moved,
         "tests": [c.to_dict() for c in changes],
     }}
-    final = calibrate_cell(cell_spec, obs, options, prior=old, prior_names=keep)
-    result = cell_result(final, cell_spec, options, input_hash, extra_stats=stats)
+    final = calibrate_cell(cell_spec, obs, options, prior=old, prior_names=keep, given=given)
+    result = Result(result_file(final, options, input_hash, extra_stats=stats), final)
     return Reoptimisation(result, changes, moved, data_only, alpha, per_test)

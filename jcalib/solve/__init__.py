@@ -1,34 +1,30 @@
-"""The engine: problem graph, block-sparse Levenberg–Marquardt, covariance, implicit differentiation.
+"""The engine: problem graph, block-sparse Levenberg–Marquardt, covariances, implicit differentiation.
 
 Public API::
 
     Variable(name, manifold, value, fixed=False, prior_mean=None, prior_sqrt_info=None,
-             eliminate=False, coord_names=None, entry_label=None)
+             eliminate=False, coord_names=None, entry_label=None, constant=False)
     FactorGroup(name, fn, args, indices, observations=None, sigma=1.0, sqrt_weight=None, loss=None,
                 chunk=None, jacobian=None)
     Problem(variables, factors)
-    solve(problem, x0=None, options=SolveOptions(), pad=True, raise_on_unobservable=True) -> Solution
-    solve_many(problems, options) -> list[Solution]           # one vmapped jit call
-    lm_solve(problem, options) -> RawSolution                   # pure; jit / vmap it yourself
-    covariance(solution, name, index=None, noise="a_posteriori") -> (d, d) | (num·d, num·d)
-    propagate(solution, fn, noise="a_posteriori") -> (p, p)
-    solve_differentiable(problem, options) -> values            # implicit-function-theorem VJP
+    solve(problem, x0=None, options=SolveOptions(), pad=True, raise_on_unobservable=True,
+          traces=False) -> Solution                         # one compiled function per shape bucket
+    solve_many(problems, options, traces=False) -> list[Solution]   # vmapped
+    Solution.covariance(name, index=None, noise="a_posteriori"), .joint_covariance(names),
+            .propagate(fn), .shared_information(), .residuals / .chi2 / .count / .hat per group
+    lm_solve(problem, options) -> RawSolution                # the pure loop; jit / vmap it yourself
+    solve_differentiable(problem, options) -> values         # implicit-function-theorem VJP
+    enable_compilation_cache()                               # JAX's persistent cache
 """
 
-from jcalib.solve.covariance import covariance, propagate
+from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
+from jcalib.solve.cache import enable_compilation_cache
+from jcalib.solve.core import solve, solve_many
 from jcalib.solve.implicit import solve_differentiable
-from jcalib.solve.lm import (
-    RawSolution,
-    Solution,
-    SolveOptions,
-    Status,
-    lm_solve,
-    solve,
-    solve_many,
-    stack_problems,
-)
+from jcalib.solve.lm import RawSolution, SolveOptions, Status, lm_solve
 from jcalib.solve.manifolds import SE3, SO3, Euclidean
-from jcalib.solve.problem import FactorGroup, Problem, Variable, batch_width, bucket_size, pad_problem
+from jcalib.solve.problem import FactorGroup, Problem, Variable
+from jcalib.solve.solution import Solution
 
 __all__ = [
     "SE3",
@@ -43,10 +39,9 @@ __all__ = [
     "Variable",
     "batch_width",
     "bucket_size",
-    "covariance",
+    "enable_compilation_cache",
     "lm_solve",
     "pad_problem",
-    "propagate",
     "solve",
     "solve_differentiable",
     "solve_many",

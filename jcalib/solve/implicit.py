@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from jcalib.solve import linear
-from jcalib.solve.lm import SolveOptions, deltas_to_dict, dict_to_blocks, lm_solve
+from jcalib.solve.lm import SolveOptions, lm_solve
 from jcalib.solve.problem import Problem
 
 
@@ -64,9 +64,9 @@ def _solve_values_bwd(x_star, grad_obj, perturbed, problem, options):
     at_opt = eqx.tree_at(lambda p: tuple(v.value for v in p.variables), problem,
                          tuple(x_star[v.name] for v in problem.variables))
     system = linear.exact_system(at_opt, layout, x_star, free)
-    rhs_s, rhs_e = dict_to_blocks({n: u[n][..., None] for n in u}, layout)
+    rhs_s, rhs_e = linear.dict_to_blocks({n: u[n][..., None] for n in u}, layout)
     lam_s, lam_e = linear.schur_solve(system, layout, rhs_s, rhs_e)
-    lam = deltas_to_dict(lam_s[:, 0], tuple(x[..., 0] for x in lam_e), layout)
+    lam = linear.deltas_to_dict(lam_s[:, 0], tuple(x[..., 0] for x in lam_e), layout)
     lam = {n: lam[n] * free[n] for n in lam}
 
     def psi(prob):

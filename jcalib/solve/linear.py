@@ -135,7 +135,7 @@ def _factor_parts(problem: Problem, f):
     return by_name, manifolds, dims
 
 
-def _active_args(problem: Problem, f) -> tuple[int, ...]:
+def active_args(problem: Problem, f) -> tuple[int, ...]:
     """Positions of ``f``'s arguments that are not :attr:`Variable.constant` (differentiated)."""
     by_name = {v.name: v for v in problem.variables}
     return tuple(j for j, a in enumerate(f.args) if not by_name[a].constant)
@@ -144,7 +144,7 @@ def _active_args(problem: Problem, f) -> tuple[int, ...]:
 def factor_linearization(problem: Problem, values: dict, f, free: dict):
     """Per-observation Gauss–Newton blocks of one factor group (IRLS-reweighted).
 
-    Derivatives are taken with respect to the non-constant arguments only (:func:`_active_args`),
+    Derivatives are taken with respect to the non-constant arguments only (:func:`active_args`),
     by autodiff of ``f.fn`` or from the group's hand-derived ``f.jacobian`` when it has one.
 
     Returns:
@@ -155,7 +155,7 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
         per run ``(K / chunk, D, D)``, ``(K / chunk, D)``, summed by one batched product.
     """
     by_name, manifolds, dims = _factor_parts(problem, f)
-    active = _active_args(problem, f)
+    active = active_args(problem, f)
     r_obs = _obs_residual(f, manifolds, first_order=True)
     rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
     zeros = tuple(jnp.zeros((f.num_obs, dims[j]), jnp.float64) for j in active)
@@ -385,17 +385,28 @@ def add_fixed_identity(system: System, layout: Layout, free: dict) -> System:
     return System(H_ss, system.g_s, tuple(V), system.W, system.g_e)
 
 
-def linearize(problem: Problem, layout: Layout, values: dict, free: dict):
-    """Gauss–Newton system at ``values``: returns ``(cost, System, m_eff)``."""
+def linearize(problem: Problem, layout: Layout, values: dict, free: dict, per_group: bool = False):
+    """Gauss–Newton system at ``values``: returns ``(cost, System, m_eff, groups)``.
+
+    ``groups`` is ``None``, or with ``per_group`` each factor group's own system (its share of
+    ``JᵀJ``, without the fixed-coordinate identity), whose sum is the total.
+    """
     system = empty_system(layout)
     cost = jnp.zeros((), jnp.float64)
     m_eff = jnp.zeros((), jnp.int32)
+    groups = []
     for f in problem.factors:
         c, H_obs, g_obs, _, _, m = factor_linearization(problem, values, f, free)
-        system = scatter_factor(system, layout, f, H_obs, g_obs, _active_args(problem, f), f.chunk is not None)
+        if per_group:
+            own = scatter_factor(empty_system(layout), layout, f, H_obs, g_obs, active_args(problem, f),
+                                 f.chunk is not None)
+            groups.append(own)
+            system = jax.tree.map(jnp.add, system, own)
+        else:
+            system = scatter_factor(system, layout, f, H_obs, g_obs, active_args(problem, f), f.chunk is not None)
         cost = cost + c
         m_eff = m_eff + m.astype(jnp.int32)
-    return cost, add_fixed_identity(system, layout, free), m_eff
+    return cost, add_fixed_identity(system, layout, free), m_eff, (tuple(groups) if per_group else None)
 
 
 def exact_system(problem: Problem, layout: Layout, values: dict, free: dict) -> System:
@@ -510,3 +521,33 @@ def total_cost(problem: Problem, values: dict):
         r = jax.vmap(r_obs)(rows, zeros, f.observations, f.sqrt_weight)
         cost = cost + 0.5 * jnp.sum(f.loss.rho(jnp.sum(r * r, axis=-1))[0])
     return cost
+
+
+def _split_shared(x_s, layout: Layout):
+    out = {}
+    for k, name in enumerate(layout.names):
+        if not layout.eliminate[k]:
+            N, d, o = layout.nums[k], layout.dims[k], layout.offsets[k]
+            out[name] = x_s[o : o + N * d].reshape(N, d)
+    return out
+
+
+def deltas_to_dict(x_s, x_e, layout: Layout) -> dict:
+    """Block vectors (``(n_s,)``, per eliminated kind ``(num, d)``) to ``{name: (num, d)}``."""
+    out = _split_shared(x_s, layout)
+    for k, name in enumerate(layout.names):
+        if layout.eliminate[k]:
+            out[name] = x_e[layout.elim_slot[k]]
+    return out
+
+
+def dict_to_blocks(d: dict, layout: Layout):
+    """``{name: (num, d, ...)}`` to block vectors ``((n_s, ...), tuple of (num, d, ...))``."""
+    shared = [d[n].reshape((-1,) + d[n].shape[2:]) for k, n in enumerate(layout.names) if not layout.eliminate[k]]
+    elim = tuple(d[n] for k, n in enumerate(layout.names) if layout.eliminate[k])
+    if shared:
+        x_s = jnp.concatenate(shared, axis=0)
+    else:
+        tail = next(iter(d.values())).shape[2:]
+        x_s = jnp.zeros((0,) + tail, jnp.float64)
+    return x_s, elim

@@ -14,7 +14,9 @@ Algorithm (per iteration, all inside one ``lax.while_loop``):
    (an exact fit: noiseless data); also when a step predicts less than ``ftol·cost`` or ``μ``
    overflows ``mu_max`` (no further progress possible).
 
-``jax.vmap`` of :func:`lm_solve` solves many problems of one shape at once. JAX's batching rule for
+This module is the pure loop; :func:`jcalib.solve.solve` wraps it with padding, the covariance blocks and
+named errors in one compiled function. ``jax.vmap`` of :func:`lm_solve` solves many problems of one
+shape at once. JAX's batching rule for
 ``while_loop`` keeps a finished member's state unchanged (``select`` on its own predicate), so each
 member reports its own iterations and stops moving once converged, but the batch runs until the
 slowest member finishes (see /work/shared/notes/calibration.md).
@@ -23,17 +25,13 @@ slowest member finishes (see /work/shared/notes/calibration.md).
 from __future__ import annotations
 
 import enum
-from collections.abc import Callable, Sequence
-from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from jcalib.errors import BadInputError, NotObservableError
 from jcalib.solve import linear
-from jcalib.solve.problem import Problem, pad_problem
+from jcalib.solve.problem import Problem
 
 
 class Status(enum.IntEnum):
@@ -104,6 +102,7 @@ class RawSolution(eqx.Module):
         num_free: free tangent coordinates (int32).
         system: undamped Gauss–Newton system at the estimate (for covariances).
         observability: :class:`Observability` at the estimate.
+        groups: with ``per_group``, each factor group's own system at the estimate (else None).
     """
 
     values: dict[str, jax.Array]
@@ -114,6 +113,7 @@ class RawSolution(eqx.Module):
     num_free: jax.Array
     system: linear.System
     observability: Observability
+    groups: tuple | None = None
 
 
 def _scaled_eigh(M):
@@ -172,42 +172,14 @@ def _grad_ratio(system, diag_jtj_s, diag_jtj_e, cost):
     return out
 
 
-def _split_shared(x_s, layout: linear.Layout):
-    out = {}
-    for k, name in enumerate(layout.names):
-        if not layout.eliminate[k]:
-            N, d, o = layout.nums[k], layout.dims[k], layout.offsets[k]
-            out[name] = x_s[o : o + N * d].reshape(N, d)
-    return out
-
-
-def deltas_to_dict(x_s, x_e, layout: linear.Layout) -> dict:
-    """Block vectors (``(n_s,)``, per eliminated kind ``(num, d)``) to ``{name: (num, d)}``."""
-    out = _split_shared(x_s, layout)
-    for k, name in enumerate(layout.names):
-        if layout.eliminate[k]:
-            out[name] = x_e[layout.elim_slot[k]]
-    return out
-
-
-def dict_to_blocks(d: dict, layout: linear.Layout):
-    """``{name: (num, d, ...)}`` to block vectors ``((n_s, ...), tuple of (num, d, ...))``."""
-    shared = [d[n].reshape((-1,) + d[n].shape[2:]) for k, n in enumerate(layout.names) if not layout.eliminate[k]]
-    elim = tuple(d[n] for k, n in enumerate(layout.names) if layout.eliminate[k])
-    if shared:
-        x_s = jnp.concatenate(shared, axis=0)
-    else:
-        tail = next(iter(d.values())).shape[2:]
-        x_s = jnp.zeros((0,) + tail, jnp.float64)
-    return x_s, elim
-
-
-def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSolution:
+def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group: bool = False) -> RawSolution:
     """Pure, jit- and vmap-able Levenberg–Marquardt solve of ``problem`` from its start values.
 
     Args:
         problem: a :class:`Problem` (start values in ``problem.variables[i].value``).
         options: :class:`SolveOptions` (static).
+        per_group: also carry each factor group's own system (:attr:`RawSolution.groups`), for its
+            share of the unknowns (variance components) without a second linearisation.
     Returns:
         :class:`RawSolution`; ``status`` is an int code of :class:`Status`. Nothing raises inside:
         use :func:`solve` for checked, named errors.
@@ -218,8 +190,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSol
     fixed_diag_s, fixed_diag_e = linear.diagonal(linear.add_fixed_identity(linear.empty_system(layout), layout, free))
 
     def lin(x):
-        cost, system, m_eff = linear.linearize(problem, layout, x, free)
-        return cost, system, m_eff
+        return linear.linearize(problem, layout, x, free, per_group)
 
     def jtj_diag(system):
         ds, de = linear.diagonal(system)
@@ -236,6 +207,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSol
     init = dict(
         x=x0,
         system=linear.empty_system(layout),
+        groups=tuple(linear.empty_system(layout) for _ in problem.factors) if per_group else None,
         cost=jnp.asarray(jnp.inf, jnp.float64),
         mu=jnp.asarray(options.mu0, jnp.float64),
         nu=jnp.asarray(2.0, jnp.float64),
@@ -265,9 +237,9 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSol
             h_ok = h_ok & jnp.all(jnp.isfinite(h))
         h_s = jnp.where(h_ok & ~first, h_s, 0.0)
         h_e = tuple(jnp.where(h_ok & ~first, h, 0.0) for h in h_e)
-        x_new = linear.retract_all(problem, st["x"], deltas_to_dict(h_s, h_e, layout))
+        x_new = linear.retract_all(problem, st["x"], linear.deltas_to_dict(h_s, h_e, layout))
         x_new = jax.tree.map(lambda a, b: jnp.where(first, a, b), st["x"], x_new)
-        cost_new, sys_new, m_eff = lin(x_new)
+        cost_new, sys_new, m_eff, groups_new = lin(x_new)
         Hh_s, Hh_e = linear.matvec(system, h_s, h_e)
         hHh = _dot(h_s, h_e, Hh_s, Hh_e)
         gh = _dot(system.g_s, system.g_e, h_s, h_e)
@@ -319,6 +291,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSol
         return dict(
             x=pick(x_new, st["x"]),
             system=pick(sys_new, system),
+            groups=pick(groups_new, st["groups"]) if per_group else None,
             cost=jnp.where(accept | first, cost_new, cost),
             mu=new_mu,
             nu=new_nu,
@@ -351,162 +324,5 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions()) -> RawSol
         num_free=jnp.asarray(num_free, jnp.int32),
         system=st["system"],
         observability=obs,
+        groups=st["groups"],
     )
-
-
-_lm_solve_jit = eqx.filter_jit(lm_solve)
-
-
-class Solution:
-    """The result of :func:`solve`.
-
-    Attributes:
-        values: ``{name: (num, param_dim)}`` estimate (quaternions unit-norm, ``w >= 0``).
-        status: :class:`Status`.
-        cost: final ``½ Σ ρ(‖r_w‖²)`` (whitened units).
-        iterations: LM iterations.
-        num_residuals: ``m``, residual components with nonzero weight (priors included).
-        num_free: ``n``, free tangent coordinates.
-        sigma2: a-posteriori variance factor ``2·cost / (m − n)`` (≈ 1 when the stated σ are right;
-            ``nan`` when ``m <= n``).
-        problem: the problem as given; raw: the padded :class:`RawSolution`.
-    """
-
-    def __init__(self, problem: Problem, padded: Problem, raw: RawSolution, options: SolveOptions):
-        self.problem = problem
-        self.padded_problem = padded
-        self.raw = raw
-        self.options = options
-        self.layout = linear.make_layout(padded)
-        self.values = {
-            v.name: raw.values[v.name][: v.num] for v in problem.variables
-        }
-        self.status = Status(int(raw.status))
-        self.cost = float(raw.cost)
-        self.iterations = int(raw.iterations)
-        self.num_residuals = int(raw.num_residuals)
-        self.num_free = int(raw.num_free)
-        dof = self.num_residuals - self.num_free
-        self.sigma2 = 2.0 * self.cost / dof if dof > 0 else float("nan")
-
-    def covariance(self, name: str, index: int | None = None, noise: str = "a_posteriori"):
-        from jcalib.solve.covariance import covariance
-
-        return covariance(self, name, index, noise)
-
-    def propagate(self, fn: Callable[[dict], Any], noise: str = "a_posteriori"):
-        from jcalib.solve.covariance import propagate
-
-        return propagate(self, fn, noise)
-
-    def __repr__(self) -> str:
-        return (f"Solution(status={self.status.name}, cost={self.cost:.6g}, iterations={self.iterations}, "
-                f"sigma2={self.sigma2:.4g})")
-
-
-def unobservable_names(problem: Problem, layout: linear.Layout, obs: Observability, rtol: float,
-                       max_directions: int = 8) -> list[str]:
-    """Names of the unknowns with the largest weight in each null direction."""
-    names: list[str] = []
-    by_name = {v.name: v for v in problem.variables}
-
-    def add(direction_names):
-        label = " + ".join(direction_names) if len(direction_names) > 1 else direction_names[0]
-        if label not in names:
-            names.append(label)
-
-    for k, name in enumerate(layout.names):
-        if not layout.eliminate[k]:
-            continue
-        v = by_name[name]
-        w = np.asarray(obs.eigvals_e[layout.elim_slot[k]])
-        U = np.asarray(obs.eigvecs_e[layout.elim_slot[k]])
-        for i in range(min(v.num, w.shape[0])):
-            wmax = np.max(w[i]) if np.all(np.isfinite(w[i])) else np.inf
-            for j in np.flatnonzero(~(w[i] >= rtol * wmax)):
-                vec = np.abs(U[i][:, j])
-                top = np.flatnonzero(vec >= 0.5 * vec.max()) if np.all(np.isfinite(vec)) else np.arange(vec.size)
-                add([v.coordinate_name(i, int(c)) for c in top[np.argsort(-vec[top])]])
-    if names:
-        return names[:max_directions]
-    w = np.asarray(obs.eigvals_s)
-    U = np.asarray(obs.eigvecs_s)
-    coord = []
-    for k, name in enumerate(layout.names):
-        if not layout.eliminate[k]:
-            for i in range(layout.nums[k]):
-                for j in range(layout.dims[k]):
-                    coord.append(by_name[name].coordinate_name(i, j))
-    if w.size == 0:
-        return names
-    for j in np.flatnonzero(~(w >= rtol * np.max(w))):
-        vec = np.abs(U[:, j])
-        top = np.flatnonzero(vec >= 0.5 * vec.max())
-        add([coord[c] for c in top[np.argsort(-vec[top])]])
-    return names[:max_directions]
-
-
-def _check_finite_input(problem: Problem) -> None:
-    for v in problem.variables:
-        if not bool(jnp.all(jnp.isfinite(v.value))):
-            bad = np.argwhere(~np.isfinite(np.asarray(v.value)))[0]
-            raise BadInputError(
-                f"Variable {v.name!r} value: entry {int(bad[0])} contains {np.asarray(v.value)[tuple(bad)]}, "
-                "expected finite numbers."
-            )
-
-
-def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = SolveOptions(),
-          pad: bool = True, raise_on_unobservable: bool = True) -> Solution:
-    """Solve ``problem`` by Levenberg–Marquardt.
-
-    Args:
-        problem: the problem graph; start values from its variables unless ``x0`` overrides them.
-        x0: optional ``{name: (num, param_dim)}`` start values.
-        options: :class:`SolveOptions`.
-        pad: round variable and observation counts up to buckets (:func:`pad_problem`) so that a new
-            data set of similar size reuses the compiled solver.
-        raise_on_unobservable: raise instead of returning ``Status.NOT_OBSERVABLE``.
-    Returns:
-        :class:`Solution` (``status`` CONVERGED, MAX_ITERATIONS, or NON_FINITE when the residuals
-        or Jacobians at the start are not finite).
-    Raises:
-        NotObservableError: the data do not determine some unknowns; ``err.unknowns`` names them.
-        BadInputError: non-finite start values.
-    """
-    if x0 is not None:
-        problem = problem.with_values(x0)
-    _check_finite_input(problem)
-    padded = pad_problem(problem) if pad else problem
-    raw = _lm_solve_jit(padded, options)
-    sol = Solution(problem, padded, raw, options)
-    if sol.status == Status.NOT_OBSERVABLE and raise_on_unobservable:
-        unknowns = unobservable_names(padded, sol.layout, raw.observability, options.rank_rtol)
-        raise NotObservableError(
-            "The data do not determine these unknowns (rank-deficient information matrix at the "
-            f"solution): {', '.join(unknowns)}. Fix them, add a prior, or collect data that constrains them.",
-            unknowns,
-        )
-    return sol
-
-
-def stack_problems(problems: Sequence[Problem]) -> Problem:
-    """Stack same-shaped problems along a new leading axis (for ``jax.vmap(lm_solve)``)."""
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
-
-
-def solve_many(problems: Sequence[Problem], options: SolveOptions = SolveOptions()) -> list[Solution]:
-    """Solve problems of one structure in one vmapped, jitted call; no exception on bad status."""
-    padded = [pad_problem(p) for p in problems]
-    shapes = {jax.tree.structure(p) for p in padded}
-    if len(shapes) != 1 or len({tuple(x.shape for x in jax.tree.leaves(p)) for p in padded}) != 1:
-        raise BadInputError("solve_many problems: got problems of different structure or size, expected one shape.")
-    raws = _lm_solve_vmap_jit(stack_problems(padded), options)
-    out = []
-    for i, (p, pp) in enumerate(zip(problems, padded)):
-        raw_i = jax.tree.map(lambda a, i=i: a[i], raws)
-        out.append(Solution(p, pp, raw_i, options))
-    return out
-
-
-_lm_solve_vmap_jit = eqx.filter_jit(eqx.filter_vmap(lm_solve, in_axes=(0, None)))

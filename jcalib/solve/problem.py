@@ -8,13 +8,12 @@ index ranges — JAX would silently clamp an out-of-range gather) and turns prio
 
 All three are equinox modules (pytrees): arrays are leaves, configuration (names, manifolds,
 residual functions, losses) is static. Two problems with the same static configuration and the same
-array shapes share one compiled solver; :func:`pad_problem` rounds counts up to buckets so that
-data sets of similar size do too.
+array shapes share one compiled solver; :func:`jcalib.solve.batch.pad_problem` rounds counts up to
+buckets so that data sets of similar size do too.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -31,6 +30,13 @@ from jcalib.solve.manifolds import SE3, SO3, Euclidean
 
 def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
+
+
+def _array(x, dtype):
+    """NumPy on the host (building a problem dispatches nothing), JAX inside a trace."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x)):
+        return jnp.asarray(x, dtype=dtype)
+    return np.asarray(x, dtype=dtype)
 
 
 class Variable(eqx.Module):
@@ -89,7 +95,7 @@ class Variable(eqx.Module):
             raise BadInputError(
                 f"Variable {name!r} manifold: got {manifold!r}, expected Euclidean(d), SO3() or SE3()."
             )
-        value = jnp.asarray(value, dtype=jnp.float64)
+        value = _array(value, np.float64)
         if value.ndim == 1:
             value = value[None, :]
         p, d = manifold.param_dim, manifold.tangent_dim
@@ -100,9 +106,10 @@ class Variable(eqx.Module):
         num = value.shape[0]
         if constant and prior_mean is not None:
             raise BadInputError(f"Variable {name!r}: a constant variable cannot have a prior.")
-        fixed = jnp.asarray(True if constant else fixed, dtype=bool)
+        fixed = _array(True if constant else fixed, bool)
         try:
-            fixed = jnp.broadcast_to(fixed.reshape(fixed.shape if fixed.ndim != 1 else (1, d)), (num, d))
+            xp = np if isinstance(fixed, np.ndarray) else jnp
+            fixed = xp.broadcast_to(fixed.reshape(fixed.shape if fixed.ndim != 1 else (1, d)), (num, d))
         except (ValueError, TypeError) as err:
             raise BadInputError(
                 f"Variable {name!r} fixed: got shape {fixed.shape}, expected a bool, ({d},) or ({num}, {d})."
@@ -112,16 +119,16 @@ class Variable(eqx.Module):
                 f"Variable {name!r}: prior_mean and prior_sqrt_info must be given together."
             )
         if prior_mean is not None:
-            prior_mean = jnp.asarray(prior_mean, dtype=jnp.float64)
+            prior_mean = _array(prior_mean, np.float64)
             if prior_mean.ndim == 1:
-                prior_mean = jnp.broadcast_to(prior_mean[None, :], (num, p))
+                prior_mean = (np if isinstance(prior_mean, np.ndarray) else jnp).broadcast_to(prior_mean[None, :], (num, p))
             if prior_mean.shape != (num, p):
                 raise BadInputError(
                     f"Variable {name!r} prior_mean: got shape {prior_mean.shape}, expected ({num}, {p})."
                 )
-            prior_sqrt_info = jnp.asarray(prior_sqrt_info, dtype=jnp.float64)
+            prior_sqrt_info = _array(prior_sqrt_info, np.float64)
             if prior_sqrt_info.ndim == 2:
-                prior_sqrt_info = jnp.broadcast_to(prior_sqrt_info[None], (num, d, d))
+                prior_sqrt_info = (np if isinstance(prior_sqrt_info, np.ndarray) else jnp).broadcast_to(prior_sqrt_info[None], (num, d, d))
             if prior_sqrt_info.shape != (num, d, d):
                 raise BadInputError(
                     f"Variable {name!r} prior_sqrt_info: got shape {prior_sqrt_info.shape}, "
@@ -224,7 +231,7 @@ class FactorGroup(eqx.Module):
         args = tuple(args)
         if len(args) == 0:
             raise BadInputError(f"Factor group {name!r} args: got none, expected at least one variable name.")
-        indices = tuple(jnp.asarray(i) for i in indices)
+        indices = tuple(i if isinstance(i, jax.core.Tracer) else np.asarray(i) for i in indices)
         if len(indices) != len(args):
             raise BadInputError(
                 f"Factor group {name!r} indices: got {len(indices)} index arrays, expected {len(args)} "
@@ -232,7 +239,7 @@ class FactorGroup(eqx.Module):
             )
         num_obs = None
         for a, idx in zip(args, indices):
-            if idx.ndim != 1 or not jnp.issubdtype(idx.dtype, jnp.integer):
+            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
                 raise BadInputError(
                     f"Factor group {name!r} argument {a!r} index array: got shape {idx.shape} dtype "
                     f"{idx.dtype}, expected a 1-D integer array (K,)."
@@ -244,19 +251,19 @@ class FactorGroup(eqx.Module):
                     f"Factor group {name!r} argument {a!r} index array: got length {idx.shape[0]}, "
                     f"expected {num_obs} (same K for every argument)."
                 )
-        observations = jax.tree.map(jnp.asarray, observations)
+        observations = jax.tree.map(lambda a: _array(a, None), observations)
         for leaf in jax.tree.leaves(observations):
             if leaf.ndim < 1 or leaf.shape[0] != num_obs:
                 raise BadInputError(
                     f"Factor group {name!r} observations: got a leaf of shape {leaf.shape}, expected "
                     f"leading dimension K = {num_obs}."
                 )
-        sigma = jnp.asarray(sigma, dtype=jnp.float64)
+        sigma = _array(sigma, np.float64)
         if sigma.shape != () or (_is_concrete(sigma) and not float(sigma) > 0.0):
             raise BadInputError(f"Factor group {name!r} sigma: got {sigma}, expected a positive scalar.")
         if sqrt_weight is None:
-            sqrt_weight = jnp.ones((num_obs,), dtype=jnp.float64)
-        sqrt_weight = jnp.asarray(sqrt_weight, dtype=jnp.float64)
+            sqrt_weight = np.ones((num_obs,), dtype=np.float64)
+        sqrt_weight = _array(sqrt_weight, np.float64)
         if sqrt_weight.shape != (num_obs,):
             raise BadInputError(
                 f"Factor group {name!r} sqrt_weight: got shape {sqrt_weight.shape}, expected ({num_obs},)."
@@ -264,7 +271,7 @@ class FactorGroup(eqx.Module):
         self.name = name
         self.fn = fn
         self.args = args
-        self.indices = tuple(i.astype(jnp.int32) for i in indices)
+        self.indices = tuple(i.astype(np.int32) for i in indices)
         self.observations = observations
         self.sigma = sigma
         self.sqrt_weight = sqrt_weight
@@ -323,7 +330,7 @@ class Problem(eqx.Module):
                         f"prior:{v.name}",
                         gaussian_prior_residual(v.manifold),
                         (v.name,),
-                        (jnp.arange(v.num, dtype=jnp.int32),),
+                        (np.arange(v.num, dtype=np.int32),),
                         (v.prior_mean, v.prior_sqrt_info),
                     )
                 )
@@ -380,7 +387,7 @@ class Problem(eqx.Module):
         new = []
         for v in self.variables:
             if v.name in values:
-                x = jnp.asarray(values[v.name], dtype=jnp.float64).reshape(v.value.shape)
+                x = _array(values[v.name], np.float64).reshape(v.value.shape)
                 v = eqx.tree_at(lambda w: w.value, v, x)
             new.append(v)
         unknown = set(values) - {v.name for v in self.variables}
@@ -390,72 +397,3 @@ class Problem(eqx.Module):
                 f"{[v.name for v in self.variables]}."
             )
         return eqx.tree_at(lambda p: p.variables, self, tuple(new))
-
-
-def bucket_size(n: int) -> int:
-    """Round a count up to a bucket: multiples of ``2^(⌊log2 n⌋ - 2)`` (at most 25 % padding)."""
-    if n <= 8:
-        return max(n, 1)
-    step = 2 ** (int(math.floor(math.log2(n))) - 2)
-    return int(-(-n // step) * step)
-
-
-def batch_width(num: int) -> int:
-    """Data sets per vmapped call when ``num`` same-shape problems are solved in batches.
-
-    On XLA:CPU a batch costs what its members cost one by one (the work is compute, not dispatch)
-    and a ``while_loop`` over 64+ members stalled, so calls take at most 8 members. On an
-    accelerator (GPU/TPU) one call takes the whole group, rounded up to a :func:`bucket_size` so that
-    groups of similar size share one compiled width. Callers fill a call that has fewer members than
-    the width with copies of one of them.
-    """
-    return min(num, 8) if jax.default_backend() == "cpu" else bucket_size(num)
-
-
-def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size, *,
-                num_entries: dict[str, int] | None = None, num_obs: dict[str, int] | None = None) -> Problem:
-    """Pad every variable kind and factor group to ``size_fn(count)`` entries / observations.
-
-    Padded variable entries copy entry 0 and are fully fixed (no unknowns, zero covariance).
-    Padded observations copy observation 0, point at entry 0 of each argument (valid indices) and
-    have ``sqrt_weight = 0``, so they add nothing to cost, gradient or Hessian. Padding goes at
-    the end: entry ``i`` and observation ``k`` keep their positions.
-
-    ``num_entries`` (variable name -> entries) and ``num_obs`` (factor group name -> observations,
-    whole runs of a chunked group) give explicit targets instead, e.g. one shape shared by a batch
-    of problems; names they leave out use ``size_fn``.
-    """
-    num_entries, num_obs = num_entries or {}, num_obs or {}
-    new_vars = []
-    for v in problem.variables:
-        n = v.num
-        target = num_entries.get(v.name, size_fn(n))
-        extra = target - n
-        if extra:
-            value = jnp.concatenate([v.value, jnp.broadcast_to(v.value[:1], (extra, v.value.shape[1]))])
-            fixed = jnp.concatenate([v.fixed, jnp.ones((extra, v.fixed.shape[1]), dtype=bool)])
-            v = eqx.tree_at(lambda w: (w.value, w.fixed), v, (value, fixed))
-        new_vars.append(v)
-    new_factors = []
-    for f in problem.factors:
-        k = f.num_obs
-        c = f.chunk or 1
-        # whole runs of copies of observation 0
-        extra = num_obs[f.name] - k if f.name in num_obs else (size_fn(k // c) - k // c) * c
-        if extra and k > 0:
-
-            def pad(a, extra=extra):
-                return jnp.concatenate([a, jnp.broadcast_to(a[:1], (extra,) + a.shape[1:])])
-
-            f = eqx.tree_at(
-                lambda g: (g.indices, g.observations, g.sqrt_weight),
-                f,
-                (
-                    tuple(jnp.concatenate([i, jnp.zeros((extra,), i.dtype)]) for i in f.indices),
-                    jax.tree.map(pad, f.observations),
-                    jnp.concatenate([f.sqrt_weight, jnp.zeros((extra,), jnp.float64)]),
-                ),
-                is_leaf=lambda x: x is None,
-            )
-        new_factors.append(f)
-    return eqx.tree_at(lambda p: (p.variables, p.factors), problem, (tuple(new_vars), tuple(new_factors)))

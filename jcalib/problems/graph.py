@@ -1,0 +1,365 @@
+"""A cell spec and its observations as a graph: things, what holds them, and what saw what.
+
+Every camera, target and tool hangs on a *holder*:
+
+- ``None``: fixed in the cell's frame (``mount: base`` with one robot, ``mount: world`` with
+  several, and in a cell without robots every camera: the rig, whose frame is the reference camera);
+- a robot name: on that robot's flange (``mount: flange``); its pose at station ``i`` is the robot's
+  measured flange pose (with or without a pose-error model), times the robot's base with several
+  robots;
+- :data:`FREE`: the thing moves freely (``mount: free`` targets): one unknown pose per station.
+
+Observations are grouped by what they connect: target corners per (camera, target) *pair*, tool tips
+(and points on the imaged tool axis) per (camera, tool), contacts per (tool, cell point), 6-DOF pose
+measurements per (camera, target). :func:`gather` validates them against the cell and keeps the
+stations that observe something.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from jcalib.errors import BadInputError, NotObservableError
+from jcalib.io.cell import CellSpec
+from jcalib.io.observations import Observations
+
+#: The holder of a freely moving thing (one unknown pose per station).
+FREE = "~free"
+
+#: Fewest target points per view: a homography has 8 degrees of freedom (4 points), and fewer
+#: than 6 points leave a view pose with almost no redundancy.
+MIN_POINTS_PER_VIEW = 6
+
+
+@dataclass
+class Pair:
+    """Target corners that one camera saw of one target: one view per station."""
+
+    camera: str
+    target: str
+    views: list[int] = field(default_factory=list)  # station index per view
+    points: list[np.ndarray] = field(default_factory=list)  # (n, 3) per view, target frame, m
+    pixels: list[np.ndarray] = field(default_factory=list)  # (n, 2) per view
+    point_index: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass
+class Tips:
+    """Tool-tip pixels that one camera saw of one tool (and points on its imaged axis)."""
+
+    camera: str
+    tool: str
+    stations: list[int] = field(default_factory=list)
+    pixels: list[np.ndarray] = field(default_factory=list)  # (2,) each
+    axis: list[np.ndarray] = field(default_factory=list)  # (L, 2) each (L may be 0)
+
+
+@dataclass
+class Contacts:
+    """Stations where the tip of ``tool`` touches the cell point ``point``."""
+
+    tool: str
+    point: str
+    stations: list[int] = field(default_factory=list)
+
+
+@dataclass
+class PoseMeasurements:
+    """6-DOF poses of a target measured by a camera (or any sensor): ``T_cam_target`` per station."""
+
+    camera: str
+    target: str
+    stations: list[int] = field(default_factory=list)
+    T_cam_target: list[np.ndarray] = field(default_factory=list)
+
+
+class Graph:
+    """The things of a cell, their holders, the used stations and the observation groups.
+
+    Attributes:
+        cell, obs: the inputs.
+        frame: the cell's frame: ``"base"`` (one robot), ``"world"`` (several robots) or, in a cell
+            without robots, the reference camera's id (the rig frame).
+        multi: several robots (``robots:`` with two or more).
+        robot_names: every robot of the cell (one unnamed robot is ``"robot"``).
+        station_ids: the used stations, file order.
+        flange: robot -> ``(N, 4, 4)`` measured flange poses per used station (identity where the
+            station has none); ``need``: robot -> ``(N,)`` bool, stations whose observations involve it.
+        pairs, tips, contacts, poses: the observation groups, keyed by the two names they connect.
+    """
+
+    def __init__(self, cell: CellSpec, obs: Observations, reference_camera: str | None = None):
+        self.cell, self.obs = cell, obs
+        self.multi = cell.multi_robot
+        self.has_robot = cell.robot is not None or bool(cell.robots)
+        if self.multi:
+            self.robot_names = list(cell.robots)
+            self.robot_specs = dict(cell.robots)
+        elif self.has_robot:
+            name = (cell.robot.name if cell.robot is not None and cell.robot.name else None) or "robot"
+            self.robot_names = [name]
+            self.robot_specs = {name: cell.robot}
+        else:
+            self.robot_names, self.robot_specs = [], {}
+        self.reference_camera = None
+        if not self.has_robot:
+            self.reference_camera = self._reference(reference_camera)
+            self.frame = self.reference_camera or "base"
+        else:
+            self.frame = cell.frame
+        self.pairs: dict[tuple[str, str], Pair] = {}
+        self.tips: dict[tuple[str, str], Tips] = {}
+        self.contacts: dict[tuple[str, str], Contacts] = {}
+        self.poses: dict[tuple[str, str], PoseMeasurements] = {}
+        self.station_ids: list[str] = []
+        self.flange: dict[str, np.ndarray] = {}
+        self.need: dict[str, np.ndarray] = {}
+        self._gather()
+
+    # ------------------------------------------------------------------------- holders and names
+
+    def _reference(self, name: str | None) -> str | None:
+        cams = list(self.cell.cameras)
+        if name is not None:
+            if name not in self.cell.cameras:
+                raise BadInputError(f"reference_camera: got {name!r}, expected one of the cell's cameras "
+                                    f"({', '.join(cams) or 'none'})")
+            return name
+        return cams[0] if cams else None
+
+    def holder(self, spec) -> str | None:
+        """``None`` (fixed in the cell frame), a robot name (on its flange) or :data:`FREE`."""
+        mount = getattr(spec, "mount", "flange")
+        if mount == "flange":
+            return spec.robot if self.multi else self.robot_names[0]
+        if mount == "free" and not hasattr(spec, "observed_by"):
+            if not self.has_robot and spec.name in self.cell.cameras:
+                return None  # cameras of a cell without robots form the rig
+            return FREE
+        return None
+
+    def mount_name(self, spec) -> str | None:
+        """The name of a thing's pose on its holder (``T_<frame>_<x>``, ``T_flange_<x>``), or None for
+        a free thing (its per-station poses are :meth:`free_name`)."""
+        h = self.holder(spec)
+        if h == FREE:
+            return None
+        if h is None:
+            return f"T_{self.frame}_{spec.name}"
+        return f"T_flange_{spec.name}"
+
+    def free_name(self, name: str) -> str:
+        """The per-station pose variable of a free thing: ``T_<frame>_<name>``."""
+        return f"T_{self.frame}_{name}"
+
+    def flange_name(self, robot: str) -> str:
+        return f"T_{robot}_flange" if self.multi else "T_base_flange"
+
+    def base_name(self, robot: str) -> str | None:
+        return f"T_world_{robot}" if self.multi else None
+
+    def label(self, robot: str) -> str:
+        return f"robot '{robot}'" if self.multi or robot != "robot" else "the robot"
+
+    def has_noise(self, robot: str) -> bool:
+        s = self.robot_specs[robot]
+        return s is not None and s.pose_noise_translation_m is not None
+
+    def gauge(self) -> tuple[str | None, list[str]]:
+        """``(robot whose base is the world frame, or None; the held world poses that fix it)``.
+
+        Anchors are held world poses: a robot ``base`` listed in ``fixed`` (``T_world_<r>`` or the
+        robot's name), a ``mount: world`` camera or target with a ``pose`` listed in ``fixed``. With an
+        anchor every robot base not held is unknown; without, the first robot's base is the world
+        frame (held at its ``base``, else identity)."""
+        cell = self.cell
+        if not self.multi:
+            return (self.robot_names[0] if self.robot_names else None), []
+        anchors = [f"T_world_{r}" for r, s in self.robot_specs.items()
+                   if s.base is not None and (r in cell.fixed or f"T_world_{r}" in cell.fixed)]
+        for spec in list(cell.cameras.values()) + list(cell.targets.values()):
+            if spec.mount == "world" and spec.pose is not None and (spec.name in cell.fixed
+                                                                    or f"T_world_{spec.name}" in cell.fixed):
+                anchors.append(f"T_world_{spec.name}")
+        return (None if anchors else self.robot_names[0]), anchors
+
+    def held_base(self, robot: str) -> bool:
+        gauge, _ = self.gauge()
+        s = self.robot_specs[robot]
+        listed = robot in self.cell.fixed or f"T_world_{robot}" in self.cell.fixed
+        return robot == gauge or (s.base is not None and listed)
+
+    def station_pose(self, station, robot: str) -> np.ndarray | None:
+        """The measured flange pose of ``robot`` at ``station`` (None when the station has none)."""
+        if self.multi or station.flange_poses:
+            return station.flange_poses.get(robot)
+        return station.T_base_flange
+
+    # ------------------------------------------------------------------------- gather
+
+    def _gather(self) -> None:
+        cell, obs = self.cell, self.obs
+        src = obs.source
+        for c in cell.cameras.values():
+            if c.name not in obs.cameras:
+                raise BadInputError(f"{src}: camera '{c.name}' of the cell has no image size in the observations")
+            if self.has_robot and c.mount == "free":
+                raise BadInputError(
+                    f"{cell.source}: camera '{c.name}' has mount: free in a robot cell; a camera is on the flange "
+                    f"(mount: flange) or fixed in the cell (mount: {self.frame}); free-moving targets are mount: free")
+        needs, stations = [], []
+        for station in obs.stations:
+            k = len(self.station_ids)
+            need: set[str | None] = set()
+            used = False
+            for c in station.contacts:
+                if c.tool not in cell.tools:
+                    raise BadInputError(f"{src}: station '{station.id}': contact of tool '{c.tool}', which is not in "
+                                        f"the cell's tools ({', '.join(cell.tools) or 'none'})")
+                if c.point not in cell.points:
+                    raise BadInputError(f"{src}: station '{station.id}': contact with point '{c.point}', which is not "
+                                        f"in the cell's points ({', '.join(cell.points) or 'none'})")
+                self.contacts.setdefault((c.tool, c.point), Contacts(c.tool, c.point)).stations.append(k)
+                need.add(self.holder(cell.tools[c.tool]))
+                used = True
+            for det in station.detections:
+                if det.camera not in cell.cameras:
+                    continue
+                cam = cell.cameras[det.camera]
+                if det.tool is not None:
+                    if det.tool not in cell.tools:
+                        continue
+                    tool = cell.tools[det.tool]
+                    if self.holder(cam) == self.holder(tool):
+                        raise BadInputError(
+                            f"{src}: station '{station.id}': tool '{det.tool}' seen by camera '{det.camera}', which "
+                            "is on the same flange: the tip does not move in that camera's image; tool tips are "
+                            "used from cameras that do not move with the tool")
+                    t = self.tips.setdefault((det.camera, det.tool), Tips(det.camera, det.tool))
+                    t.stations.append(k)
+                    t.pixels.append(det.pixels.reshape(2))
+                    t.axis.append(np.asarray(getattr(det, "axis", None) if getattr(det, "axis", None) is not None
+                                             else np.zeros((0, 2)), np.float64).reshape(-1, 2))
+                    need |= {self.holder(cam), self.holder(tool)}
+                    used = True
+                elif det.target in cell.targets:
+                    n = det.point_index.size
+                    if n < MIN_POINTS_PER_VIEW:
+                        raise BadInputError(
+                            f"{src}: station '{station.id}', camera '{det.camera}': only {n} points of target "
+                            f"'{det.target}'; a view needs at least {MIN_POINTS_PER_VIEW}. Drop the view or re-detect it")
+                    if det.target not in obs.targets:
+                        raise BadInputError(f"{src}: the observations have no points for target '{det.target}'")
+                    p = self.pairs.setdefault((det.camera, det.target), Pair(det.camera, det.target))
+                    if p.views and p.views[-1] == k:
+                        continue  # one view per camera, target and station
+                    p.views.append(k)
+                    p.points.append(obs.targets[det.target][det.point_index])
+                    p.pixels.append(det.pixels)
+                    p.point_index.append(det.point_index)
+                    need |= {self.holder(cam), self.holder(cell.targets[det.target])}
+                    used = True
+            for m in getattr(station, "poses", ()) or ():
+                if m.camera not in cell.cameras or m.target not in cell.targets:
+                    raise BadInputError(
+                        f"{src}: station '{station.id}': a pose measurement of target '{m.target}' by '{m.camera}'; "
+                        "both must be in the cell's cameras and targets")
+                pm = self.poses.setdefault((m.camera, m.target), PoseMeasurements(m.camera, m.target))
+                pm.stations.append(k)
+                pm.T_cam_target.append(np.asarray(m.T_cam_target, np.float64))
+                need |= {self.holder(cell.cameras[m.camera]), self.holder(cell.targets[m.target])}
+                used = True
+            if not used:
+                continue
+            self._check_station_poses(station, need)
+            self.station_ids.append(station.id)
+            needs.append(need)
+            stations.append(station)
+        if not self.station_ids:
+            raise BadInputError(f"{src}: no detection of the cell's targets or tools, no contact and no pose "
+                                "measurement in any station")
+        n = len(self.station_ids)
+        for r in self.robot_names:
+            mask = np.array([r in nd for nd in needs]) if self.multi else np.ones(n, bool)
+            T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+            for k, station in enumerate(stations):
+                if mask[k]:
+                    T[k] = np.asarray(self.station_pose(station, r), np.float64)
+            self.flange[r], self.need[r] = T, mask
+        for key, p in list(self.pairs.items()):
+            hc, ht = self.holder(cell.cameras[p.camera]), self.holder(cell.targets[p.target])
+            if hc == ht and hc != FREE and len(p.views) > 1:
+                self.pairs[key] = _static_view(p)
+
+    def _check_station_poses(self, station, need: set) -> None:
+        src = self.obs.source
+        unknown = sorted(set(station.flange_poses) - set(self.robot_names))
+        if unknown:
+            raise BadInputError(
+                f"{src}: station '{station.id}': flange_poses names robot(s) {unknown}, which the cell does not "
+                f"have (robots: {', '.join(self.robot_names) or 'none'}); fix the robot names or the cell's robots")
+        if not self.has_robot:
+            return
+        if self.multi:
+            if station.T_base_flange is not None:
+                raise BadInputError(
+                    f"{src}: station '{station.id}' gives T_base_flange, but the cell has several robots "
+                    f"({', '.join(self.robot_names)}): give each robot's flange pose in flange_poses: {{robot: [[4x4]]}}")
+            for r in sorted(x for x in need if x not in (None, FREE)):
+                if r not in station.flange_poses:
+                    raise BadInputError(
+                        f"{src}: station '{station.id}': the detections or contacts involve robot '{r}' (a camera, "
+                        f"target or tool on its flange), but the station has no flange pose of '{r}'; add "
+                        f"flange_poses: {{{r}: [[4x4]]}} (T_{r}_flange, m) or drop those detections")
+        elif self.station_pose(station, self.robot_names[0]) is None:
+            raise BadInputError(
+                f"{src}: station '{station.id}' has no T_base_flange; a robot cell needs the flange pose of every "
+                "station")
+
+    # ------------------------------------------------------------------------- queries
+
+    @property
+    def used_robots(self) -> list[str]:
+        return [r for r in self.robot_names if self.need[r].any()]
+
+    def moving(self, camera: str, target: str) -> bool:
+        """Whether the target moves in the camera's image from station to station."""
+        hc = self.holder(self.cell.cameras[camera])
+        ht = self.holder(self.cell.targets[target])
+        return hc != ht or hc == FREE
+
+    def free_things(self) -> list[str]:
+        """Targets with one unknown pose per station."""
+        return [t.name for t in self.cell.targets.values() if self.holder(t) == FREE]
+
+    def check_views(self, camera: str) -> None:
+        """Raise when a camera of a cell without robots sees no target (nothing determines it)."""
+        if not any(c == camera for (c, _) in self.pairs) and not any(c == camera for (c, _) in self.tips) \
+                and not any(c == camera for (c, _) in self.poses):
+            raise NotObservableError(f"camera '{camera}' sees the target in no station: nothing determines its "
+                                     "intrinsics", [f"{camera} intrinsics"])
+
+
+def _static_view(p: Pair) -> Pair:
+    """Repeated images of a static scene (camera and target on the same holder) as one view.
+
+    They are not independent evidence about the geometry: the robot does not move one relative to
+    the other, so only the sensor noise differs between the images (detection biases repeat). Each
+    point seen in every image enters once, at its mean pixel; counting every image would shrink the
+    reported σ of that camera's pose by the square root of the number of stations.
+    """
+    common = set(p.point_index[0].tolist())
+    for idx in p.point_index[1:]:
+        common &= set(idx.tolist())
+    keep = np.array(sorted(common), dtype=p.point_index[0].dtype)
+    if keep.size == 0:
+        return Pair(p.camera, p.target, p.views[:1], p.points[:1], p.pixels[:1], p.point_index[:1])
+    rows = []
+    for idx, pix in zip(p.point_index, p.pixels):
+        where = {int(v): i for i, v in enumerate(idx.tolist())}
+        rows.append(np.asarray(pix, np.float64)[[where[int(v)] for v in keep]])
+    first = {int(v): i for i, v in enumerate(p.point_index[0].tolist())}
+    points = np.asarray(p.points[0])[[first[int(v)] for v in keep]]
+    return Pair(p.camera, p.target, p.views[:1], [points], [np.mean(rows, axis=0)], [keep])

@@ -1,0 +1,325 @@
+"""Refinement rounds around the one solve: re-seeded views, outlier rejection, variance components.
+
+All rounds re-use the compiled solve of the first (only weights, σ and start values change), and
+they run on a list of data sets at once: a round re-solves every member that needs it in one
+vmapped call (:func:`jcalib.solve.solve_many`), so a Monte-Carlo batch is as cheap as one data set
+per member; a single calibration is a list of one.
+
+1. **Re-seeding** (free targets): a view whose RMS residual is far above the rest may have started
+   in the flipped planar-PnP minimum; its other PnP pose starts a second solve, kept when the cost
+   drops.
+2. **Outliers**: corners, tool tips and axis points beyond ``outlier_threshold`` σ of their own kind
+   are rejected (σ: a robust scale, 1.4826 MAD of the kind's inlier residual coordinates, with
+   a-posteriori noise; the stated σ otherwise) and the problem re-solved from the last estimate; every
+   round re-decides every measurement, so one pulled along by an outlier comes back.
+3. **Variance components**: corners, tips, axis points, contacts and pose measurements come from
+   different sensors; one σ̂² of all residuals would let the most numerous kind set the noise of the
+   others, and would rescale stated priors (the robot's pose noise, a previous result). Each kind
+   ``k`` gets its own factor ``f_k = χ²_k / r_k`` (Helmert), ``r_k = m_k − Σ_g tr(H_g H⁻¹)`` its
+   redundancy, re-solved until every factor is within 1 % of 1; stated priors keep their σ. A kind
+   with too little redundancy (:data:`MIN_REDUNDANCY`) keeps its stated σ; when no kind can estimate
+   its own, one factor σ̂² of all residuals scales the covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from jcalib.errors import JcalibError, NotObservableError
+from jcalib.problems.build import Built, se3_matrix, se3_params
+from jcalib.problems.graph import Graph
+from jcalib.problems.start import Start, pnp_poses
+from jcalib.solve import Solution, SolveOptions, Status, solve, solve_many
+from jcalib.solve.core import raise_if_unobservable
+
+#: Rounds of outlier rejection (each re-solves once; stops when the rejected set stops changing).
+MAX_OUTLIER_ROUNDS = 5
+#: Iterations of the variance-component estimation (each re-solves from the previous solution).
+VARIANCE_COMPONENT_ITERATIONS = 25
+#: A kind estimates its own noise factor only with at least this redundancy (and a quarter of its
+#: count); below, χ² has too few degrees of freedom (e.g. tool tips whose 2 coordinates per station
+#: the station's robot pose correction can absorb) and the kind keeps its stated σ.
+MIN_REDUNDANCY = 5.0
+#: Views whose RMS exceeds this many times the median are re-seeded.
+RESEED_FACTOR = 3.0
+
+
+@dataclass
+class Refined:
+    """The final solve and what the rounds decided.
+
+    Attributes:
+        sol: the final :class:`jcalib.solve.Solution`; weights: group -> ``(n,)`` (0 = rejected).
+        outliers: ``(camera/tool, station id, point index or -1)`` of rejected measurements.
+        reseeded: station ids whose start pose was replaced by the other PnP candidate.
+        components: kind -> variance factor on its stated σ² (empty: one factor σ̂² for all).
+        cov_noise: ``"stated"`` (the σ carry the factors) or ``"a_posteriori"`` (scale by σ̂²).
+    """
+
+    sol: Solution
+    weights: dict[str, np.ndarray]
+    outliers: list[tuple[str, str, int]] = field(default_factory=list)
+    reseeded: list[str] = field(default_factory=list)
+    components: dict[str, float] = field(default_factory=dict)
+    cov_noise: str = "a_posteriori"
+
+
+@dataclass
+class Member:
+    """One data set in the rounds: its graph, start, problem and current state."""
+
+    g: Graph
+    start: Start
+    built: Built
+    weights: dict[str, np.ndarray] = field(default_factory=dict)
+    sol: Solution | None = None
+    scale: dict[str, float] = field(default_factory=dict)
+    error: JcalibError | None = None
+    outliers: list = field(default_factory=list)
+    reseeded: list = field(default_factory=list)
+    components: dict = field(default_factory=dict)
+
+
+def residuals(built: Built, sol: Solution) -> dict[str, np.ndarray]:
+    """Group -> ``(n, m)`` residuals of its real observations at ``sol`` (the kind's unit)."""
+    return {gr.name: sol.residuals[gr.name][gr.pad] for gr in built.groups}
+
+
+def _kinds(built: Built) -> list[str]:
+    return sorted({gr.kind for gr in built.groups})
+
+
+def uses_components(built: Built, options) -> bool:
+    """Whether variance components apply: a-posteriori noise with several kinds or stated priors."""
+    stated = any(f.name.startswith("prior:") for f in built.problem.factors)
+    return options.noise == "a_posteriori" and (len(_kinds(built)) > 1 or stated)
+
+
+class _Rounds:
+    def __init__(self, members: list[Member], options, batched: bool):
+        self.m, self.o, self.batched = members, options, batched
+        self.so = SolveOptions(max_iterations=options.max_iterations)
+        self.traces = [uses_components(x.built, options) for x in members]
+
+    def solve(self, idx: list[int], x0s: list[dict | None] | None = None) -> list[Solution | None]:
+        """Solve members ``idx`` (their current weights and scales); errors go to ``member.error``."""
+        x0s = x0s or [None] * len(idx)
+        out: list[Solution | None] = [None] * len(idx)
+        if not self.batched:
+            for j, (i, x0) in enumerate(zip(idx, x0s)):
+                x = self.m[i]
+                try:
+                    out[j] = solve(x.built.with_weights(x.weights, x.scale or None), x0=x0, options=self.so,
+                                   traces=self.traces[i])
+                except JcalibError as err:
+                    x.error = err
+            return out
+        groups: dict[tuple, list[int]] = {}
+        for j, i in enumerate(idx):
+            groups.setdefault((self.traces[i], id(type(self.m[i].built.problem))), []).append(j)
+        for (traces, _), js in groups.items():
+            problems = []
+            for j in js:
+                x = self.m[idx[j]]
+                p = x.built.with_weights(x.weights, x.scale or None)
+                problems.append(p if x0s[j] is None else p.with_values(x0s[j]))
+            try:
+                sols = solve_many(problems, self.so, traces=traces)
+            except JcalibError:  # different structures: one by one
+                sols = []
+                for p in problems:
+                    sols.append(solve(p, options=self.so, traces=traces, raise_on_unobservable=False))
+            for j, s in zip(js, sols):
+                x = self.m[idx[j]]
+                try:
+                    raise_if_unobservable(s)
+                    if s.status == Status.NON_FINITE:
+                        raise NotObservableError("the residuals or their derivatives are not finite at the start "
+                                                 "(check the inputs)", ["start"])
+                    out[j] = s
+                except JcalibError as err:
+                    x.error = err
+        return out
+
+    def live(self) -> list[int]:
+        return [i for i, x in enumerate(self.m) if x.error is None]
+
+    def run(self) -> None:
+        for x in self.m:
+            x.weights = x.built.unit_weights()
+        idx = list(range(len(self.m)))
+        for i, s in zip(idx, self.solve(idx)):
+            self.m[i].sol = s
+        if self.o.reseed_views:
+            self.reseed()
+        if self.o.outlier_threshold is not None:
+            self.reject()
+        for i in self.live():
+            x = self.m[i]
+            if self.o.noise == "a_posteriori" and not x.sol.sigma2 == x.sol.sigma2:
+                x.error = NotObservableError(
+                    f"The a-posteriori noise level needs more residuals ({x.sol.num_residuals}) than free unknowns "
+                    f"({x.sol.num_free}); use noise='stated'.", ["sigma2"])
+        self.components()
+
+    # ------------------------------------------------------------------------- rounds
+
+    def reseed(self) -> None:
+        todo, x0s, suspects = [], [], {}
+        for i in self.live():
+            x = self.m[i]
+            if not x.g.free_things():
+                continue
+            values, ks = _reseed_values(x)
+            if ks:
+                todo.append(i)
+                x0s.append(values)
+                suspects[i] = ks
+        for i, s in zip(todo, self.solve(todo, x0s)):
+            x = self.m[i]
+            if s is None:
+                x.error = None  # the re-seeded start failed: keep the first solve
+                continue
+            if s.cost < x.sol.cost:
+                x.sol, x.reseeded = s, [x.g.station_ids[k] for k in sorted(set(suspects[i]))]
+
+    def reject(self) -> None:
+        for _ in range(MAX_OUTLIER_ROUNDS):
+            todo = []
+            for i in self.live():
+                x = self.m[i]
+                new = _outlier_weights(x, self.o)
+                if not all(np.array_equal(new[n], x.weights[n]) for n in x.weights):
+                    x.weights = new
+                    todo.append(i)
+            if not todo:
+                break
+            for i, s in zip(todo, self.solve(todo, [self.m[i].sol.values for i in todo])):
+                if s is not None:
+                    self.m[i].sol = s
+        for i in self.live():
+            x = self.m[i]
+            for gr in x.built.groups:
+                who = "/".join(gr.key) if gr.kind != "corner" else gr.key[0]
+                x.outliers += [(who, x.g.station_ids[int(gr.stations[j])], int(gr.index[j]))
+                               for j in np.flatnonzero(x.weights[gr.name] == 0)]
+
+    def components(self) -> None:
+        active = [i for i in self.live() if self.traces[i]]
+        for i in active:
+            x = self.m[i]
+            x.scale = dict.fromkeys(_kinds(x.built), 1.0)
+        for _ in range(VARIANCE_COMPONENT_ITERATIONS):
+            todo = []
+            for i in active:
+                x = self.m[i]
+                if x.error is not None:
+                    continue
+                use = _component_update(x)
+                if not use:
+                    continue
+                for k, f in use.items():
+                    x.scale[k] *= f
+                todo.append((i, all(abs(v - 1.0) < 0.01 for v in use.values())))
+            if not todo:
+                break
+            idx = [i for i, _ in todo]
+            for i, s in zip(idx, self.solve(idx, [self.m[i].sol.values for i in idx])):
+                if s is not None:
+                    self.m[i].sol = s
+            active = [i for i, done in todo if not done]
+            if not active:
+                break
+        for i in self.live():
+            x = self.m[i]
+            x.components = {k: v for k, v in x.scale.items() if v != 1.0}
+
+
+def _reseed_values(x: Member):
+    """Start values with suspect views of free targets re-started from their other PnP pose."""
+    g, built, sol, start = x.g, x.built, x.sol, x.start
+    rms = _view_rms(built, sol, x.weights)
+    median = float(np.median(list(rms.values()))) if rms else 0.0
+    by_name = {gr.name: gr for gr in built.groups}
+    values = {k: v.copy() for k, v in sol.values.items()}
+    suspects = []
+    for (name, k), v in sorted(rms.items()):
+        gr = by_name[name]
+        cam, target = gr.key
+        if v <= RESEED_FACTOR * max(median, 1e-3) or target not in built.free_entry:
+            continue
+        model = start.models[cam].with_params(sol.values[f"intrinsics:{cam}"][0])
+        p = g.pairs[gr.key]
+        j = p.views.index(k)
+        T_ct = pnp_poses(model, [p.points[j]], [p.pixels[j]], second=True)[0]
+        W_cam = se3_matrix(sol.values[g.mount_name(g.cell.cameras[cam])][0])
+        values[g.free_name(target)][built.free_entry[target][k]] = se3_params(W_cam @ T_ct)
+        suspects.append(k)
+    return values, suspects
+
+
+def _view_rms(built: Built, sol: Solution, weights) -> dict[tuple[str, int], float]:
+    """``(group, station) -> RMS`` of each view's inlier corners (pixels)."""
+    out = {}
+    res = residuals(built, sol)
+    for gr in built.groups:
+        if gr.kind != "corner":
+            continue
+        sq = np.sum(res[gr.name] ** 2, axis=1) * (weights[gr.name] > 0)
+        count = np.bincount(gr.stations, weights=(weights[gr.name] > 0).astype(float))
+        total = np.bincount(gr.stations, weights=sq)
+        for k in np.unique(gr.stations):
+            out[(gr.name, int(k))] = float(np.sqrt(total[k] / max(count[k], 1.0))) if count[k] else 0.0
+    return out
+
+
+def _outlier_weights(x: Member, options) -> dict[str, np.ndarray]:
+    built = x.built
+    res = residuals(built, x.sol)
+    scale = {}
+    for kind in {gr.kind for gr in built.groups if gr.robust}:
+        coords = [res[gr.name][x.weights[gr.name] > 0].reshape(-1) for gr in built.groups if gr.kind == kind]
+        coords = np.concatenate(coords) if coords else np.zeros(0)
+        scale[kind] = (1.4826 * float(np.median(np.abs(coords))) if coords.size >= 10
+                       and options.noise == "a_posteriori" else built.sigma[kind])
+    return {gr.name: (np.where(np.linalg.norm(res[gr.name], axis=1) > options.outlier_threshold * scale[gr.kind],
+                               0.0, 1.0) if gr.robust else x.weights[gr.name]) for gr in built.groups}
+
+
+def _component_update(x: Member) -> dict[str, float]:
+    """Kind -> ``χ²_k / r_k`` for the kinds with enough redundancy (Helmert's estimator)."""
+    sol, built = x.sol, x.built
+    use = {}
+    for k in _kinds(built):
+        names = [gr.name for gr in built.groups if gr.kind == k]
+        count = sum(sol.count[n] for n in names)
+        chi2 = sum(sol.chi2[n] for n in names)
+        redundancy = count - sum(sol.hat[n] for n in names)
+        if redundancy >= max(MIN_REDUNDANCY, 0.25 * count) and chi2 > 0.0:
+            use[k] = chi2 / redundancy
+    return use
+
+
+def refine_many(members: list[Member], options, batched: bool = False) -> list[Refined | JcalibError]:
+    """Run the rounds of the module docstring on every member (each re-solve of a round in one
+    vmapped call when ``batched``). Returns each member's :class:`Refined` or its error."""
+    rounds = _Rounds(members, options, batched)
+    rounds.run()
+    out: list[Refined | JcalibError] = []
+    for x, traced in zip(members, rounds.traces):
+        if x.error is not None:
+            out.append(x.error)
+            continue
+        noise = "stated" if traced and x.components else options.noise
+        out.append(Refined(x.sol, x.weights, x.outliers, x.reseeded, x.components, noise))
+    return out
+
+
+def refine(g: Graph, start: Start, built: Built, options) -> Refined:
+    """The rounds of one data set; raises its error."""
+    out = refine_many([Member(g, start, built)], options)[0]
+    if isinstance(out, JcalibError):
+        raise out
+    return out

@@ -1,0 +1,63 @@
+"""Residuals between poses: tool-tip contacts, 6-DOF pose measurements (pose loops) and a prior on a
+translation component.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+
+from jcalib.geometry import lie
+from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian, chain_pose
+
+
+@functools.cache
+def contact(chain: Chain):
+    """``(fn, jacobian)``: tool tip minus a cell point, metres, ``(3,)``.
+
+    ``fn(*poses, point, obs)``: the chain carries the tool frame's origin (its tip) into the cell
+    frame (e.g. ``T_base_flange_i · T_flange_tool``); ``point (3,)`` is the touched cell point in that
+    frame; ``obs`` is unused (a ``(1,)`` placeholder). This one residual covers pivot calibration, the
+    robot 4-point TCP method and touched work-object points.
+    """
+
+    def fn(*rest):
+        *poses, point, _ = rest
+        return chain_apply(poses, chain, jnp.zeros((3,), point.dtype)) - point
+
+    def jacobian(*rest):
+        *poses, point, _ = rest
+        tip, blocks, _ = chain_jacobian(poses, chain, jnp.zeros((3,), point.dtype))
+        return tip - point, (*blocks, -jnp.eye(3, dtype=point.dtype))
+
+    return fn, jacobian
+
+
+@functools.cache
+def pose_measurement(chain: Chain, part: str):
+    """The rotation (``part="rotation"``, rad) or translation (``"translation"``, m) half of
+    ``Log(T_meas⁻¹ · T_pred)``, ``(3,)``, where ``T_pred`` is the chain's composed pose.
+
+    ``fn(*poses, obs)`` with ``obs = T_meas (7,)`` (``wxyz_xyz``): a sensor's measurement of a pose
+    (a camera's PnP of a marker, a laser tracker, another tool's pose-pair file). To first order the
+    residual is the measurement error as a right perturbation ``T_meas = T_true · Exp(−r)`` in the
+    measured frame; the two halves are separate factor groups so that each gets its own noise σ
+    (and its own variance component). Hand-eye from pose pairs (``A X = Y B``) is this residual.
+    """
+    sl = slice(0, 3) if part == "rotation" else slice(3, 6)
+
+    def fn(*rest):
+        *poses, T_meas = rest
+        return lie.se3_log(lie.se3_compose(lie.se3_inverse(T_meas), chain_pose(poses, chain)))[sl]
+
+    fn.__name__ = f"pose_measurement_{part}"
+    return fn
+
+
+def axis_translation_prior(T, obs):
+    """``(T (7,) wxyz_xyz, (axis (3,), value (1,))) -> (1,)``: ``axis · t − value`` (m), the translation
+    of a transform along a unit axis against a stated value (e.g. a hand-eye translation that
+    one-axis robot motion cannot determine)."""
+    axis, value = obs
+    return jnp.matmul(axis, T[4:7])[None] - value

@@ -1,0 +1,81 @@
+"""Reprojection residuals: target corners, tool tips and tool axes seen by a camera through a pose chain.
+
+One function object per configuration (lens model class, image size, skew, chain), cached, so
+problems built from new data share one traced and compiled solver.
+
+Observations carry ``aspect = (flag, ratio)``: with flag 1 the model's ``fy`` is replaced by
+``fx / ratio`` (OpenCV's ``CALIB_FIX_ASPECT_RATIO``), the same tie in every residual of that camera.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian
+
+
+def _model(model_cls: type, image_size: tuple[int, int], skew: bool, intrinsics, aspect):
+    fy = jnp.where(aspect[0] > 0.5, intrinsics[0] / aspect[1], intrinsics[1])
+    return model_cls.from_params(image_size, intrinsics.at[1].set(fy), skew=skew)
+
+
+@functools.cache
+def reprojection(model_cls: type, image_size: tuple[int, int], skew: bool, chain: Chain):
+    """``(fn, jacobian)`` of a point reprojection: ``project(chain · p) − pixel`` (pixels, (2,)).
+
+    ``fn(intrinsics, *poses, obs)`` with ``obs = (p (3,), pixel (2,), aspect (2,))``: ``p`` in the
+    chain's input frame (a target corner, or ``0`` for the origin of a tool frame: its tip).
+    ``jacobian`` is the engine's hand-derived linearisation (``FactorGroup.jacobian``): autodiff
+    through the lens model only, the poses by :func:`jcalib.residuals.chain.chain_jacobian`.
+    """
+
+    def fn(intrinsics, *rest):
+        *poses, obs = rest
+        p, pixel, aspect = obs
+        model = _model(model_cls, image_size, skew, intrinsics, aspect)
+        return model.project(chain_apply(poses, chain, p)) - pixel
+
+    def project(p_cam, intrinsics, obs):
+        _, pixel, aspect = obs
+        r = _model(model_cls, image_size, skew, intrinsics, aspect).project(p_cam) - pixel
+        return r, r
+
+    def jacobian(intrinsics, *rest):
+        *poses, obs = rest
+        p_cam, blocks, _ = chain_jacobian(poses, chain, obs[0])
+        (J_cam, J_intr), r = jax.jacrev(project, argnums=(0, 1), has_aux=True)(p_cam, intrinsics, obs)
+        return r, (J_intr, *[J_cam @ b for b in blocks])
+
+    return fn, jacobian
+
+
+@functools.cache
+def tool_axis(model_cls: type, image_size: tuple[int, int], skew: bool, chain: Chain):
+    """Signed distance (pixels, (1,)) of an observed point of the imaged tool axis from the image
+    line through the projected tip (the tool frame's origin) and the projected point ``length``
+    metres along the tool frame's z axis.
+
+    ``fn(intrinsics, *poses, obs)`` with ``obs = (pixel (2,), length (), aspect (2,))``; the chain
+    ends with the tool's pose on its holder. A degenerate line (the axis along the viewing ray)
+    gives a finite residual with finite derivatives (safe branch). The distortion of the axis'
+    image over the segment is neglected.
+    """
+
+    def fn(intrinsics, *rest):
+        *poses, obs = rest
+        point, length, aspect = obs
+        model = _model(model_cls, image_size, skew, intrinsics, aspect)
+        zero = jnp.zeros_like(length)
+        u0 = model.project(chain_apply(poses, chain, jnp.stack([zero, zero, zero])))
+        e = model.project(chain_apply(poses, chain, jnp.stack([zero, zero, length]))) - u0
+        n2 = jnp.sum(e * e)
+        ok = n2 > 1e-12
+        inv_n = 1.0 / jnp.sqrt(jnp.where(ok, n2, 1.0))
+        d = point - u0
+        cross = e[0] * d[1] - e[1] * d[0]
+        return jnp.where(ok, cross * inv_n, jnp.sqrt(jnp.sum(d * d) + 1e-12))[None]
+
+    return fn

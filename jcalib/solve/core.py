@@ -1,0 +1,190 @@
+"""The one solve path: ``solve(problem)`` and ``solve_many(problems)``.
+
+A whole solve is **one** compiled function per problem structure and shape bucket
+(:func:`jcalib.solve.batch.pad_problem`): the Levenberg–Marquardt loop (:func:`jcalib.solve.lm.lm_solve`),
+then at the estimate every factor group's residuals, the inverse blocks of the information matrix
+that every covariance is read from (``Σ_ss = S⁻¹`` of the Schur complement ``S`` and the eliminated
+blocks ``V⁻¹``) and, on request, each factor group's share ``tr(H_g H⁻¹)`` of the unknowns (its
+"hat trace", for variance components and redundancy). Outlier rounds and variance-component
+iterations change only arrays (weights, σ) and re-use that compiled function. ``solve_many``
+vmaps the same function over problems of one structure (Monte Carlo, fleets of identical cells).
+
+The result is a host-side :class:`jcalib.solve.solution.Solution`: values, status, statistics per
+factor group, covariances and the linear model — nothing outside ``solve/`` assembles normal
+equations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+import numpy as np
+
+from jcalib.errors import BadInputError, NotObservableError
+from jcalib.solve import linear
+from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
+from jcalib.solve.lm import RawSolution, SolveOptions, Status, lm_solve
+from jcalib.solve.problem import Problem
+from jcalib.solve.solution import Solution, unobservable_names
+
+
+class Outcome(eqx.Module):
+    """What the compiled solve returns (a pytree of arrays; batched under ``vmap``).
+
+    Attributes:
+        raw: the :class:`jcalib.solve.lm.RawSolution` (values, status, the information system).
+        residuals: per factor group ``(K, m)`` residuals at the estimate, unwhitened (the factor's
+            own unit, e.g. pixels), padded observations included.
+        sigma_ss: ``(n_s, n_s)`` inverse of the Schur complement (shared unknowns).
+        v_inv: per eliminated kind ``(num, d, d)`` inverse diagonal blocks.
+        chi2: ``(G,)`` per factor group ``Σ_k ρ'(s_k) s_k`` of the whitened squared norms ``s_k``.
+        count: ``(G,)`` residual components with nonzero weight per group.
+        hat: ``(G,)`` per group ``tr(H_g H⁻¹)`` (zeros unless asked for).
+    """
+
+    raw: RawSolution
+    residuals: tuple[jax.Array, ...]
+    sigma_ss: jax.Array
+    v_inv: tuple[jax.Array, ...]
+    chi2: jax.Array
+    count: jax.Array
+    hat: jax.Array
+
+
+def _hat_traces(raw: RawSolution, sigma_ss, v_inv) -> jax.Array:
+    """``tr(H_g H⁻¹)`` of every factor group ``g`` from its own system and the inverse blocks.
+
+    ``Σ_ee = V⁻¹ + V⁻¹Wᵀ Σ_ss W V⁻¹`` and ``Σ_es = −V⁻¹Wᵀ Σ_ss`` per eliminated entry; no dense inverse.
+    """
+    sigma_ee, sigma_es = [], []
+    for W, Vinv in zip(raw.system.W, v_inv):
+        Y = jnp.einsum("nde,nse->nds", Vinv, W)
+        sigma_ee.append(Vinv + jnp.einsum("nds,st,nxt->ndx", Y, sigma_ss, Y))
+        sigma_es.append(-jnp.einsum("nds,st->ndt", Y, sigma_ss))
+    out = []
+    for Hg in raw.groups:
+        total = jnp.sum(Hg.H_ss * sigma_ss)
+        for Vg, Wg, s_ee, s_es in zip(Hg.V, Hg.W, sigma_ee, sigma_es):
+            total = total + jnp.einsum("nde,ned->", Vg, s_ee) + 2.0 * jnp.einsum("nsd,nds->", Wg, s_es)
+        out.append(total)
+    return jnp.stack(out) if out else jnp.zeros((0,), jnp.float64)
+
+
+def _core(problem: Problem, options: SolveOptions, traces: bool) -> Outcome:
+    raw = lm_solve(problem, options, per_group=traces)
+    S, v_inv = linear.reduced_system(raw.system, None, None)
+    n = S.shape[0]
+    sigma_ss = jsl.cho_solve(jsl.cho_factor(S, lower=True), jnp.eye(n, dtype=S.dtype)) if n else S
+    residuals, chi2, count = [], [], []
+    for f in problem.factors:
+        rows = tuple(raw.values[a][i] for a, i in zip(f.args, f.indices))
+        r = jax.vmap(f.fn)(*rows, f.observations)
+        r = r.reshape(r.shape[0], -1)
+        w = f.sqrt_weight
+        s = jnp.sum((r * (w / f.sigma)[:, None]) ** 2, axis=-1)
+        _, rho1 = f.loss.rho(s)
+        residuals.append(r)
+        chi2.append(jnp.sum(jnp.where(w > 0.0, rho1 * s, 0.0)))
+        count.append(jnp.sum(jnp.where(w > 0.0, r.shape[-1], 0)))
+    hat = _hat_traces(raw, sigma_ss, v_inv) if traces else jnp.zeros((len(problem.factors),))
+    raw = eqx.tree_at(lambda r: r.groups, raw, None, is_leaf=lambda x: x is None)  # not needed on the host
+    return Outcome(raw, tuple(residuals), sigma_ss, tuple(v_inv), jnp.stack(chi2), jnp.stack(count), hat)
+
+
+_core_jit = eqx.filter_jit(_core)
+_core_vmap_jit = eqx.filter_jit(eqx.filter_vmap(_core, in_axes=(0, None, None)))
+
+
+def check_finite_start(problem: Problem) -> None:
+    """Raise :class:`BadInputError` naming the first variable with a non-finite start value."""
+    for v in problem.variables:
+        value = np.asarray(v.value)
+        if not np.all(np.isfinite(value)):
+            bad = np.argwhere(~np.isfinite(value))[0]
+            raise BadInputError(
+                f"Variable {v.name!r} value: entry {int(bad[0])} contains {value[tuple(bad)]}, expected finite numbers."
+            )
+
+
+def raise_if_unobservable(sol: Solution) -> None:
+    if sol.status == Status.NOT_OBSERVABLE:
+        unknowns = unobservable_names(sol.padded_problem, sol.layout, sol.raw.observability, sol.options.rank_rtol)
+        raise NotObservableError(
+            "The data do not determine these unknowns (rank-deficient information matrix at the "
+            f"solution): {', '.join(unknowns)}. Fix them, add a prior, or collect data that constrains them.",
+            unknowns,
+        )
+
+
+def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = SolveOptions(), *,
+          pad: bool = True, raise_on_unobservable: bool = True, traces: bool = False) -> Solution:
+    """Solve ``problem`` by Levenberg–Marquardt, with covariance blocks, in one compiled call.
+
+    Args:
+        problem: the problem graph; start values from its variables unless ``x0`` overrides them.
+        x0: optional ``{name: (num, param_dim)}`` start values.
+        options: :class:`SolveOptions` (static: a change recompiles).
+        pad: round variable and observation counts up to buckets (:func:`pad_problem`) so that a new
+            data set of similar size reuses the compiled solve.
+        raise_on_unobservable: raise instead of returning ``Status.NOT_OBSERVABLE``.
+        traces: also compute every factor group's ``tr(H_g H⁻¹)`` (:attr:`Solution.hat`), for
+            variance components (a second linearisation at the estimate; a separate compiled function).
+    Returns:
+        :class:`Solution` (``status`` CONVERGED, MAX_ITERATIONS, or NON_FINITE when the residuals
+        or Jacobians at the start are not finite).
+    Raises:
+        NotObservableError: the data do not determine some unknowns; ``err.unknowns`` names them.
+        BadInputError: non-finite start values.
+    """
+    if x0 is not None:
+        problem = problem.with_values(x0)
+    check_finite_start(problem)
+    padded = pad_problem(problem) if pad else problem
+    out = jax.device_get(_core_jit(padded, options, bool(traces)))
+    sol = Solution(problem, padded, out, options)
+    if raise_on_unobservable:
+        raise_if_unobservable(sol)
+    return sol
+
+
+def solve_many(problems: Sequence[Problem], options: SolveOptions = SolveOptions(), *,
+               traces: bool = False, width: int | None = None) -> list[Solution]:
+    """Solve problems of one structure in vmapped, jitted calls; no exception on a bad status.
+
+    Every problem is padded to the largest bucket among them (one shape), then solved ``width`` at a
+    time (:func:`jcalib.solve.batch.batch_width` by default; a short last call is filled with copies).
+
+    Raises:
+        BadInputError: problems of different structure (variable or factor names, residual
+            functions), or a non-positive ``width``.
+    """
+    problems = list(problems)
+    if not problems:
+        return []
+    for p in problems:
+        check_finite_start(p)
+    structure = {jax.tree.structure(p) for p in problems}
+    if len(structure) != 1:
+        raise BadInputError("solve_many problems: got problems of different structure, expected one structure.")
+    entries = {v.name: max(bucket_size(p.variable(v.name).num) for p in problems) for v in problems[0].variables}
+    num_obs = {}
+    for k, f in enumerate(problems[0].factors):
+        c = f.chunk or 1
+        num_obs[f.name] = max(bucket_size(p.factors[k].num_obs // c) for p in problems) * c
+    padded = [pad_problem(p, num_entries=entries, num_obs=num_obs) for p in problems]
+    width = batch_width(len(padded)) if width is None else int(width)
+    if width < 1:
+        raise BadInputError(f"solve_many width: got {width}, expected a positive integer")
+    out: list[Solution] = []
+    for start in range(0, len(padded), width):
+        chunk = padded[start:start + width]
+        filled = chunk + [chunk[-1]] * (width - len(chunk))
+        batch = jax.device_get(_core_vmap_jit(stack_problems(filled), options, bool(traces)))
+        for i, pp in enumerate(chunk):
+            member = jax.tree.map(lambda a, i=i: a[i], batch)
+            out.append(Solution(problems[start + i], pp, member, options))
+    return out
