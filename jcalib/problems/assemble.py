@@ -170,6 +170,8 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     res = residuals(built, sol)
     cameras, intr_cov = {}, {}
     for cam in cell.cameras.values():
+        if cam.name not in start.models:
+            continue
         prm = vals[f"intrinsics:{cam.name}"][0].copy()
         cov = sol.covariance(f"intrinsics:{cam.name}", noise=noise)
         flag, ratio = start.aspects[cam.name]
@@ -196,7 +198,7 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     points = {n: vals[f"point:{n}"][0].copy() for n in cell.points}
     point_cov = {n: sol.covariance(f"point:{n}", noise=noise) for n in cell.points}
 
-    joint_names = [(c, f"intrinsics:{c}") for c in cell.cameras] + [(n, n) for n in built.transforms]
+    joint_names = [(c, f"intrinsics:{c}") for c in cameras] + [(n, n) for n in built.transforms]
     joint_names = [(a, b) for a, b in joint_names if not sol.layout.eliminate[sol.layout.kind(b)]]
     M = sol.joint_covariance([b for _, b in joint_names], noise=noise)
     dims = [sol.layout.dims[sol.layout.kind(b)] for _, b in joint_names]

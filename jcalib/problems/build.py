@@ -205,6 +205,8 @@ class _Builder:
     def shared_variables(self) -> None:
         g, s, cell = self.g, self.s, self.g.cell
         for cam in cell.cameras.values():
+            if cam.name not in s.models:
+                continue  # a pose sensor: no intrinsics
             model = s.models[cam.name]
             self.add(f"intrinsics:{cam.name}", Euclidean(len(model.param_names)),
                      np.asarray(model.params, np.float64)[None, :], fixed=s.fixed_masks[cam.name][None, :],
@@ -356,7 +358,7 @@ class _Builder:
             self.factor(Group(name, "axis", (c, tool), st_axis, np.full(m, -1), np.arange(m), m, True), f, args)
 
     def contacts(self) -> None:
-        g, cell = self.g, self.g.cell
+        g, cell, loss = self.g, self.g.cell, loss_of(self.o)
         for (tool, point), ct in g.contacts.items():
             args, chain = self._args(self.side(cell.tools[tool], tool, False))
             st = np.asarray(ct.stations, np.int32)
@@ -364,7 +366,7 @@ class _Builder:
             fn, jac = contact(chain)
             name = f"contacts:{tool}/{point}"
             f = FactorGroup(name, fn, args + (f"point:{point}",), self.indices(args, st) + (np.zeros_like(st),),
-                            np.zeros((n, 1)), sigma=self.o.contact_sigma_m, jacobian=jac)
+                            np.zeros((n, 1)), sigma=self.o.contact_sigma_m, jacobian=jac, loss=loss)
             self.factor(Group(name, "contact", (tool, point), st, np.full(n, -1), np.arange(n), n, False), f, args)
 
     def pose_measurements(self) -> None:

@@ -100,25 +100,12 @@ def _priors(prior, names, graph: Graph, start: Start) -> dict:
     return out
 
 
-def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOptions | None = None, *,
-                   prior=None, prior_names=None, start=None, given: set[str] | None = None) -> Calibration:
-    """Calibrate any cell jointly (see the module docstring).
+def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | None = None, *, prior=None,
+            prior_names=None, start=None, given: set[str] | None = None, priors: dict | None = None,
+            known: dict | None = None) -> tuple[Graph, Start, object]:
+    """The graph, closed-form start and problem of a cell (everything before the solve).
 
-    Args:
-        cell, obs: the parsed cell spec and observations.
-        options: :class:`CalibrationOptions`.
-        prior: an old :class:`jcalib.io.result.ResultFile`: its values start the solve and its
-            covariances become Gaussian priors on the unknowns in ``prior_names`` (None: all it holds).
-        start: an old result whose values only start the solve.
-        given: option names the user set explicitly; those the cell cannot use are refused.
-
-    Returns:
-        :class:`Calibration`. Covariances are sampling noise (every measurement kind's noise and the
-        stated priors, first order, with each kind's a-posteriori variance component), not model error.
-
-    Raises:
-        BadInputError: malformed input (missing poses, too few points, an option the cell cannot use).
-        NotObservableError: unknowns the data cannot determine, named.
+    Arguments as :func:`calibrate_cell`. Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
     g = Graph(cell, obs, options.reference_camera)
@@ -152,6 +139,8 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
         for n, tr in seed.transforms.items():
             if n not in s.known:
                 s.known[n], s.how[n] = np.asarray(tr.matrix, np.float64), "prior"
+    for n, T in (known or {}).items():
+        s.known[n], s.how[n] = np.asarray(T, np.float64), "given"
     noisy = [r for r in g.used_robots if g.has_noise(r) and g.robot_specs[r].pose_noise_rotation_deg is not None]
     rot_noise = max([0.02] + [float(np.max(g.robot_specs[r].pose_noise_rotation_deg)) for r in noisy])
     tool_robots = frozenset(g.holder(cell.tools[t]) for (_, t) in g.tips) | frozenset(
@@ -160,7 +149,37 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
                 prior_m=options.unobservable_prior_m, prior_sigma_m=options.unobservable_prior_sigma_m,
                 tool_robots=tool_robots)
     start_tools(g, s)
-    built = build(g, s, options, pose_model, _priors(prior, prior_names, g, s))
+    built = build(g, s, options, pose_model, {**_priors(prior, prior_names, g, s), **(priors or {})})
+    return g, s, built
+
+
+def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOptions | None = None, *,
+                   prior=None, prior_names=None, start=None, given: set[str] | None = None,
+                   priors: dict | None = None, known: dict | None = None) -> Calibration:
+    """Calibrate any cell jointly (see the module docstring).
+
+    Args:
+        cell, obs: the parsed cell spec and observations.
+        options: :class:`CalibrationOptions`.
+        prior: an old :class:`jcalib.io.result.ResultFile`: its values start the solve and its
+            covariances become Gaussian priors on the unknowns in ``prior_names`` (None: all it holds).
+        start: an old result whose values only start the solve.
+        given: option names the user set explicitly; those the cell cannot use are refused.
+        priors: further Gaussian priors, name (camera id, transform name, ``point:<name>``) ->
+            ``(mean params, sqrt_info)`` (a zero row of ``sqrt_info``: no prior on that coordinate).
+        known: transform name -> ``(4, 4)`` start values (instead of the closed form).
+
+    Returns:
+        :class:`Calibration`. Covariances are sampling noise (every measurement kind's noise and the
+        stated priors, first order, with each kind's a-posteriori variance component), not model error.
+
+    Raises:
+        BadInputError: malformed input (missing poses, too few points, an option the cell cannot use).
+        NotObservableError: unknowns the data cannot determine, named.
+    """
+    options = options or CalibrationOptions()
+    g, s, built = prepare(cell, obs, options, prior=prior, prior_names=prior_names, start=start, given=given,
+                          priors=priors, known=known)
     return assemble(g, s, built, refine(g, s, built, options))
 
 

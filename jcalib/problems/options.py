@@ -32,7 +32,8 @@ class CalibrationOptions:
         pose_sigma_deg, pose_sigma_m: noise of a 6-DOF pose measurement, per rotation axis (degrees)
             and per translation axis (m).
         noise: ``"a_posteriori"`` (σ from the residuals, default) or ``"stated"`` (trust the σ above).
-        loss: robust loss on pixel residuals (corners, tips): ``"none"``, ``"huber"`` or ``"cauchy"``.
+        loss: robust loss on corners, tool tips, axis points and contacts: ``"none"``, ``"huber"`` or
+            ``"cauchy"``.
         loss_scale: the loss scale in units of σ.
         outlier_threshold: corners, tips and axis points beyond this many σ of their own kind (a robust
             scale of that kind's residuals with ``a_posteriori`` noise) are rejected and the problem
@@ -100,10 +101,6 @@ class CalibrationOptions:
 
 #: Option name -> (what in the cell it needs, a predicate on the problem graph). Options not listed
 #: apply to every cell (noise, loss, outlier threshold, max_iterations).
-def _has_pixels(g) -> bool:
-    return bool(g.pairs or g.tips)
-
-
 APPLIES = {
     "sigma_px": ("target corners in the observations", lambda g: bool(g.pairs)),
     "tip_sigma_px": ("tool-tip detections", lambda g: bool(g.tips)),
@@ -112,8 +109,6 @@ APPLIES = {
     "contact_sigma_m": ("tool contacts with cell points", lambda g: bool(g.contacts)),
     "pose_sigma_deg": ("6-DOF pose measurements", lambda g: bool(g.poses)),
     "pose_sigma_m": ("6-DOF pose measurements", lambda g: bool(g.poses)),
-    "loss": ("pixel observations (corners or tool tips)", _has_pixels),
-    "loss_scale": ("pixel observations (corners or tool tips)", _has_pixels),
     "reseed_views": ("a free-moving target (mount: free)", lambda g: bool(g.free_things())),
     "pose_model": ("a robot with pose_noise", lambda g: any(g.has_noise(r) for r in g.used_robots)),
     "method": ("a camera and a target that move relative to each other on a robot (a hand-eye pair)",

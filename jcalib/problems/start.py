@@ -154,6 +154,8 @@ def start_intrinsics(g: Graph, start: Start, seed=None) -> None:
     cell = g.cell
     for cam in cell.cameras.values():
         cam_pairs = [p for (c, _), p in g.pairs.items() if c == cam.name]
+        if not cam_pairs and not any(c == cam.name for (c, _) in g.tips) and any(c == cam.name for (c, _) in g.poses):
+            continue  # a pose sensor only (6-DOF measurements): no lens to calibrate
         K0, dist0 = cam.K, cam.dist
         if K0 is None and seed is not None and cam.name in seed.cameras and seed.cameras[cam.name].model == cam.model:
             K0, dist0 = np.asarray(seed.cameras[cam.name].K), np.asarray(seed.cameras[cam.name].dist)

@@ -60,9 +60,10 @@ class Variable(eqx.Module):
         entry_label: how an entry is called in messages, a format string with ``{name}`` and
             ``{i}``, e.g. ``"view {i} pose"``. Default ``"{name}[{i}]"`` (``"{name}"`` if num = 1).
         constant: every coordinate of every entry is fixed, and that is known when the problem is
-            traced (e.g. the reference camera's rig pose of a one-camera problem): factors do not
-            differentiate with respect to it, which saves Jacobian columns and Hessian blocks.
-            Implies ``fixed=True``.
+            traced (e.g. the reference camera's rig pose of a one-camera problem, exact robot poses):
+            factors do not differentiate with respect to it, which saves Jacobian columns and Hessian
+            blocks. Implies ``fixed=True``; it is laid out as an eliminated kind (identity blocks), so
+            that many constant entries never enter the dense system.
     """
 
     name: str = eqx.field(static=True)
@@ -145,7 +146,7 @@ class Variable(eqx.Module):
         self.fixed = fixed
         self.prior_mean = prior_mean
         self.prior_sqrt_info = prior_sqrt_info
-        self.eliminate = bool(eliminate)
+        self.eliminate = bool(eliminate) or bool(constant)
         self.coord_names = labels
         self.entry_label = entry_label
         self.constant = bool(constant)
@@ -359,7 +360,7 @@ class Problem(eqx.Module):
                             f"observation {k} is out of range, expected 0 <= index < {num} "
                             f"({bad.size} bad indices in all)."
                         )
-                if by_name[a].eliminate:
+                if by_name[a].eliminate and not by_name[a].constant:
                     elim_args.append(a)
             if len(elim_args) > 1:
                 raise BadInputError(
