@@ -217,15 +217,22 @@ def tcp_servo_adjust(robot: Robot, cameras: Mapping[str, Camera], cell: str | Pa
         planner = json.loads(Path(plan_path).read_text(encoding="utf-8")).get("planner") or {}
     except (OSError, ValueError, AttributeError):
         planner = {}
-    if planner.get("kind") != "tcp" or not planner.get("camera"):
+    if planner.get("kind") != "tcp" or not planner.get("tool"):
         raise BadInputError(
             f"--kind tcp: {plan_path} is not a tcp plan (make one with `jcalib plan --kind tcp`): its 'planner' "
-            "key must name the tool and the camera observing it"
+            "key must name the tool"
         )
-    cam_name = str(planner["camera"])
-    if cam_name not in cameras:
-        raise BadInputError(f"--kind tcp: the plan servoes with camera {cam_name!r}; add --camera {cam_name}=gige://...")
     layout = cell_layout(cell, robot=planner.get("robot"))
+    tool = str(planner["tool"])
+    if tool not in layout.cell.tools:
+        raise BadInputError(f"--kind tcp: the plan is for tool {tool!r}, which the cell spec does not define")
+    observers = [c for c in layout.cell.tools[tool].observed_by if layout.cameras[c].mount == "base"]
+    cam_name = str(planner.get("camera") or (observers[0] if observers else ""))
+    if cam_name not in cameras:
+        raise BadInputError(
+            f"--kind tcp: the servo needs the base camera observing tool {tool!r} ({cam_name or 'none in the cell'}); "
+            f"add --camera {cam_name or 'NAME'}=gige://..."
+        )
     nominal = layout.cameras[cam_name]
     model = camera_from_opencv(nominal.K, nominal.dist, nominal.image_size, fisheye=nominal.model == "fisheye")
     R_base_cam = np.asarray(nominal.pose, dtype=np.float64)[:3, :3]
