@@ -257,32 +257,36 @@ def capture(
             n,
         )
 
+    def finish(station: Station, record: dict, reason: str) -> None:
+        if station.id in retakes:
+            record["retake"] = True
+        writer.append_station(record)
+        if reason:
+            result.skipped[station.id] = reason
+            emit("skipped", station.id, reason)
+        else:
+            result.captured.append(station.id)
+            emit("done", station.id, "")
+        if bar is not None:
+            bar.advance(task)
+
     try:
         for station in todo:
             emit("start", station.id, "")
             status(f"{station.id}: moving ({station.move})")
             try:
                 state = robot.move(station.T_base_flange, kind=station.move, settle_timeout_s=settle_timeout_s)
+                why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
+                if why:  # read once more: a robot still creeping in
+                    state = robot.wait_settled(timeout_s=settle_timeout_s)
+                    why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
             except MotionRefusedError as e:
                 reason = f"unreachable: {e}"
-                writer.append_station(
-                    {"id": station.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(),
-                     "images": {}, "status": f"skipped: {reason}"}
-                )  # fmt: skip
-                result.skipped[station.id] = reason
-                emit("skipped", station.id, reason)
-                if bar is not None:
-                    bar.advance(task)
+                finish(station, {"id": station.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(),
+                                 "images": {}, "status": f"skipped: {reason}"}, reason)  # fmt: skip
                 continue
             except DeviceError as e:
                 raise interrupted(station, "robot", e) from e
-            why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
-            if why:  # read once more: a robot still creeping in
-                try:
-                    state = robot.wait_settled(timeout_s=settle_timeout_s)
-                except DeviceError as e:
-                    raise interrupted(station, "robot", e) from e
-                why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
             if why:
                 raise interrupted(station, "robot", DeviceError(why))
             emit("moved", station.id, "")
@@ -291,62 +295,15 @@ def capture(
                 try:
                     state, extra = adjust(station, state)
                 except SkipStation as e:
-                    reason = str(e)
-                    record = {"id": station.id, "T_base_flange": state.T_base_flange.tolist(),
-                              "joints_deg": [float(v) for v in state.joints_deg], "time": utc_now(), "images": {},
-                              "status": f"skipped: {reason}", "T_base_flange_commanded": station.T_base_flange.tolist()}  # fmt: skip
-                    if station.id in retakes:
-                        record["retake"] = True
-                    writer.append_station(record)
-                    result.skipped[station.id] = reason
-                    emit("skipped", station.id, reason)
-                    if bar is not None:
-                        bar.advance(task)
+                    finish(station, _record(station, state, {}, f"skipped: {e}"), str(e))
                     continue
                 except DeviceError as e:
                     raise interrupted(station, "adjust", e) from e
-
-            images: dict[str, np.ndarray] = {}
-            reject = ""
-            for cid, cam in cameras.items():
-                for attempt in range(regrabs + 1):
-                    status(f"{station.id}: grabbing {cid}" + (f" (re-grab {attempt})" if attempt else ""))
-                    try:
-                        frame = cam.grab(timeout_s=grab_timeout_s)
-                    except DeviceError as e:
-                        raise interrupted(station, f"camera {cid}", e) from e
-                    why = quality_check(cid, frame.image, station) if quality_check else None
-                    if not why:
-                        images[cid] = frame.image
-                        reject = ""
-                        break
-                    reject = f"quality {cid}: {why}"
-                if reject:
-                    break
+            images, reject = _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted)
             emit("grabbed", station.id, reject)
             status(f"{station.id}: writing")
             paths = {} if reject else {cid: writer.write_image(cid, station.id, img) for cid, img in images.items()}
-            record = {
-                "id": station.id,
-                "T_base_flange": state.T_base_flange.tolist(),
-                "joints_deg": [float(v) for v in state.joints_deg],
-                "time": utc_now(),
-                "images": paths,
-                "status": f"skipped: {reject}" if reject else "ok",
-                "T_base_flange_commanded": station.T_base_flange.tolist(),
-                **extra,
-            }
-            if station.id in retakes:
-                record["retake"] = True
-            writer.append_station(record)
-            if reject:
-                result.skipped[station.id] = reject
-                emit("skipped", station.id, reject)
-            else:
-                result.captured.append(station.id)
-                emit("done", station.id, "")
-            if bar is not None:
-                bar.advance(task)
+            finish(station, _record(station, state, paths, f"skipped: {reject}" if reject else "ok", extra), reject)
         status("done")
     finally:
         if bar is not None:
@@ -356,6 +313,42 @@ def capture(
             robot_lock.release()
     result.elapsed_s = time.monotonic() - t_start
     return result
+
+
+def _record(station: Station, state: RobotState, paths: dict, status: str, extra: dict | None = None) -> dict:
+    """The stations.jsonl line of a station reached at ``state``."""
+    return {
+        "id": station.id,
+        "T_base_flange": state.T_base_flange.tolist(),
+        "joints_deg": [float(v) for v in state.joints_deg],
+        "time": utc_now(),
+        "images": paths,
+        "status": status,
+        "T_base_flange_commanded": station.T_base_flange.tolist(),
+        **(extra or {}),
+    }
+
+
+def _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted) -> tuple[dict, str]:
+    """One image per camera (re-grabbed while the quality check rejects it): ``(images, rejection reason)``."""
+    images: dict[str, np.ndarray] = {}
+    for cid, cam in cameras.items():
+        reject = ""
+        for attempt in range(regrabs + 1):
+            status(f"{station.id}: grabbing {cid}" + (f" (re-grab {attempt})" if attempt else ""))
+            try:
+                frame = cam.grab(timeout_s=grab_timeout_s)
+            except DeviceError as e:
+                raise interrupted(station, f"camera {cid}", e) from e
+            why = quality_check(cid, frame.image, station) if quality_check else None
+            if not why:
+                images[cid] = frame.image
+                reject = ""
+                break
+            reject = f"quality {cid}: {why}"
+        if reject:
+            return images, reject
+    return images, ""
 
 
 def _open_session(
