@@ -107,7 +107,12 @@ def kill_resume(tmp: Path, protocol: str, *, runs: int, kills_per_run: int, stat
             raise RuntimeError(f"simulate did not start: {line!r} {(tmp / 'simulate.err').read_text()[-2000:]}")
         robot_url = line.split()[2]
         truth = json.loads((tmp / "truth.json").read_text())
-        for r in range(runs):
+        r, cap = -1, max_delay_s
+        # a capture that finishes before its kill completes its run with fewer kills: such runs are kept,
+        # further runs are added (at most as many again) until runs x kills_per_run kills happened, and
+        # the kill moments are drawn below the shortest completed capture seen
+        while r + 1 < runs or (report["kills"] < runs * kills_per_run and r + 1 < 2 * runs):
+            r += 1
             session = tmp / f"session{r}"
             cmd = [*JCALIB, "capture", "--cell", str(tmp / "cell.yaml"), "--robot", robot_url, "--camera",
                    "cam0=gige://127.0.0.1", "--plan", str(tmp / "plan.json"), "--out", str(session),
@@ -118,7 +123,8 @@ def kill_resume(tmp: Path, protocol: str, *, runs: int, kills_per_run: int, stat
                 resume = (session / "session.json").exists()
                 proc = subprocess.Popen(cmd + (["--resume"] if resume else []), env=env,
                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
-                delay = float(rng.uniform(min_delay_s, max_delay_s))
+                delay = float(rng.uniform(min(min_delay_s, cap), cap))
+                t_started = time.monotonic()
                 try:
                     proc.wait(delay)
                 except subprocess.TimeoutExpired:
@@ -131,6 +137,7 @@ def kill_resume(tmp: Path, protocol: str, *, runs: int, kills_per_run: int, stat
                 err = proc.stderr.read().decode() if proc.stderr else ""
                 if proc.returncode != 0:
                     raise RuntimeError(f"capture exited {proc.returncode} before its kill: {err[-2000:]}")
+                cap = max(0.5, min(cap, 0.9 * (time.monotonic() - t_started)))
                 break  # finished before the kill: the run is complete
             t0 = time.monotonic()
             final = subprocess.run(cmd + (["--resume"] if (session / "session.json").exists() else []), env=env,
