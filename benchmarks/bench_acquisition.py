@@ -1,7 +1,16 @@
-"""Acquisition throughput: stations per minute of simulated captures, grab latency through the GigE fake.
+"""Acquisition throughput and robustness.
 
-Run: ``.venv/bin/python benchmarks/bench_acquisition.py [--quick]``. Prints two tables. Timings on
-shared CI machines move by tens of percent between runs: compare rows of one run.
+Run: ``.venv/bin/python benchmarks/bench_acquisition.py [--quick] [--kill-resume] [--flood]``.
+
+- default: stations per minute of simulated captures, grab latency through the GigE fake (two tables);
+- ``--kill-resume``: the long variant of ``tests/acquisition/test_kill_resume.py``: per protocol, 10
+  captures through the CLI, each killed with SIGKILL at 2 random moments and resumed, then checked
+  (every planned station exactly once, images readable and showing the board where the ground truth
+  puts it);
+- ``--flood``: ``jcalib simulate`` on 127.0.0.1 gets 10,000 random packets on each of its ports
+  (``ss -lunpt``), then jcalib's clients must still move the robot and grab a frame.
+
+Timings on shared CI machines move by tens of percent between runs: compare rows of one run.
 """
 
 from __future__ import annotations
@@ -94,14 +103,84 @@ def bench_grab(n: int) -> list[tuple[str, float, float, float]]:
     return rows
 
 
+def bench_kill_resume(runs: int) -> list[tuple]:
+    """Rows (protocol, runs, kills, moments, stations, failures, worst px, mean resume s, mean run s)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "acquisition"))
+    from _kill_resume import kill_resume
+
+    rows = []
+    for protocol in ("kuka", "abb"):
+        with tempfile.TemporaryDirectory() as d:
+            rep = kill_resume(Path(d), protocol, runs=runs, kills_per_run=2, stations=10, seed=5,
+                              min_delay_s=0.0, max_delay_s=6.0)  # fmt: skip
+        bad = [p for r in rep["runs"] for p in r.get("problems", [])] + [
+            f"exit {r['final_exit']}" for r in rep["runs"] if r["final_exit"] != 0]
+        moments = [k["after_s"] for r in rep["runs"] for k in r["kills"]]
+        listed = [k["stations_listed"] for r in rep["runs"] for k in r["kills"]]
+        rows.append((protocol, len(rep["runs"]), rep["kills"], f"{min(moments):.2f}-{max(moments):.2f} s",
+                     f"{min(listed)}-{max(listed)} of 10", len(bad), max(r.get("worst_px", 0.0) for r in rep["runs"]),
+                     statistics.mean(r["final_resume_s"] for r in rep["runs"]),
+                     statistics.mean(r["run_s"] for r in rep["runs"])))  # fmt: skip
+    return rows
+
+
+def bench_flood() -> list[tuple]:
+    """Rows (protocol, port, packets, seconds, simulator alive, clients served after) of the flood."""
+    import json
+    import subprocess
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "acquisition"))
+    import _interop_worker as w
+
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d)
+        (out / "cell.yaml").write_text(w.CELL)
+        for protocol in ("kuka", "abb"):
+            proc, robot_url = w.start(out, protocol)
+            try:
+                sockets = w.listening(proc.pid)
+                for sock in sockets:
+                    t0 = time.perf_counter()
+                    sent = w.flood([sock], 7)
+                    dt = time.perf_counter() - t0
+                    alive = proc.poll() is None
+                    ok = alive and w.our_clients_work(robot_url)["image_shape"] == [240, 320]
+                    rows.append((protocol, f"{sock[0]} {sock[1]}:{sock[2]}", sum(sent.values()), dt, alive, ok))
+            finally:
+                proc.terminate()
+                proc.wait(30)
+    del json, subprocess
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer stations and grabs")
+    ap.add_argument("--quick", action="store_true", help="fewer stations and grabs (and kill-resume runs)")
+    ap.add_argument("--kill-resume", action="store_true", help="SIGKILL-and-resume captures (minutes)")
+    ap.add_argument("--flood", action="store_true", help="10,000 random packets per simulator port")
     a = ap.parse_args()
     from rich.console import Console
     from rich.table import Table
 
     con = Console()
+    if a.kill_resume or a.flood:
+        if a.kill_resume:
+            t = Table(title="Capture killed with SIGKILL at 2 random moments per run, resumed (CLI, simulate on 127.0.0.1)")
+            for col in ("protocol", "runs", "kills", "kill moments", "stations listed at kills", "failed checks",
+                        "worst corner vs truth px", "final resume s", "run s"):  # fmt: skip
+                t.add_column(col)
+            for row in bench_kill_resume(3 if a.quick else 10):
+                t.add_row(*(f"{v:.2f}" if isinstance(v, float) else str(v) for v in row))
+            con.print(t)
+        if a.flood:
+            t = Table(title="10,000 random packets per port of jcalib simulate (127.0.0.1), then a move and a grab")
+            for col in ("protocol", "socket", "packets", "s", "simulator alive", "clients served after"):
+                t.add_column(col)
+            for row in bench_flood():
+                t.add_row(*(f"{v:.2f}" if isinstance(v, float) else str(v) for v in row))
+            con.print(t)
+        return
     t = Table(title="Simulated capture: stations per minute (1 camera, move + settle + grab + PNG + fsync)")
     for col in ("setup", "stations/min", "s/station"):
         t.add_column(col)

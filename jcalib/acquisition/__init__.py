@@ -8,7 +8,7 @@ controllers and their protocol servers. :func:`cell_layout` + :func:`plan_cell` 
 :mod:`jcalib.pipeline.session` turns a session into observations (``jcalib detect --session``).
 """
 
-from jcalib.acquisition.capture import CaptureInterrupted, CaptureResult, capture
+from jcalib.acquisition.capture import CaptureInterrupted, CaptureResult, SkipStation, apply_camera_settings, capture
 from jcalib.acquisition.layout import CellLayout, cell_layout
 from jcalib.acquisition.planner import PlannedStations, plan_cell
 from jcalib.acquisition.robocalib import RoboCalibPlan, handeye_stations, viewset_stations
@@ -21,6 +21,8 @@ __all__ = [
     "PlannedStations",
     "RoboCalibPlan",
     "ServoResult",
+    "SkipStation",
+    "apply_camera_settings",
     "capture",
     "cell_layout",
     "plan_cell",

@@ -339,12 +339,22 @@ def capture(
     cell: Annotated[Optional[Path], typer.Option("--cell", help="Cell spec, stored in the session.")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the session in --out.")] = False,
     packet_size: Annotated[Optional[int], typer.Option(help="GigE packet size, bytes (jumbo: 8000+).")] = None,
+    setting: Annotated[
+        Optional[list[str]],
+        typer.Option("--setting", help="CAMERA.FEATURE=VALUE, a GenICam feature set before capturing (e.g. "
+                     "cam0.ExposureTime=5000); overrides the cell's cameras.<id>.settings; repeatable."),
+    ] = None,
+    kind: Annotated[
+        str, typer.Option("--kind", help="stations (grab at each planned station) or tcp (servo the tool tip onto "
+                          "the image centre at each station of a `plan --kind tcp` plan, then grab).")
+    ] = "stations",
 ) -> None:
     """Drive the robot through a plan, grab every camera at every station, write a session."""
-    from jcalib.app.commands import parse_named, run_capture
+    from jcalib.app.commands import parse_named, parse_settings, run_capture
 
     res = run_capture(robot_url=robot, camera_urls=parse_named(camera), plan_path=plan, out=out, cell=cell,
-                      resume=resume, packet_size=packet_size)  # fmt: skip
+                      resume=resume, packet_size=packet_size, settings=parse_settings(setting or []),
+                      kind=kind)  # fmt: skip
     for sid, why in res.skipped.items():
         typer.echo(f"skipped {sid}: {why}", err=True)
     typer.echo(

@@ -10,10 +10,13 @@ cameras.
 
 from __future__ import annotations
 
+import math
 import shlex
 import threading
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
 
 from jcalib.acquisition.cameras.base import Camera
 from jcalib.acquisition.capture import CaptureResult, capture
@@ -60,6 +63,42 @@ def open_camera(name: str, url: str, **kw: Any) -> Camera:
     return ReplayCamera(rest, name=name)
 
 
+CAPTURE_KINDS = ("stations", "tcp")
+
+
+def parse_settings(values: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``["cam0.ExposureTime=5000", "cam0.PixelFormat=Mono8"]`` -> ``{"cam0": {"ExposureTime": 5000, ...}}``.
+
+    Values that read as integers or finite decimals become numbers, the rest stay strings.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for v in values:
+        key, sep, text = v.partition("=")
+        cam, dot, feature = key.strip().partition(".")
+        text = text.strip()
+        if not sep or not dot or not cam or not feature or not text:
+            raise BadInputError(f"--setting: expected CAMERA.FEATURE=VALUE such as cam0.ExposureTime=5000, got {v!r}")
+        value: Any = text
+        for conv in (int, float):
+            try:
+                value = conv(text)
+                break
+            except ValueError:
+                continue
+        if isinstance(value, float) and not math.isfinite(value):
+            raise BadInputError(f"--setting {key}: expected a finite number or a word, got {text!r}")
+        out.setdefault(cam, {})[feature] = value
+    return out
+
+
+def capture_settings(cell: Any, cli: Mapping[str, Mapping[str, Any]] | None) -> dict[str, dict[str, Any]]:
+    """Camera settings of a capture: the cell spec's ``cameras.<id>.settings``, overridden per feature by ``cli``."""
+    out = {cid: dict(c.settings) for cid, c in (cell.cameras.items() if cell is not None else []) if c.settings}
+    for cid, features in (cli or {}).items():
+        out.setdefault(cid, {}).update(features)
+    return out
+
+
 def run_capture(
     *,
     robot_url: str,
@@ -70,22 +109,51 @@ def run_capture(
     resume: bool = False,
     progress: bool = True,
     packet_size: int | None = None,
+    settings: Mapping[str, Mapping[str, Any]] | None = None,
+    kind: str = "stations",
+    tolerance_px: float = 0.5,
 ) -> CaptureResult:
-    """``jcalib capture``: open the devices, run the plan into the session ``out``, close the devices."""
+    """``jcalib capture``: open the devices, run the plan into the session ``out``, close the devices.
+
+    Args:
+        settings: camera id -> {GenICam feature: value}; overrides the cell spec's
+            ``cameras.<id>.settings`` feature by feature. Applied before the first station and
+            recorded in session.json (:func:`jcalib.acquisition.capture.apply_camera_settings`).
+        kind: "stations" (grab at every planned station) or "tcp": at every station, first bring the
+            tool tip onto the image centre of the camera observing the tool with the visual servo
+            (:func:`jcalib.acquisition.servo.servo_tool_tip`, tip detector
+            :func:`jcalib.vision.tooltip.detect_tool_tip`), then grab; needs a ``jcalib plan --kind
+            tcp`` plan and the cell spec.
+        tolerance_px: ``kind="tcp"``: the servo stops when the tip is this close to the centre, px.
+    """
     import yaml
 
-    cell_dict = None
+    if kind not in CAPTURE_KINDS:
+        raise BadInputError(f"--kind: expected one of {', '.join(CAPTURE_KINDS)}, got {kind!r}")
+    cell_dict = cell_spec = None
     if cell is not None:
+        from jcalib.io.cell import parse_cell
+
         try:
             cell_dict = yaml.safe_load(Path(cell).read_text(encoding="utf-8"))
         except (OSError, yaml.YAMLError) as e:
             raise BadInputError(f"--cell: cannot read {cell}: {e}") from e
+        cell_spec = parse_cell(cell_dict, source=str(cell))
+    elif kind == "tcp":
+        raise BadInputError("--kind tcp: give the cell spec (--cell) with the tool and the camera observing it")
     plan = load_plan(plan_path)
+    all_settings = capture_settings(cell_spec, settings)
     argv = ["jcalib", "capture"] + (["--cell", str(cell)] if cell else []) + ["--robot", robot_url]
     for name, url in camera_urls.items():
         argv += ["--camera", f"{name}={url}"]
-    argv += ["--plan", str(plan_path), "--out", str(out), "--resume"]
-    hint = shlex.join(argv)
+    argv += ["--plan", str(plan_path), "--out", str(out)]
+    if packet_size:
+        argv += ["--packet-size", str(packet_size)]
+    for cid, features in (settings or {}).items():
+        argv += [f"--setting={cid}.{k}={v}" for k, v in features.items()]
+    if kind != "stations":
+        argv += ["--kind", kind]
+    hint = shlex.join(argv + ["--resume"])
     if not camera_urls:
         raise BadInputError("--camera: expected at least one camera, e.g. --camera cam0=gige://192.168.10.20")
     for name, url in camera_urls.items():
@@ -98,9 +166,12 @@ def run_capture(
         for name, url in camera_urls.items():
             extra = {"packet_size": packet_size} if url.startswith("gige://") and packet_size else {}
             cams[name] = open_camera(name, url, **extra)
+        adjust = None
+        if kind == "tcp":
+            adjust = tcp_servo_adjust(robot, cams, cell, plan_path, tolerance_px=tolerance_px)
         return capture(
             plan, robot, cams, out, resume=resume, cell=cell_dict, progress=progress,
-            resume_hint=hint,
+            resume_hint=hint, camera_settings=all_settings, adjust=adjust,
         )  # fmt: skip
     except DeviceError as e:
         from jcalib.acquisition.capture import CaptureInterrupted
@@ -115,6 +186,77 @@ def run_capture(
             c.close()
         if robot is not None:
             robot.close()
+
+
+def tcp_servo_adjust(robot: Robot, cameras: Mapping[str, Camera], cell: str | Path, plan_path: str | Path, *,
+                     tolerance_px: float = 0.5, max_iterations: int = 10):  # fmt: skip
+    """The station step of ``jcalib capture --kind tcp``: the visual servo of the TCP thesis (algorithm 4.1).
+
+    The plan's ``planner`` key names the tool and the base camera observing it (``jcalib plan --kind
+    tcp``); the camera's orientation in the base comes from the cell spec's ``pose`` of that camera,
+    else from the nominal layout the plan was made for (a rough orientation is enough: the servo
+    measures its image Jacobian by two probing moves and keeps refining it). At every station the
+    tip is brought to the image centre by flange translations; the station's record gets ``servo:
+    {converged, iterations, error_px, pixel}``. A station where the tip is not found, or the servo does
+    not converge, is skipped with the reason.
+
+    Returns:
+        A :data:`jcalib.acquisition.capture.StationAdjust`.
+    """
+    import json
+
+    from jcalib.acquisition.capture import SkipStation
+    from jcalib.acquisition.layout import cell_layout
+    from jcalib.acquisition.robots.base import MotionRefusedError
+    from jcalib.acquisition.servo import servo_tool_tip
+    from jcalib.errors import DetectionError
+    from jcalib.geometry.cameras.factory import camera_from_opencv
+    from jcalib.vision.tooltip import detect_tool_tip
+
+    try:
+        planner = json.loads(Path(plan_path).read_text(encoding="utf-8")).get("planner") or {}
+    except (OSError, ValueError, AttributeError):
+        planner = {}
+    if planner.get("kind") != "tcp" or not planner.get("tool"):
+        raise BadInputError(
+            f"--kind tcp: {plan_path} is not a tcp plan (make one with `jcalib plan --kind tcp`): its 'planner' "
+            "key must name the tool"
+        )
+    layout = cell_layout(cell, robot=planner.get("robot"))
+    tool = str(planner["tool"])
+    if tool not in layout.cell.tools:
+        raise BadInputError(f"--kind tcp: the plan is for tool {tool!r}, which the cell spec does not define")
+    observers = [c for c in layout.cell.tools[tool].observed_by if layout.cameras[c].mount == "base"]
+    cam_name = str(planner.get("camera") or (observers[0] if observers else ""))
+    if cam_name not in cameras:
+        raise BadInputError(
+            f"--kind tcp: the servo needs the base camera observing tool {tool!r} ({cam_name or 'none in the cell'}); "
+            f"add --camera {cam_name or 'NAME'}=gige://..."
+        )
+    nominal = layout.cameras[cam_name]
+    model = camera_from_opencv(nominal.K, nominal.dist, nominal.image_size, fisheye=nominal.model == "fisheye")
+    R_base_cam = np.asarray(nominal.pose, dtype=np.float64)[:3, :3]
+    camera = cameras[cam_name]
+
+    def detect(image: np.ndarray, name: str) -> np.ndarray:
+        return detect_tool_tip(image, camera=model, name=name).pixel
+
+    def adjust(station, state):
+        try:
+            res = servo_tool_tip(robot, camera, R_base_cam, detect, tolerance_px=tolerance_px,
+                                 max_iterations=max_iterations)  # fmt: skip
+        except DetectionError as e:
+            raise SkipStation(f"servo: {e}") from None
+        except (BadInputError, MotionRefusedError) as e:
+            raise SkipStation(f"servo: {e}") from None
+        info = {"converged": bool(res.converged), "iterations": int(res.iterations),
+                "error_px": float(res.error_px), "pixel": [float(v) for v in res.pixel],
+                "target_px": [float(v) for v in res.target_px]}  # fmt: skip
+        if not res.converged:
+            raise SkipStation(f"servo: tip {res.error_px:.2f} px from the centre after {res.iterations} moves")
+        return robot.wait_settled(), {"servo": info}
+
+    return adjust
 
 
 def parse_named(values: Sequence[str], what: str = "--camera") -> dict[str, str]:

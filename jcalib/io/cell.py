@@ -53,6 +53,8 @@ class CameraSpec:
         pose: optional (4, 4) known pose of the camera in its mount frame, metres.
         robot: the robot whose flange carries the camera (``mount: flange`` in a cell with named
             ``robots:``); None otherwise.
+        settings: GenICam features set at capture, name -> number or string (e.g.
+            ``{"ExposureTime": 5000, "Gain": 2}``; ExposureTime in us).
     """
 
     name: str
@@ -64,6 +66,7 @@ class CameraSpec:
     dist: np.ndarray | None = None
     pose: np.ndarray | None = None
     robot: str | None = None
+    settings: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -209,7 +212,7 @@ def _check_keys(entry: dict, allowed: set[str], where: str) -> None:
 def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
-    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose", "robot"}, where)
+    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose", "robot", "settings"}, where)
     model = entry.get("model")
     if model not in CAMERA_MODELS:
         raise _fail(where, f"unknown camera model {model!r}; use one of {', '.join(CAMERA_MODELS)}")
@@ -229,6 +232,13 @@ def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
         if not np.all(np.isfinite(dist)):
             raise _fail(where + ".intrinsics.dist", "contains NaN or infinity")
     pose = _pose(entry["pose"], where + ".pose") if "pose" in entry else None
+    settings = entry.get("settings") or {}
+    if not isinstance(settings, dict) or not all(
+        isinstance(k, str) and (isinstance(v, str) or (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                       and np.isfinite(v)))
+        for k, v in settings.items()
+    ):  # fmt: skip
+        raise _fail(where + ".settings", f"expected GenICam feature names mapped to finite numbers or strings, got {settings!r}")
     return CameraSpec(
         name=name,
         model=model,
@@ -239,6 +249,7 @@ def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
         dist=dist,
         pose=pose,
         robot=_robot_ref(entry, where),
+        settings=dict(settings),
     )
 
 
@@ -486,6 +497,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
             entry["pose"] = c.pose.tolist()
         if c.robot is not None:
             entry["robot"] = c.robot
+        if c.settings:
+            entry["settings"] = dict(c.settings)
         out["cameras"][c.name] = entry
     for t in cell.targets.values():
         entry = {"type": t.type, **t.params, "mount": t.mount}

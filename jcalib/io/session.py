@@ -13,6 +13,10 @@ station that was in flight. Resuming also removes temporary files of interrupted
 cuts a torn last line (a write the kernel did not finish; possible only on power loss).
 An advisory lock (``.lock``, ``flock``) stops two captures from writing one session at once; the
 kernel releases it when the process dies, even by ``kill -9``.
+
+A station whose images went missing after it was listed is captured again by a resumed capture and
+appended once more with ``"retake": true``; readers keep the last record of each station, in the
+order the stations were first listed (the file itself is never rewritten).
 """
 
 from __future__ import annotations
@@ -54,10 +58,12 @@ def encode_png(image: np.ndarray) -> bytes:
 
 
 def read_stations(directory: str | Path) -> list[dict]:
-    """The station records of a session, in order (a torn last line is ignored).
+    """The station records of a session, in order (a torn last line is ignored; a ``"retake": true``
+    record replaces the earlier record of its station, at that station's place).
 
     Raises:
-        BadInputError: not a session, a corrupt line other than the last, or a duplicate station id.
+        BadInputError: not a session, a corrupt line other than the last, or a station id repeated
+            without ``"retake": true``.
     """
     path = Path(directory) / "stations.jsonl"
     if not (Path(directory) / "session.json").is_file():
@@ -67,7 +73,7 @@ def read_stations(directory: str | Path) -> list[dict]:
     raw = path.read_bytes()
     lines = raw.split(b"\n")
     complete, tail = lines[:-1], lines[-1]  # tail is b"" when the file ends with a newline
-    out, seen = [], set()
+    out, seen = [], {}
     for n, line in enumerate(complete, start=1):
         try:
             rec = json.loads(line)
@@ -76,8 +82,11 @@ def read_stations(directory: str | Path) -> list[dict]:
         if not isinstance(rec, dict) or "id" not in rec:
             raise BadInputError(f"session: {path} line {n} is not a station record (no 'id')")
         if rec["id"] in seen:
-            raise BadInputError(f"session: {path} line {n} repeats station {rec['id']!r}")
-        seen.add(rec["id"])
+            if rec.get("retake") is not True:
+                raise BadInputError(f"session: {path} line {n} repeats station {rec['id']!r}")
+            out[seen[rec["id"]]] = rec
+            continue
+        seen[rec["id"]] = len(out)
         out.append(rec)
     del tail  # an unterminated last line is a torn write: not a finished station
     return out
@@ -189,10 +198,11 @@ class SessionWriter:
         """Append one finished station (its images must already be written); fsync'ed.
 
         Raises:
-            BadInputError: duplicate id, or an image the record names is missing.
+            BadInputError: duplicate id (unless the record is a ``"retake": true``), or an image the
+                record names is missing.
         """
         sid = record["id"]
-        if sid in self.stations:
+        if sid in self.stations and record.get("retake") is not True:
             raise BadInputError(f"session: station {sid!r} is already recorded in {self.directory}")
         for cam, rel in record.get("images", {}).items():
             if not (self.directory / rel).is_file():

@@ -77,6 +77,15 @@ class GigECamera(Camera):
         max_retries: extra triggers after an incomplete frame or a timeout.
         num_buffers: stream buffers queued.
         local_address: the host's address facing the camera (default: the kernel's route to it).
+        control_timeout_s: longest wait for the control channel, s. A controller that died (a capture
+            killed with SIGKILL) holds it until the camera's heartbeat timeout (``GevHeartbeatTimeout``,
+            3 s by default) runs out; the wait is that timeout plus a margin, at most this.
+
+    A camera keeps streaming to whoever started an acquisition until it is stopped, even after that
+    controller is gone: every stream start here stops the acquisition first and re-negotiates the
+    stream channel (destination address and port, packet size), so a new process picks up a camera
+    that a killed one left running. A grab that gets no frame checks that the control channel is
+    still ours (a missed heartbeat loses it), takes it back and re-negotiates once before failing.
     """
 
     def __init__(
@@ -89,6 +98,7 @@ class GigECamera(Camera):
         max_retries: int = 3,
         num_buffers: int = 4,
         local_address: str | None = None,
+        control_timeout_s: float = 70.0,
     ) -> None:
         super().__init__()
         try:
@@ -114,6 +124,7 @@ class GigECamera(Camera):
                 "IP is in the host NIC's subnet, and that no other program holds its control channel."
             ) from e
         self._dev = self._cam.get_device()
+        self._take_control(float(control_timeout_s))
         try:
             self._cam.set_range_check_policy(Aravis.RangeCheckPolicy.ENABLE)
         except (AttributeError, GLib.Error):
@@ -128,6 +139,31 @@ class GigECamera(Camera):
             self._cam.set_trigger("Software")
         except GLib.Error as e:
             raise DeviceError(f"camera {name} at {address} has no software trigger: {e}") from e
+
+    def _heartbeat_timeout_s(self) -> float:
+        try:
+            return max(0.1, float(self._dev.get_integer_feature_value("GevHeartbeatTimeout")) / 1000.0)
+        except (self._GLib.Error, TypeError, ValueError):
+            return 3.0
+
+    def _take_control(self, limit_s: float) -> None:
+        """Become the camera's controller, waiting out a dead controller's heartbeat timeout."""
+        if self._dev.is_controller():
+            return
+        deadline = time.monotonic() + min(limit_s, self._heartbeat_timeout_s() + 2.0)
+        while True:
+            try:
+                if self._dev.take_control():
+                    return
+            except self._GLib.Error:
+                pass
+            if time.monotonic() > deadline:
+                raise DeviceError(
+                    f"camera {self.name} at {self.address} is controlled by another application (its control "
+                    f"channel stayed taken for {self._heartbeat_timeout_s() + 2.0:.1f} s, longer than the camera's "
+                    "heartbeat timeout): close the other program (a viewer, another capture) and retry"
+                )
+            time.sleep(0.25)
 
     def _list_features(self) -> set[str]:
         names = set()
@@ -207,6 +243,10 @@ class GigECamera(Camera):
         if self._acquiring:
             return
         try:
+            self._cam.stop_acquisition()  # end an acquisition a previous (perhaps dead) controller left running
+        except self._GLib.Error:
+            pass
+        try:
             self._stream = self._cam.create_stream(None, None)
             payload = self._cam.get_payload()
             for _ in range(self.num_buffers):
@@ -240,6 +280,17 @@ class GigECamera(Camera):
         Raises:
             DeviceError: no complete frame after all attempts (the message says why).
         """
+        try:
+            return self._grab(timeout_s)
+        except DeviceError:
+            if self._dev.is_controller() and self.stats.frames == 0:
+                raise
+        # lost control (missed heartbeats) or never had a frame: take control again, re-negotiate the stream
+        self._stop_stream()
+        self._take_control(self._heartbeat_timeout_s() + 2.0)
+        return self._grab(timeout_s)
+
+    def _grab(self, timeout_s: float) -> Frame:
         Aravis = self._Aravis
         self._start_stream()
         stream = self._stream

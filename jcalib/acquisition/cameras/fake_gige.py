@@ -9,6 +9,11 @@ callback and the process crashes (fixed in 0.9.1).
 
 Packet loss is injected with the device's ``gvsp-lost-ratio`` property (a fraction of the stream
 packets is dropped); the fake has no packet resend, so the client sees incomplete frames.
+
+The fake trusts what it receives (a single out-of-range READMEM crashes libaravis) and binds Aravis'
+discovery socket on ``255.255.255.255:3956``: :class:`jcalib.acquisition.cameras.gvcp_guard.GvcpGuard`
+takes over its sockets as soon as it starts, so only checked GVCP packets reach it and every socket
+is bound to ``address`` (loopback), nothing to a broadcast address.
 The fake binds to the network interface that owns ``address``: 127.0.0.1 always works; another
 loopback address (127.0.0.2) must be assigned to ``lo`` first (e.g. inside ``unshare -n``).
 """
@@ -26,6 +31,7 @@ import traceback
 import numpy as np
 
 from jcalib.acquisition.cameras.base import FrameRequest, FrameSource, to_pixels
+from jcalib.acquisition.cameras.gvcp_guard import Check, GvcpGuard, udp_sockets, xml_size_of
 from jcalib.errors import BadInputError, DeviceError
 
 _FILL = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32)
@@ -75,6 +81,8 @@ def _load():
     arv.arv_fake_camera_set_trigger_frequency.argtypes = [ctypes.c_void_p, ctypes.c_double]
     arv.arv_fake_camera_write_register.restype = ctypes.c_int
     arv.arv_fake_camera_write_register.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32]
+    arv.arv_fake_camera_read_memory.restype = ctypes.c_int
+    arv.arv_fake_camera_read_memory.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_void_p]
     arv.arv_buffer_get_data.restype = ctypes.c_void_p
     arv.arv_buffer_get_data.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_size_t)]
     for fn in ("arv_buffer_get_image_width", "arv_buffer_get_image_height", "arv_buffer_get_image_x",
@@ -146,6 +154,7 @@ class FakeGigECamera:
         self.trigger_poll_hz = float(trigger_poll_hz)
         self.warm_up = bool(warm_up)
         self._lock_fd = -1
+        self.guard: GvcpGuard | None = None
 
     def _acquire_address(self) -> None:
         """Only one GigE device can own UDP port 3956 on an address: serialise users across processes."""
@@ -189,12 +198,16 @@ class FakeGigECamera:
                     raise ValueError(
                         f"frame source returned shape {img.shape}, expected ({h}, {w}) or the sensor ({sh}, {sw})"
                     )
-                img = img[y : y + h, x : x + w]
+                region = np.zeros((h, w) + img.shape[2:], img.dtype)  # a region past the sensor edge: black
+                part = img[y : y + h, x : x + w]
+                region[: part.shape[0], : part.shape[1]] = part
+                img = region
             px = np.ascontiguousarray(to_pixels(img, fmt))
             bpp = (int(pixel_format) >> 16) & 0xFF
             nbytes = w * h * bpp // 8
             if px.nbytes != nbytes:
                 raise ValueError(f"{fmt} frame of {px.nbytes} bytes, buffer expects {nbytes}")
+            # (the fake calls us only when its buffer holds width x height of the current format)
             ptr = arv.arv_buffer_get_data(buf, None)
             ctypes.memmove(ptr, px.ctypes.data, nbytes)
             self.frames_served += 1
@@ -210,6 +223,7 @@ class FakeGigECamera:
             w, h = self.sensor_size
             self.frame_source(FrameRequest(w, h, 0, 0, "Mono8", 10000.0, 0.0, 0))
         self._acquire_address()
+        before = udp_sockets()
         gv = arv.arv_gv_fake_camera_new(self.address.encode(), self.serial.encode())
         if not gv or not arv.arv_gv_fake_camera_is_running(gv):
             if gv:
@@ -226,8 +240,26 @@ class FakeGigECamera:
         arv.arv_fake_camera_set_fill_pattern(fake, self._callback, None)
         arv.arv_fake_camera_set_trigger_frequency(fake, self.trigger_poll_hz)
         self._gv = gv
+        try:
+            self.guard = self._guard(fake, {fd: a for fd, a in udp_sockets().items() if before.get(fd) != a})
+        except OSError as e:
+            self.stop()
+            raise DeviceError(f"the fake GigE camera on {self.address} could not be guarded: {e}") from e
         self.set_loss_ratio(self._loss_ratio)
         return self
+
+    def _guard(self, fake: int, fds: dict[int, tuple[str, int]]) -> GvcpGuard:
+        """Put :class:`GvcpGuard` in front of the fake's GVCP port (see the module docstring)."""
+        arv, _ = _load()
+
+        def read_memory(address: int, size: int) -> bytes:
+            buf = ctypes.create_string_buffer(size)
+            arv.arv_fake_camera_read_memory(fake, address, size, buf)
+            return buf.raw
+
+        check = Check(self.sensor_size, xml_size_of(read_memory), set(PIXEL_FORMATS))
+        timeout_ms = int.from_bytes(read_memory(0x0938, 4), "big") or 3000
+        return GvcpGuard(self.address, fds, check, heartbeat_timeout_s=timeout_ms / 1000.0).start()
 
     def set_loss_ratio(self, ratio: float) -> None:
         """Drop this fraction (0..1) of the stream packets from now on."""
@@ -239,9 +271,14 @@ class FakeGigECamera:
 
     def stop(self) -> None:
         """Stop serving and free the device (its threads are joined)."""
+        guard, self.guard = self.guard, None
+        if guard is not None:
+            guard.stop()
         if self._gv is not None:
             gv, self._gv = self._gv, None
             _load()[1].g_object_unref(gv)
+        if guard is not None:
+            guard.close_inner()
         self._release_address()
 
     def __enter__(self) -> "FakeGigECamera":

@@ -27,12 +27,22 @@ class ThreadedTcpServer:
 
     Subclasses implement :meth:`serve_connection`. ``port=0`` picks a free port (see :attr:`port`).
     Use :meth:`start` / :meth:`stop` (or ``with``) to run it in a background thread of this process.
+
+    A client that sends nothing for ``idle_timeout_s`` is disconnected (a real controller's socket
+    task times out the same way), and a client whose bytes make no sense is disconnected: neither can
+    hold the server. :attr:`num_dropped` counts such disconnections.
     """
 
     name = "server"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, *, allow_non_loopback: bool = False):
+    def __init__(
+        self, host: str = "127.0.0.1", port: int = 0, *, allow_non_loopback: bool = False, idle_timeout_s: float = 30.0
+    ):
         check_loopback(host, allow_non_loopback)
+        if not idle_timeout_s > 0:
+            raise BadInputError(f"idle_timeout_s: expected a positive number of seconds, got {idle_timeout_s!r}")
+        self.idle_timeout_s = float(idle_timeout_s)
+        self.num_dropped = 0
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._sock.bind((host, port))
@@ -55,7 +65,9 @@ class ThreadedTcpServer:
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self.serve_connection(conn)
         except OSError:
-            pass  # client went away or the server is stopping
+            pass  # client went away, timed out while idle, or the server is stopping
+        except Exception:  # noqa: BLE001 - a malformed request ends that client's connection, never the server
+            self.num_dropped += 1
         finally:
             with self._clients_lock:
                 self._clients.discard(conn)
@@ -74,7 +86,7 @@ class ThreadedTcpServer:
                 continue
             except OSError:
                 break
-            conn.settimeout(None)
+            conn.settimeout(self.idle_timeout_s)
             with self._clients_lock:
                 self._clients.add(conn)
             threading.Thread(target=self._run_client, args=(conn,), daemon=True).start()

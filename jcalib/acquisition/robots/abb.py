@@ -127,7 +127,14 @@ class AbbRobot(Robot):
             ) from e
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._lines = LineSocket(self._sock)
-        reply = self._request("PING")
+        try:
+            reply = self._request("PING")
+        except DeviceError as e:
+            raise DeviceError(
+                f"{e}. The RAPID server serves one client at a time: another program (another capture?) may "
+                "be connected to it; it is freed when that client disconnects or stays idle past the "
+                "server's timeout"
+            ) from e
         if reply[:2] != ["OK", "JCALIB"] or len(reply) < 3 or reply[2] != str(PROTOCOL_VERSION):
             self.close()
             raise DeviceError(

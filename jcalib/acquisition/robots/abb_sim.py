@@ -2,7 +2,9 @@
 
 It answers exactly like ``robot/abb/JcalibServer.mod``: one client at a time is served (RAPID has one
 socket server task), every reply is one line of at most 80 bytes, unreachable targets are refused with
-``ERR 2 UNREACHABLE`` before the robot moves. Start it in-process with ``AbbSimServer(...).start()`` or
+``ERR 2 UNREACHABLE`` before the robot moves. A client that sends nothing for ``idle_timeout_s`` is
+disconnected, so an idle (or dead) client cannot hold the one server task; a request the parser
+cannot make sense of (non-finite numbers included) is ``ERR 1 SYNTAX``. Start it in-process with ``AbbSimServer(...).start()`` or
 as a subprocess with ``python -m jcalib.acquisition.robots.serve --protocol abb``.
 """
 
@@ -37,8 +39,9 @@ class AbbSimServer(ThreadedTcpServer):
         port: int = 0,
         *,
         allow_non_loopback: bool = False,
+        idle_timeout_s: float = 30.0,
     ):
-        super().__init__(host, port, allow_non_loopback=allow_non_loopback)
+        super().__init__(host, port, allow_non_loopback=allow_non_loopback, idle_timeout_s=idle_timeout_s)
         self.controller = controller if controller is not None else SimulatedController()
         self.settle_s = 0.0
         self._one_client = threading.Lock()  # RAPID serves one connection at a time
@@ -46,6 +49,12 @@ class AbbSimServer(ThreadedTcpServer):
 
     def handle(self, line: str) -> tuple[str, bool]:
         """One request line -> (reply line, keep the connection open)."""
+        try:
+            return self._handle(line)
+        except Exception:  # noqa: BLE001 - RAPID's ERROR handler answers a malformed request, it never stops
+            return "ERR 1 SYNTAX", True
+
+    def _handle(self, line: str) -> tuple[str, bool]:
         tok = line.split()
         if not tok:
             return "ERR 1 SYNTAX", True
@@ -78,6 +87,8 @@ class AbbSimServer(ThreadedTcpServer):
                 try:
                     v = float(args[0])
                 except ValueError:
+                    return "ERR 1 SYNTAX", True
+                if not np.isfinite(v):
                     return "ERR 1 SYNTAX", True
                 if cmd in ("TOOL", "WOBJ"):
                     if v != int(v) or not 0 <= v <= 4:

@@ -232,6 +232,21 @@ class KukaRobot(Robot):
         joints = np.array([axis[f"A{i}"] for i in range(1, 7) if f"A{i}" in axis])
         return RobotState(T, joints)
 
+    def _wait_idle(self, what: str) -> None:
+        """Wait until JCALIB_MOVE has finished any command still running (JC_FLAG back at 0).
+
+        A client killed mid-move leaves the program executing its last command; writing a new target
+        before that clears JC_FLAG would be overwritten by the program's ``JC_FLAG = 0``.
+        """
+        deadline = time.monotonic() + self.motion_timeout_s
+        while self.client.read("JC_FLAG").strip() != "0":
+            if time.monotonic() > deadline:
+                raise DeviceError(
+                    f"robot at {self.address}: JCALIB_MOVE is still busy with an earlier command after "
+                    f"{self.motion_timeout_s} s, so the {what} cannot start (is another program writing JC_FLAG?)"
+                )
+            time.sleep(self.poll_s)
+
     def _command(self, flag: int, what: str) -> None:
         self.client.write("JC_FLAG", str(flag))
         deadline = time.monotonic() + self.motion_timeout_s
@@ -252,14 +267,17 @@ class KukaRobot(Robot):
             )
 
     def _move(self, T_base_flange: np.ndarray, kind: str) -> None:
+        self._wait_idle("PTP" if kind == "joint" else "LIN")
         self.client.write("JC_POS", format_frame(pose_to_kuka(T_base_flange)))
         self._command(1 if kind == "joint" else 2, "PTP" if kind == "joint" else "LIN")
 
     def select_tool(self, index: int) -> None:
+        self._wait_idle(f"selection of tool {index}")
         self.client.write("JC_TOOL", str(int(index)))
         self._command(3, f"selection of tool {index}")
 
     def select_base(self, index: int) -> None:
+        self._wait_idle(f"selection of base {index}")
         self.client.write("JC_BASE", str(int(index)))
         self._command(3, f"selection of base {index}")
 

@@ -5,12 +5,20 @@ its own thread and acts on ``JC_FLAG`` like the KRL program in ``krl/JCALIB_MOVE
 ``INVERSE``-style rejection of unreachable targets with ``JC_ERR = 1``). Unknown variables and writes to
 system variables fail the way KUKAVARPROXY reports failures (last trailer byte 0).
 
+Values are checked the way the KRL types check them: the INT variables take integer literals in the
+32-bit range, ``JC_POS`` a FRAME whose six components are finite REALs; anything else (``"nan"``,
+``1e999``) is a failed write and leaves the variable as it was. The program loop survives whatever
+a command leads to (it reports ``JC_ERR = 4`` and clears ``JC_FLAG``). A request that is not
+KUKAVARPROXY framing closes that client's connection; idle clients time out (``idle_timeout_s``).
+
 Start it in-process with ``KukaSimServer(...).start()`` or as a subprocess with
 ``python -m jcalib.acquisition.robots.serve --protocol kuka``.
 """
 
 from __future__ import annotations
 
+import math
+import re
 import socket
 import struct
 import threading
@@ -22,6 +30,28 @@ from jcalib.acquisition.robots.kuka import HEADER, encode_reply, parse_krl_struc
 from jcalib.geometry.se3 import pose_from_kuka, pose_to_kuka
 from jcalib.acquisition.robots.simulated import SimulatedController, UnreachableError
 from jcalib.errors import BadInputError
+
+_INT = re.compile(r"^[+-]?\d{1,10}$")
+_INT_VARS = ("JC_FLAG", "JC_ERR", "JC_TOOL", "JC_BASE", "JC_VEL", "$OV_PRO")
+_REAL_MAX = 3.4e38  # KRL REAL is IEEE single precision
+_MAX_VALUE_BYTES = 512
+
+
+def valid_value(name: str, value: str) -> bool:
+    """Whether KRL would accept ``value`` for the simulated variable ``name`` (module docstring)."""
+    if len(value) > _MAX_VALUE_BYTES or not value.isascii():
+        return False
+    text = value.strip()
+    if name in _INT_VARS:
+        return bool(_INT.match(text)) and -(2**31) <= int(text) < 2**31
+    if name == "JC_POS":
+        try:
+            v = parse_krl_struct(text)
+        except ValueError:
+            return False
+        return all(k in v and math.isfinite(v[k]) and abs(v[k]) <= _REAL_MAX for k in "XYZABC")
+    return False
+
 
 _USER_VARS = {
     "JC_POS": "{FRAME: X 0.0, Y 0.0, Z 0.0, A 0.0, B 0.0, C 0.0}",
@@ -53,10 +83,12 @@ class KukaSimServer(ThreadedTcpServer):
         *,
         reply_delay_s: float = 0.0,
         allow_non_loopback: bool = False,
+        idle_timeout_s: float = 30.0,
     ):
-        super().__init__(host, port, allow_non_loopback=allow_non_loopback)
+        super().__init__(host, port, allow_non_loopback=allow_non_loopback, idle_timeout_s=idle_timeout_s)
         self.controller = controller if controller is not None else SimulatedController()
         self.reply_delay_s = float(reply_delay_s)
+        self.program_errors: list[str] = []
         self.vars = dict(_USER_VARS)
         self._cond = threading.Condition()
         self.num_requests = 0
@@ -93,16 +125,7 @@ class KukaSimServer(ThreadedTcpServer):
 
     def _write_var(self, name: str, value: str) -> tuple[str, bool]:
         with self._cond:
-            if name not in self.vars:
-                return "", False
-            try:
-                if name == "JC_POS":
-                    v = parse_krl_struct(value)
-                    if not all(k in v for k in "XYZABC"):
-                        return "", False
-                else:
-                    float(value)
-            except ValueError:
+            if name not in self.vars or not valid_value(name, value):
                 return "", False
             self.vars[name] = value.strip()
             self._cond.notify_all()
@@ -115,16 +138,15 @@ class KukaSimServer(ThreadedTcpServer):
                 body = recv_exact(conn, length)
             except ConnectionError:
                 return
-            mode = body[0]
-            (nlen,) = struct.unpack("!H", body[1:3])
-            name = body[3 : 3 + nlen].decode("ascii", errors="replace").upper()
+            request = parse_request(body)
+            if request is None:  # not KUKAVARPROXY framing: drop this client
+                self.num_dropped += 1
+                return
+            mode, name, written = request
             if mode == 0:
                 value, ok = self._read_var(name)
-            elif mode == 1:
-                (vlen,) = struct.unpack("!H", body[3 + nlen : 5 + nlen])
-                value, ok = self._write_var(name, body[5 + nlen : 5 + nlen + vlen].decode("ascii", "replace"))
             else:
-                value, ok = "", False
+                value, ok = self._write_var(name, written)
             self.num_requests += 1
             if self.reply_delay_s:
                 self._stop.wait(self.reply_delay_s)
@@ -138,27 +160,58 @@ class KukaSimServer(ThreadedTcpServer):
     def _program_loop(self) -> None:
         while True:
             with self._cond:
-                while not self._stop.is_set() and self.vars["JC_FLAG"] in ("0", "0.0"):
+                while not self._stop.is_set() and int(self.vars["JC_FLAG"]) == 0:
                     self._cond.wait(0.5)
                 if self._stop.is_set():
                     return
-                cmd = int(float(self.vars["JC_FLAG"]))
-                tool, base = int(float(self.vars["JC_TOOL"])), int(float(self.vars["JC_BASE"]))
-                pos = parse_krl_struct(self.vars["JC_POS"])
+                snapshot = dict(self.vars)
                 self.vars["JC_ERR"] = "0"
-            err = 0
             try:
-                self.controller.select_tool(tool)
-                self.controller.select_base(base)
-            except BadInputError:
-                err = 3
-            if err == 0:
-                if cmd in (1, 2):
-                    T = pose_from_kuka(np.array([pos[k] for k in "XYZABC"]))
-                    try:
-                        self.controller.move(T, "joint" if cmd == 1 else "linear")
-                    except UnreachableError as e:
-                        err = 2 if e.on_path else 1
-                elif cmd != 3:
-                    err = 4
+                err = self._execute(snapshot)
+            except Exception as e:  # noqa: BLE001 - the program keeps running whatever a command does
+                self.program_errors = (self.program_errors + [f"{type(e).__name__}: {e}"])[-20:]
+                err = 4
             self._set(JC_ERR=str(err), JC_FLAG="0")
+
+    def _execute(self, v: dict[str, str]) -> int:
+        """One command of JCALIB_MOVE.src; returns JC_ERR."""
+        cmd, tool, base = int(v["JC_FLAG"]), int(v["JC_TOOL"]), int(v["JC_BASE"])
+        if not (0 <= tool <= 16 and 0 <= base <= 32):
+            return 3
+        try:
+            self.controller.select_tool(tool)
+            self.controller.select_base(base)
+        except BadInputError:
+            return 3
+        if cmd == 3:
+            return 0
+        if cmd not in (1, 2):
+            return 4
+        pos = parse_krl_struct(v["JC_POS"])
+        try:
+            T = pose_from_kuka(np.array([pos[k] for k in "XYZABC"]))
+            self.controller.move(T, "joint" if cmd == 1 else "linear")
+        except UnreachableError as e:
+            return 2 if e.on_path else 1
+        except BadInputError:  # not a pose (components far outside any workspace): INVERSE fails
+            return 1
+        return 0
+
+
+def parse_request(body: bytes) -> tuple[int, str, str] | None:
+    """``(mode, NAME, written value)`` of a KUKAVARPROXY request body, or None when it is malformed."""
+    if len(body) < 3 or body[0] not in (0, 1):
+        return None
+    (nlen,) = struct.unpack("!H", body[1:3])
+    name_b = body[3 : 3 + nlen]
+    if nlen == 0 or len(name_b) != nlen or not name_b.isascii():
+        return None
+    rest = body[3 + nlen :]
+    if body[0] == 0:
+        return (0, name_b.decode("ascii").upper(), "") if not rest else None
+    if len(rest) < 2:
+        return None
+    (vlen,) = struct.unpack("!H", rest[:2])
+    if len(rest) != 2 + vlen:
+        return None
+    return 1, name_b.decode("ascii").upper(), rest[2:].decode("ascii", "replace")
