@@ -142,7 +142,8 @@ def run_cell_demo(
     t0 = time.perf_counter()
     cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "simulate", "--cell", str(cell_path),
            "--robot-protocol", protocol, "--robot-port", "0", "--time-scale", "0", "--truth",
-           str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed)]
+           str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed),
+           "--noise", "realistic"]
     for name, addr in ADDRESSES.items():
         cmd += ["--camera", f"{name}={addr}"]
     with open(out_dir / "simulate.log", "w") as log:
