@@ -77,6 +77,10 @@ class RenderOptions:
         gain_dn_per_e: system gain, DN per electron; None maps a full well to the top DN.
         black_level_dn: offset added to every pixel, DN.
         shot_noise: draw Poisson photo-electrons (physical) or use the mean (noise-free signal).
+        glare: specular highlights, each ``(u, v, radius, peak)``: a Gaussian spot of light added to
+            the image irradiance at ``(u, v)`` (fractions of the image width and height), standard
+            deviation ``radius`` (fraction of the image width), ``peak`` times a white surface's
+            irradiance at its centre (saturates where the sum exceeds the full well); () = none.
     """
 
     supersample: int = 3
@@ -95,6 +99,7 @@ class RenderOptions:
     gain_dn_per_e: float | None = None
     black_level_dn: float = 0.0
     shot_noise: bool = True
+    glare: tuple[tuple[float, float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.supersample, int | np.integer) or not 1 <= self.supersample <= 16:
@@ -117,6 +122,16 @@ class RenderOptions:
         check_sensor_settings(
             self.bit_depth, self.full_well_e, self.read_noise_e, self.gain_dn_per_e, self.black_level_dn
         )
+        try:
+            spots = np.asarray(self.glare, dtype=np.float64).reshape(-1, 4)
+        except (TypeError, ValueError):
+            spots = np.full((1, 4), np.nan)
+        if not np.all(np.isfinite(spots)) or np.any(spots[:, 2] <= 0) or np.any(spots[:, 3] < 0):
+            raise BadInputError(
+                f"RenderOptions.glare: got {self.glare!r}, expected ((u, v, radius, peak), ...) with finite values, "
+                "radius > 0 and peak >= 0"
+            )
+        object.__setattr__(self, "glare", tuple(tuple(float(x) for x in row) for row in spots))
 
     @classmethod
     def preset(cls, name: str, **overrides: Any) -> RenderOptions:
@@ -155,6 +170,7 @@ class RenderOptions:
         """JSON-ready dictionary of every setting (units in the names)."""
         d = dataclasses.asdict(self)
         d["illumination_gradient"] = [float(g) for g in self.illumination_gradient]
+        d["glare"] = [list(g) for g in self.glare]
         return d
 
 
@@ -516,6 +532,15 @@ def form_image(
     """
     height, width = radiance.shape
     irradiance = _psf_blur(radiance, options)
+    if options.glare:
+        u = np.arange(width, dtype=np.float32)[None, :]
+        v = np.arange(height, dtype=np.float32)[:, None]
+        irradiance = irradiance.astype(np.float32, copy=True)
+        for gu, gv, radius, peak in options.glare:
+            r = np.float32(radius * width)
+            irradiance += np.float32(peak) * np.exp(
+                -((u - np.float32(gu * (width - 1))) ** 2 + (v - np.float32(gv * (height - 1))) ** 2) / (2 * r * r)
+            )
     gain = np.where(lens_valid, np.maximum(cos_theta, 0.0), 0.0).astype(np.float64)
     if options.vignetting_power != 1.0:
         gain = gain ** float(options.vignetting_power)

@@ -12,7 +12,7 @@ condemn its neighbours.
 
 Thresholds are fractions of the local spacing in the image (the distance between neighbouring board
 points), not pixels: a wrong id or a skipped row moves a point by at least one spacing; detection
-noise and the lens's departure from a homography over a few squares stay far below 0.2 spacings.
+noise and the lens's departure from a homography over a few squares stay far below a tenth of one.
 """
 
 from __future__ import annotations
@@ -22,8 +22,11 @@ import numpy as np
 
 __all__ = ["consistent_points", "consistent_markers", "GRID_TOLERANCE", "MARKER_TOLERANCE"]
 
-#: Largest distance of a grid point from its neighbours' prediction, in local spacings.
-GRID_TOLERANCE = 0.2
+#: Largest distance of a grid point from its neighbours' prediction, in local spacings (but at least
+#: :data:`MIN_TOLERANCE_PX`). 0.2 let a block of corners dragged 5-7 px by glare through (35 px squares).
+GRID_TOLERANCE = 0.1
+#: Floor of the grid tolerance, px: noisy corners of small squares (σ up to ~0.5 px) stay inside it.
+MIN_TOLERANCE_PX = 1.5
 #: Largest distance of a marker corner from its neighbour markers' prediction, in marker sides.
 MARKER_TOLERANCE = 0.3
 
@@ -64,7 +67,8 @@ def consistent_points(
         board_xy: (N, 2) board coordinates of the detected points, m.
         pixels: (N, 2) their detected image positions, px.
         neighbours: how many nearest board points predict each point (>= 4).
-        tolerance: largest prediction error, in local spacings (distance to the nearest board neighbour).
+        tolerance: largest prediction error, in local spacings (distance to the nearest board
+            neighbour), at least :data:`MIN_TOLERANCE_PX`.
 
     Returns:
         (N,) bool: True for consistent points. Points that cannot be checked (fewer than 5 points in
@@ -79,25 +83,18 @@ def consistent_points(
     d_board = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
     np.fill_diagonal(d_board, np.inf)
     spacing_m = float(np.min(d_board))
-    while True:
-        idx = np.flatnonzero(ok)
-        if len(idx) < 5:
-            return np.zeros(n, dtype=bool)
-        errors = np.zeros(len(idx))
-        for k, i in enumerate(idx):
-            others = idx[idx != i]
-            near = others[np.argsort(d_board[i, others])[: max(4, neighbours)]]
-            H = _homography(xy[near], px[near])
-            if H is None:
-                errors[k] = np.inf
-                continue
-            pred = _apply(H, xy[i : i + 1])[0]
-            scale = _local_scale(H, xy[i : i + 1], spacing_m)[0]
-            errors[k] = np.linalg.norm(pred - px[i]) / max(scale, 1e-9)
-        worst = int(np.argmax(errors))
-        if not errors[worst] > tolerance:
-            return ok
-        ok[idx[worst]] = False
+
+    def error(i: int, idx: np.ndarray) -> float:
+        others = idx[idx != i]
+        near = others[np.argsort(d_board[i, others])[: max(4, neighbours)]]
+        H = _homography(xy[near], px[near])
+        if H is None:
+            return np.inf
+        pred = _apply(H, xy[i : i + 1])[0]
+        scale = _local_scale(H, xy[i : i + 1], spacing_m)[0]
+        return float(np.linalg.norm(pred - px[i])) / max(scale, MIN_TOLERANCE_PX / tolerance, 1e-9)
+
+    return _prune(ok, error, tolerance, minimum=5)
 
 
 def consistent_markers(
@@ -129,22 +126,34 @@ def consistent_markers(
     d_board = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=-1)
     np.fill_diagonal(d_board, np.inf)
     side_m = float(np.median(np.linalg.norm(xy[:, 1] - xy[:, 0], axis=1)))
+
+    def error(i: int, idx: np.ndarray) -> float:
+        others = idx[idx != i]
+        near = others[np.argsort(d_board[i, others])[:neighbours]]
+        H = _homography(xy[near].reshape(-1, 2), px[near].reshape(-1, 2))
+        if H is None:
+            return np.inf
+        pred = _apply(H, xy[i])
+        side_px = float(np.mean(_local_scale(H, xy[i], side_m)))
+        return float(np.max(np.linalg.norm(pred - px[i], axis=1))) / max(side_px, 1e-9)
+
+    return _prune(ok, error, tolerance, minimum=2)
+
+
+def _prune(ok: np.ndarray, error, tolerance: float, minimum: int) -> np.ndarray:
+    """Drop the worst point while any error exceeds ``tolerance``; then re-admit dropped points that
+    the kept ones predict within it (a good point can look bad while a wrong neighbour is still in)."""
+    ok = ok.copy()
     while True:
         idx = np.flatnonzero(ok)
-        if len(idx) < 2:
-            return np.zeros(m, dtype=bool)
-        errors = np.zeros(len(idx))
-        for k, i in enumerate(idx):
-            others = idx[idx != i]
-            near = others[np.argsort(d_board[i, others])[:neighbours]]
-            H = _homography(xy[near].reshape(-1, 2), px[near].reshape(-1, 2))
-            if H is None:
-                errors[k] = np.inf
-                continue
-            pred = _apply(H, xy[i])
-            side_px = float(np.mean(_local_scale(H, xy[i], side_m)))
-            errors[k] = float(np.max(np.linalg.norm(pred - px[i], axis=1))) / max(side_px, 1e-9)
+        if len(idx) < minimum:
+            return np.zeros(len(ok), dtype=bool)
+        errors = np.array([error(i, idx) for i in idx])
         worst = int(np.argmax(errors))
         if not errors[worst] > tolerance:
-            return ok
+            break
         ok[idx[worst]] = False
+    idx = np.flatnonzero(ok)
+    back = [i for i in np.flatnonzero(~ok) if error(i, np.append(idx, i)) <= tolerance]
+    ok[back] = True
+    return ok
