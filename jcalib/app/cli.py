@@ -309,6 +309,9 @@ def simulate(
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
     time_scale: Annotated[float, typer.Option(help="Motion-time scale (0: instantaneous moves).")] = 1.0,
     seed: Annotated[int, typer.Option(help="Noise seed.")] = 0,
+    noise: Annotated[
+        str, typer.Option(help="Image noise: clean (bright, sharp) or realistic (dim, defocused, ~0.1 px corners).")
+    ] = "clean",
 ) -> None:
     """Run a simulated cell (robot server + fake GigE cameras) on loopback until interrupted."""
     enable_compilation_cache()
@@ -327,7 +330,7 @@ def simulate(
 
     run_simulate(cell, robot_protocol=robot_protocol, robot_port=robot_port, camera_addresses=parse_named(camera),
                  truth=truth, robot=robot, image_size=parse_image_size(image_size), time_scale=time_scale,
-                 seed=seed, stop=stop, on_ready=ready)  # fmt: skip
+                 seed=seed, noise=noise, stop=stop, on_ready=ready)  # fmt: skip
 
 
 @app.command()

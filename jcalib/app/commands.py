@@ -327,6 +327,7 @@ def run_simulate(
     image_size: tuple[int, int] | None = None,
     time_scale: float = 1.0,
     seed: int = 0,
+    noise: str = "clean",
     stop: threading.Event | None = None,
     on_ready: Callable[[dict], None] | None = None,
 ) -> None:
@@ -346,6 +347,8 @@ def run_simulate(
         robot, image_size: passed to :func:`~jcalib.acquisition.layout.cell_layout`.
         time_scale: motion-time scale (0: instantaneous moves).
         seed: noise seed (robot repeatability, sensor noise).
+        noise: image formation preset of the cameras (:meth:`jcalib.sim.render.RenderOptions.preset`):
+            "clean" (bright, sharp: ~0.01 px corners) or "realistic" (dim, defocused: ~0.1 px corners).
         stop: set to shut down (default: until KeyboardInterrupt).
         on_ready: called with ``{"robot": URL, "cameras": {id: URL}}`` once every device listens.
     """
@@ -355,6 +358,7 @@ def run_simulate(
     from jcalib.acquisition.robots.model import preset_model
     from jcalib.app.simcell import layout_truth, scene_from_layout
     from jcalib.io.atomic import write_json_atomic
+    from jcalib.sim.render import RenderOptions
 
     if robot_protocol not in ("kuka", "abb"):
         raise BadInputError(f"--robot-protocol: expected kuka or abb, got {robot_protocol!r}")
@@ -371,6 +375,10 @@ def run_simulate(
             raise BadInputError(
                 f"--camera {name}: the simulator serves on loopback IPv4 addresses (127.x.y.z) only, got {addr!r}"
             )
+    try:
+        options = RenderOptions.preset(noise)
+    except BadInputError as e:
+        raise BadInputError(f"--noise: {e}") from None
     layout = cell_layout(cell, robot=robot, image_size=image_size)
     unknown = set(camera_addresses) - set(layout.cameras)
     if unknown:
@@ -393,7 +401,7 @@ def run_simulate(
     waiter.start()
     run_simulated_cell(
         scene, robot_protocol=robot_protocol, robot_port=int(robot_port), camera_addresses=camera_addresses,
-        robot_model=model, time_scale=time_scale, seed=seed, stop=stop, ready=ready, info=info,
+        robot_model=model, time_scale=time_scale, seed=seed, stop=stop, ready=ready, info=info, options=options,
     )  # fmt: skip
 
 
@@ -409,6 +417,7 @@ def run_simulated_cell(
     stop: threading.Event | None = None,
     ready: threading.Event | None = None,
     info: dict | None = None,
+    options: Any = None,
 ) -> None:
     """A robot server plus one fake GigE camera per scene camera, until ``stop`` (behind ``jcalib simulate``).
 
@@ -423,6 +432,7 @@ def run_simulated_cell(
         stop: set it to shut everything down (default: run until KeyboardInterrupt).
         ready: set once every device is listening.
         info: filled before ``ready`` is set: ``{"robot": "kuka://127.0.0.1:PORT", "cameras": {id: "gige://ADDR"}}``.
+        options: the cameras' :class:`jcalib.sim.render.RenderOptions` (None: the defaults).
     """
     from contextlib import ExitStack
 
@@ -441,7 +451,7 @@ def run_simulated_cell(
         server = make_server(robot_protocol, "127.0.0.1", robot_port, ctrl).start()
         stack.callback(server.stop)
         for k, (name, address) in enumerate(camera_addresses.items()):
-            source = scene_frame_source(scene, name, ctrl.true_T_base_flange, seed=seed + 1000 * k)
+            source = scene_frame_source(scene, name, ctrl.true_T_base_flange, options=options, seed=seed + 1000 * k)
             size = camera_image_size(scene.cameras[name].model)
             # GigE Vision serials hold 15 bytes: index + name, cut
             fake = FakeGigECamera(source, address, sensor_size=size, serial=f"SIM{k}-{name}"[:15])

@@ -13,9 +13,13 @@ from jcalib.io.observations import Detection, Observations, Station, save_observ
 
 def detect_images(
     cell, camera: str, image_paths: Sequence[str | os.PathLike], target: str | None = None,
-    progress: bool = True,
+    progress: bool = True, notes: dict[str, str] | None = None,
 ) -> tuple[Observations, dict[str, DetectionError]]:
     """Detect the cell's target in each image; one station per image (id = file stem).
+
+    ``notes``, when given, is filled with ``{image path: what the detector did}`` for the images where
+    the defaults did not suffice or points inconsistent with the board were left out
+    (:func:`retry_note`).
 
     Returns:
         The observations of the images where the target was found, and ``{image path: error}`` for
@@ -47,6 +51,9 @@ def detect_images(
                 f"all images of camera '{camera}' must have one size"
             )
         image_size = size
+        note = retry_note(res)
+        if notes is not None and note:
+            notes[str(path)] = note
         det = Detection(camera=camera, target=target_spec.name, point_index=res.point_index, pixels=res.pixels)
         stations.append(Station(id=sid, detections=(det,)))
     obs = Observations(
@@ -57,12 +64,25 @@ def detect_images(
     return obs, failures
 
 
+def retry_note(det) -> str:
+    """What the detector did beyond its defaults for one :class:`~jcalib.vision.TargetDetection`, or ""."""
+    parts = []
+    if getattr(det, "attempt", "default") != "default":
+        parts.append(f"found by attempt {det.attempt} (tried {', '.join(det.attempts)})")
+    if getattr(det, "dropped", 0):
+        parts.append(f"{det.dropped} points inconsistent with the board left out")
+    return "; ".join(parts)
+
+
 def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None) -> Observations:
-    """``jcalib detect``: detect, write observations.json, print a summary of failures."""
+    """``jcalib detect``: detect, write observations.json, print a summary of retries and failures."""
     from rich.console import Console
 
-    obs, failures = detect_images(cell_path, camera, image_paths, target=target)
+    notes: dict[str, str] = {}
+    obs, failures = detect_images(cell_path, camera, image_paths, target=target, notes=notes)
     console = Console(stderr=True)
+    for path, note in notes.items():
+        console.print(f"retried {path}: {note}", highlight=False, markup=False)
     for path, err in failures.items():
         console.print(f"[yellow]skipped[/] {path}: {err.reason} — {err}", highlight=False)
     if not obs.stations:
@@ -72,6 +92,8 @@ def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None)
         )
     save_observations(out_path, obs)
     console.print(
-        f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped", highlight=False
+        f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped"
+        + (f", {len(notes)} found or cleaned by retries" if notes else ""),
+        highlight=False,
     )
     return obs

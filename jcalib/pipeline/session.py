@@ -59,6 +59,7 @@ def detect_session(
     tool: str | None = None,
     tools: bool = True,
     progress: bool = True,
+    notes: dict[str, str] | None = None,
 ):
     """Detect the cell's targets (and tool tips) in every station image of a capture session.
 
@@ -71,6 +72,8 @@ def detect_session(
             observes; images of a camera observing several tools then get an "ambiguous" failure).
         tools: search images without a target for tool tips (module docstring).
         progress: show a progress bar on stderr.
+        notes: filled with ``{"<station> <camera> <target>": what the detector did}`` where its
+            defaults did not suffice (:func:`jcalib.pipeline.images.retry_note`).
 
     Returns:
         ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
@@ -84,6 +87,7 @@ def detect_session(
     from jcalib.io.session import read_session
     from jcalib.io.cell import load_cell
     from jcalib.io.observations import Detection, Observations, Station
+    from jcalib.pipeline.images import retry_note
     from jcalib.vision import detect_many
 
     d = Path(session_dir)
@@ -144,6 +148,9 @@ def detect_session(
                 continue
             check_size(cam, path, (int(res.image_size[0]), int(res.image_size[1])))
             found[(sid, cam, tname)] = res
+            note = retry_note(res)
+            if notes is not None and note:
+                notes[f"{sid} {cam} {tname}"] = note
 
     # tool tips: images of a camera observing a tool in which no target was found at all
     tips: dict[tuple[str, str], tuple[str, np.ndarray]] = {}
@@ -259,8 +266,11 @@ def detect_session_to_file(
 
     from jcalib.io.observations import save_observations
 
-    obs, failures = detect_session(session_dir, cell, target=target, progress=progress)
+    notes: dict[str, str] = {}
+    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes)
     console = Console(stderr=True, soft_wrap=True)
+    for what, note in notes.items():
+        console.print(f"retried {what}: {note}", highlight=False, markup=False)
     for f in failures:
         console.print(f"[yellow]skipped[/] {f}", highlight=False)
     if not obs.stations:
@@ -272,6 +282,7 @@ def detect_session_to_file(
     save_observations(out, obs)
     console.print(
         f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
-        f"{len(failures)} failures", highlight=False,
+        f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else ""),
+        highlight=False,
     )  # fmt: skip
     return obs, failures

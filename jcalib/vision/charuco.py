@@ -1,66 +1,211 @@
-"""ChArUco corners with ``cv2.aruco.CharucoDetector`` (partial views, corner ids), re-refined."""
+"""ChArUco corners: ArUco markers found (and re-tried) with ``cv2.aruco``, checked against the board, then
+the chessboard corners interpolated by ``cv2.aruco.CharucoDetector`` and re-refined.
+
+Markers are collected over the attempts of :mod:`jcalib.vision.attempts` until every marker the board
+predicts inside the image is found (or the attempts run out); each attempt's markers are mapped back to
+the original pixels and the whole set is checked marker by marker against the board layout
+(:func:`jcalib.vision.validate.consistent_markers`): a marker whose id or rotation does not fit its
+neighbours is dropped, whichever attempt found it. The corners are then interpolated from the kept
+markers on the original image and each is checked against the homography of the markers around it.
+"""
 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from jcalib.vision.attempts import CHARUCO_ATTEMPTS, Attempt, aruco_parameters, prepare, to_original
 from jcalib.vision.chessboard import refine_corners
 from jcalib.vision.image import GrayImage
+from jcalib.vision.validate import consistent_markers
 
-__all__ = ["find_charuco"]
+__all__ = ["CharucoFound", "find_charuco", "CORNER_TOLERANCE"]
+
+#: Largest distance of a ChArUco corner from the prediction of the markers around it, in squares.
+CORNER_TOLERANCE = 0.15
+
+
+@dataclass(frozen=True)
+class CharucoFound:
+    """What :func:`find_charuco` found.
+
+    Attributes:
+        ids: (n,) int64 ChArUco corner ids, ascending.  pixels: (n, 2) float64 px.
+        num_markers: markers kept (consistent with the board).
+        attempts: names of the attempts run, in order.
+        contributing: names of the attempts whose markers were kept.
+        dropped_markers: markers found but inconsistent with the board layout.
+        dropped_corners: corners interpolated but inconsistent with the markers around them.
+    """
+
+    ids: np.ndarray
+    pixels: np.ndarray
+    num_markers: int
+    attempts: tuple[str, ...]
+    contributing: tuple[str, ...]
+    dropped_markers: int = 0
+    dropped_corners: int = 0
 
 
 @functools.lru_cache(maxsize=16)
-def _detector(target) -> cv2.aruco.CharucoDetector:
+def _board(target):
     d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
     board = cv2.aruco.CharucoBoard((target.squares_x, target.squares_y), target.square, target.marker, d)
     board.setLegacyPattern(target.legacy)
-    params = cv2.aruco.DetectorParameters()
-    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    return cv2.aruco.CharucoDetector(board, cv2.aruco.CharucoParameters(), params)
+    marker_ids = np.asarray(board.getIds(), dtype=np.int64).reshape(-1)
+    marker_xy = np.asarray(board.getObjPoints(), dtype=np.float64)[:, :, :2]  # (M, 4, 2), OpenCV board frame
+    corner_xy = np.asarray(board.getChessboardCorners(), dtype=np.float64)[:, :2]
+    return d, board, {int(i): k for k, i in enumerate(marker_ids)}, marker_xy, corner_xy
 
 
-def find_charuco(gray: GrayImage, target) -> tuple[np.ndarray, np.ndarray, int]:
-    """ChArUco corners seen in an image.
+@functools.lru_cache(maxsize=16)
+def _charuco_detector(target) -> cv2.aruco.CharucoDetector:
+    d, board, *_ = _board(target)
+    return cv2.aruco.CharucoDetector(board, cv2.aruco.CharucoParameters(), aruco_parameters(CHARUCO_ATTEMPTS[0]))
 
-    Returns:
-        (ids (n,) int64, pixels (n, 2) float64 px, number of ArUco markers found). ``n`` may be 0.
-    """
-    corners, ids, _marker_corners, marker_ids = _detector(target).detectBoard(gray.u8)
-    num_markers = 0 if marker_ids is None else len(marker_ids)
-    if ids is None or corners is None or len(ids) == 0:
-        return np.zeros((0,), np.int64), np.zeros((0, 2)), num_markers
-    ids = ids.reshape(-1).astype(np.int64)
-    pixels = corners.reshape(-1, 2).astype(np.float64)
-    if len(ids) >= 4:
-        # Window: stay inside the white gap between the corner and the neighbouring markers.
-        xy = target.points[ids, :2]
-        H, _ = cv2.findHomography(xy, pixels, 0)
-        if H is not None:
-            gap_m = 0.5 * (target.square - target.marker)
-            d = 1e-3 * target.square
-            p0 = _apply(H, xy)
-            scale = np.minimum(
-                np.linalg.norm(_apply(H, xy + [d, 0.0]) - p0, axis=1),
-                np.linalg.norm(_apply(H, xy + [0.0, d]) - p0, axis=1),
-            ) / d
-            gap_px = float(np.min(scale)) * gap_m
-            # refine_corners' half window is 0.35 * spacing and its smoothing reaches ~window/2 further:
-            # both must stay inside the white gap, or marker edges bias the corner. Where the gap is
-            # too narrow (small board in the image), OpenCV's own refinement is kept (measured better).
-            half = 0.6 * gap_px
-            if half >= 3.0:
-                spacing = min(half / 0.35, float(np.min(scale)) * target.square)
-                refined = refine_corners(gray, pixels, spacing_px=spacing)
-                ok = np.linalg.norm(refined - pixels, axis=1) < 2.0
-                pixels = np.where(ok[:, None], refined, pixels)
-    order = np.argsort(ids)
-    return ids[order], pixels[order], num_markers
+
+def _detect_markers(img: np.ndarray, target, attempt: Attempt) -> dict[int, np.ndarray]:
+    d, board, index, *_ = _board(target)
+    detector = cv2.aruco.ArucoDetector(d, aruco_parameters(attempt))
+    corners, ids, rejected = detector.detectMarkers(img)
+    if attempt.refine_markers and ids is not None and len(ids) > 0:
+        corners, ids, rejected, _ = detector.refineDetectedMarkers(img, board, corners, ids, rejected)
+    if ids is None:
+        return {}
+    out = {}
+    for c, i in zip(corners, np.asarray(ids).reshape(-1)):
+        if int(i) in index and int(i) not in out:  # ids of other boards of the dictionary are not ours
+            out[int(i)] = to_original(np.asarray(c, dtype=np.float64).reshape(4, 2), attempt)
+    return out
 
 
 def _apply(H, xy):
     p = np.column_stack([xy, np.ones(len(xy))]) @ H.T
-    return p[:, :2] / p[:, 2:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return p[:, :2] / p[:, 2:]
+
+
+def _all_expected_found(found: dict[int, np.ndarray], target, image_size: tuple[int, int]) -> bool:
+    """Whether every marker the found ones predict well inside the image is found."""
+    _, _, index, marker_xy, _ = _board(target)
+    if len(found) == len(index):
+        return True
+    if len(found) < 2:
+        return False
+    ks = [index[i] for i in found]
+    H, _ = cv2.findHomography(marker_xy[ks].reshape(-1, 2), np.stack(list(found.values())).reshape(-1, 2), 0)
+    if H is None:
+        return False
+    w, h = image_size
+    for i, k in index.items():
+        if i in found:
+            continue
+        p = _apply(H, marker_xy[k])
+        if not np.all(np.isfinite(p)):
+            continue
+        side = float(np.linalg.norm(p[1] - p[0]))
+        margin = 0.5 * side
+        if np.all((p[:, 0] > margin) & (p[:, 0] < w - 1 - margin) & (p[:, 1] > margin) & (p[:, 1] < h - 1 - margin)):
+            return False
+    return True
+
+
+def _check_corners(target, found: dict[int, np.ndarray], ids: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(n,) bool: each corner agrees with the homography of the (up to 4) kept markers nearest to it."""
+    _, _, index, marker_xy, corner_xy = _board(target)
+    ks = np.array([index[i] for i in found])
+    mpx = np.stack(list(found.values()))
+    centres = marker_xy[ks].mean(axis=1)
+    ok = np.zeros(len(ids), dtype=bool)
+    for j, (cid, p) in enumerate(zip(ids, pixels)):
+        xy = corner_xy[cid]
+        near = np.argsort(np.linalg.norm(centres - xy, axis=1))[:4]
+        H, _ = cv2.findHomography(marker_xy[ks[near]].reshape(-1, 2), mpx[near].reshape(-1, 2), 0)
+        if H is None:
+            continue
+        pred = _apply(H, xy[None])[0]
+        step = _apply(H, np.array([xy, xy + [target.square, 0.0], xy + [0.0, target.square]]))
+        square_px = min(np.linalg.norm(step[1] - step[0]), np.linalg.norm(step[2] - step[0]))
+        ok[j] = np.linalg.norm(pred - p) <= CORNER_TOLERANCE * square_px
+    return ok
+
+
+def find_charuco(gray: GrayImage, target, *, retry: bool = True) -> CharucoFound:
+    """ChArUco corners seen in an image, checked against the board (module docstring).
+
+    Args:
+        gray: the image.
+        target: a :class:`jcalib.geometry.targets.Charuco`.
+        retry: run the further attempts of :data:`jcalib.vision.attempts.CHARUCO_ATTEMPTS` while
+            markers the board predicts inside the image are missing (False: the default attempt only).
+
+    Returns:
+        :class:`CharucoFound`; ``ids`` may be empty.
+    """
+    _, _, index, marker_xy, _ = _board(target)
+    found: dict[int, np.ndarray] = {}
+    tried: list[str] = []
+    contributing: list[str] = []
+    dropped: set[int] = set()  # ids of markers found somewhere inconsistent with the board
+    for attempt in CHARUCO_ATTEMPTS if retry else CHARUCO_ATTEMPTS[:1]:
+        tried.append(attempt.name)
+        new = {i: c for i, c in _detect_markers(prepare(gray.u8, attempt), target, attempt).items() if i not in found}
+        if new:
+            union = {**found, **new}
+            keys = list(union)
+            ok = consistent_markers(marker_xy[[index[i] for i in keys]], np.stack([union[i] for i in keys]))
+            kept = {i: union[i] for i, good in zip(keys, ok) if good}
+            dropped |= {i for i in keys if i not in kept}
+            if any(i in kept for i in new):
+                contributing.append(attempt.name)
+            found = kept
+        if _all_expected_found(found, target, gray.size):
+            break
+    dropped_markers = len(dropped - set(found))
+    empty = CharucoFound(np.zeros((0,), np.int64), np.zeros((0, 2)), len(found), tuple(tried), tuple(contributing),
+                         dropped_markers)  # fmt: skip
+    if len(found) < 2:
+        return empty
+    mids = np.array(list(found), dtype=np.int32).reshape(-1, 1)
+    mcorners = tuple(np.asarray(c, dtype=np.float32).reshape(1, 4, 2) for c in found.values())
+    corners, ids, _, _ = _charuco_detector(target).detectBoard(gray.u8, markerCorners=mcorners, markerIds=mids)
+    if ids is None or corners is None or len(ids) == 0:
+        return empty
+    ids = ids.reshape(-1).astype(np.int64)
+    pixels = _refine(gray, target, ids, corners.reshape(-1, 2).astype(np.float64))
+    ok = _check_corners(target, found, ids, pixels)
+    order = np.argsort(ids[ok])
+    return CharucoFound(ids[ok][order], pixels[ok][order], len(found), tuple(tried), tuple(contributing),
+                        dropped_markers, int(np.sum(~ok)))  # fmt: skip
+
+
+def _refine(gray: GrayImage, target, ids: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """jcalib's sub-pixel step on OpenCV's interpolated corners, where the white gap allows it."""
+    if len(ids) < 4:
+        return pixels
+    # Window: stay inside the white gap between the corner and the neighbouring markers.
+    xy = target.points[ids, :2]
+    H, _ = cv2.findHomography(xy, pixels, 0)
+    if H is None:
+        return pixels
+    gap_m = 0.5 * (target.square - target.marker)
+    d = 1e-3 * target.square
+    p0 = _apply(H, xy)
+    scale = np.minimum(
+        np.linalg.norm(_apply(H, xy + [d, 0.0]) - p0, axis=1),
+        np.linalg.norm(_apply(H, xy + [0.0, d]) - p0, axis=1),
+    ) / d
+    gap_px = float(np.min(scale)) * gap_m
+    # refine_corners' half window is 0.35 * spacing and its smoothing reaches ~window/2 further:
+    # both must stay inside the white gap, or marker edges bias the corner. Where the gap is
+    # too narrow (small board in the image), OpenCV's own refinement is kept (measured better).
+    half = 0.6 * gap_px
+    if half >= 3.0:
+        spacing = min(half / 0.35, float(np.min(scale)) * target.square)
+        refined = refine_corners(gray, pixels, spacing_px=spacing)
+        ok = np.linalg.norm(refined - pixels, axis=1) < 2.0
+        pixels = np.where(ok[:, None], refined, pixels)
+    return pixels

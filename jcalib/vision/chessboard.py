@@ -112,21 +112,32 @@ def _min_spacing(corners: np.ndarray, cols: int, rows: int) -> float:
     return float(np.min(np.concatenate(d)))
 
 
-def find_chessboard(gray: GrayImage, cols: int, rows: int) -> tuple[np.ndarray | None, str]:
+def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True) -> tuple[np.ndarray | None, str, tuple[str, ...]]:
     """All ``cols x rows`` inner corners in OpenCV's order, refined, or None.
 
+    Each attempt of :data:`jcalib.vision.attempts.GRID_ATTEMPTS` (only the first unless ``retry``)
+    runs ``findChessboardCorners`` then ``findChessboardCornersSB`` on its prepared image; the first
+    board found is mapped back to the original pixels and refined there.
+
     Returns:
-        ((cols*rows, 2) float64 px or None, name of the finder that succeeded).
+        ((cols*rows, 2) float64 px or None, name of the finder that succeeded, names of the attempts run).
     """
-    ok, c = cv2.findChessboardCorners(gray.u8, (cols, rows), flags=_FIND_FLAGS)
-    method = "findChessboardCorners"
-    if not ok:
-        ok, c = cv2.findChessboardCornersSB(gray.u8, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
-        method = "findChessboardCornersSB"
-    if not ok or c is None:
-        return None, ""
-    c = c.reshape(-1, 2).astype(np.float64)
-    return refine_corners(gray, c, _min_spacing(c, cols, rows)), method + "+cornerSubPix+saddle"
+    from jcalib.vision.attempts import GRID_ATTEMPTS, prepare, to_original
+
+    tried: list[str] = []
+    for attempt in GRID_ATTEMPTS if retry else GRID_ATTEMPTS[:1]:
+        tried.append(attempt.name)
+        img = prepare(gray.u8, attempt)
+        ok, c = cv2.findChessboardCorners(img, (cols, rows), flags=_FIND_FLAGS)
+        method = "findChessboardCorners"
+        if not ok:
+            ok, c = cv2.findChessboardCornersSB(img, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
+            method = "findChessboardCornersSB"
+        if not ok or c is None:
+            continue
+        c = to_original(c.reshape(-1, 2).astype(np.float64), attempt)
+        return refine_corners(gray, c, _min_spacing(c, cols, rows)), method + "+cornerSubPix+saddle", tuple(tried)
+    return None, "", tuple(tried)
 
 
 def find_partial_chessboard(gray: GrayImage) -> tuple[int, int] | None:

@@ -24,17 +24,28 @@ def _blob_detector(gray: GrayImage) -> cv2.SimpleBlobDetector:
     return cv2.SimpleBlobDetector_create(p)
 
 
-def find_circles(gray: GrayImage, target) -> np.ndarray | None:
-    """All circle centres in OpenCV's order ((cols*rows, 2) float64 px), or None."""
+def find_circles(gray: GrayImage, target, *, retry: bool = True) -> tuple[np.ndarray | None, tuple[str, ...]]:
+    """All circle centres in OpenCV's order ((cols*rows, 2) float64 px) or None, and the attempts run.
+
+    Each attempt of :data:`jcalib.vision.attempts.CIRCLE_ATTEMPTS` (only the first unless ``retry``)
+    runs ``findCirclesGrid`` (then with ``CALIB_CB_CLUSTERING``) on its prepared image.
+    """
+    from jcalib.vision.attempts import CIRCLE_ATTEMPTS, prepare, to_original
+
     flags = cv2.CALIB_CB_ASYMMETRIC_GRID if target.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
-    ok, centres = cv2.findCirclesGrid(gray.u8, (target.cols, target.rows), flags=flags, blobDetector=_blob_detector(gray))
-    if not ok or centres is None:
-        ok, centres = cv2.findCirclesGrid(
-            gray.u8, (target.cols, target.rows), flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=_blob_detector(gray)
-        )
-    if not ok or centres is None:
-        return None
-    return centres.reshape(-1, 2).astype(np.float64)
+    tried: list[str] = []
+    for attempt in CIRCLE_ATTEMPTS if retry else CIRCLE_ATTEMPTS[:1]:
+        tried.append(attempt.name)
+        img = prepare(gray.u8, attempt)
+        view = GrayImage(img, img.astype(np.float32), gray.name)
+        ok, centres = cv2.findCirclesGrid(img, (target.cols, target.rows), flags=flags, blobDetector=_blob_detector(view))
+        if not ok or centres is None:
+            ok, centres = cv2.findCirclesGrid(
+                img, (target.cols, target.rows), flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=_blob_detector(view)
+            )
+        if ok and centres is not None:
+            return to_original(centres.reshape(-1, 2).astype(np.float64), attempt), tuple(tried)
+    return None, tuple(tried)
 
 
 def count_blobs(gray: GrayImage) -> tuple[int, int]:

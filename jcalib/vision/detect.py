@@ -33,7 +33,14 @@ class TargetDetection:
         method: the OpenCV functions used.
         warnings: ``"orientation_ambiguous"`` for a 180°-symmetric board (see
             :mod:`jcalib.vision.orientation`), ``"blurred"`` when edges are wider than
-            ``max_edge_width_px``.
+            ``max_edge_width_px``, ``"points_dropped"`` when points inconsistent with the board
+            were left out (see ``dropped``).
+        attempt: which attempts of :mod:`jcalib.vision.attempts` found what was kept: ``"default"``
+            when the finders' defaults sufficed, else e.g. ``"default+clahe"`` (ChArUco markers
+            collected over several attempts) or ``"downscale_2x"``.
+        attempts: every attempt run, in order (``("default",)`` when nothing was retried).
+        dropped: points (or ChArUco markers) found but left out because they disagree with the board
+            layout and their neighbours (:mod:`jcalib.vision.validate`).
     """
 
     point_index: np.ndarray
@@ -45,6 +52,14 @@ class TargetDetection:
     contrast: float = float("nan")
     method: str = ""
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    attempt: str = "default"
+    attempts: tuple[str, ...] = ("default",)
+    dropped: int = 0
+
+    @property
+    def retried(self) -> bool:
+        """Whether the defaults did not suffice (another attempt found points that were kept)."""
+        return self.attempt != "default"
 
     @property
     def num_points(self) -> int:
@@ -63,16 +78,25 @@ def detect_target(
     min_points: int = 6,
     max_edge_width_px: float = 8.0,
     min_contrast: float = 0.1,
+    retry: bool = True,
 ) -> TargetDetection:
     """Find a calibration target's points in one image.
 
     Chessboard: ``cv2.findChessboardCorners`` (``findChessboardCornersSB`` when it fails), then
     ``cornerSubPix`` on a lightly smoothed image (see :mod:`jcalib.vision.chessboard` for the
-    measured accuracy); the whole board must be visible. ChArUco: ``cv2.aruco.CharucoDetector``,
-    partial views allowed (at least ``min_points`` corners). Circle grids: ``cv2.findCirclesGrid``;
-    the whole grid must be visible. Point indices of chessboards and circle grids follow
-    :mod:`jcalib.vision.orientation` (180°-symmetric boards get the warning
-    ``"orientation_ambiguous"``).
+    measured accuracy); the whole board must be visible. ChArUco: ArUco markers, then
+    ``cv2.aruco.CharucoDetector``'s corners, partial views allowed (at least ``min_points``
+    corners). Circle grids: ``cv2.findCirclesGrid``; the whole grid must be visible. Point indices of
+    chessboards and circle grids follow :mod:`jcalib.vision.orientation` (180°-symmetric boards get
+    the warning ``"orientation_ambiguous"``).
+
+    When the defaults find no board (chessboards, circle grids) or miss markers the board predicts
+    inside the image (ChArUco), the detection is tried again with adapted preparations and parameters
+    (:mod:`jcalib.vision.attempts`: threshold windows, board-guided marker recovery, CLAHE, 2x up- and
+    down-scaling, smoothing); ``attempt`` / ``attempts`` of the result say which. Every detection,
+    default or not, is checked against the board model (:mod:`jcalib.vision.validate`): points whose
+    position disagrees with their neighbours on the board are dropped (``dropped``); a grid with more
+    than a tenth of its points inconsistent is not the board and counts as not found.
 
     Args:
         image: a path, or an (H, W[, 3|4]) uint8 / uint16 array (colour in BGR order).
@@ -82,6 +106,7 @@ def detect_target(
         max_edge_width_px: a failed image whose edges are wider than this is ``"too_blurred"``; a
             found one gets the warning ``"blurred"``.
         min_contrast: a failed image with less grey-level spread (0..1) is ``"not_found"``.
+        retry: try further attempts when the defaults fall short (False: the defaults only).
 
     Returns:
         :class:`TargetDetection`.
@@ -121,27 +146,41 @@ def detect_target(
     if isinstance(target, Charuco):
         from jcalib.vision.charuco import find_charuco
 
-        ids, pixels, num_markers = find_charuco(gray, target)
+        found = find_charuco(gray, target, retry=retry)
+        ids, pixels = found.ids, found.pixels
+        dropped = found.dropped_markers + found.dropped_corners
         if len(ids) < min_points:
             detail = None
-            if num_markers > 0 or len(ids) > 0:
-                detail = f"{num_markers} markers and {len(ids)} corners found, at least {min_points} corners needed"
+            if found.num_markers > 0 or len(ids) > 0 or dropped:
+                detail = (f"{found.num_markers} markers and {len(ids)} corners found, at least {min_points} corners "
+                          f"needed")  # fmt: skip
+                if found.dropped_markers:
+                    detail += f"; {found.dropped_markers} markers inconsistent with the board layout left out"
+                if found.dropped_corners:
+                    detail += f"; {found.dropped_corners} corners inconsistent with the markers around them left out"
+                detail += _tried(found.attempts)
+                hint = _layout_hint(gray, target) if len(ids) == 0 else ""
+                detail += hint
             raise fail(detail)
         return TargetDetection(
             point_index=ids,
             pixels=pixels,
             fraction_found=len(ids) / target.num_points,
-            method="CharucoDetector+cornerSubPix",
-            warnings=blurred,
+            method="ArucoDetector+CharucoDetector+cornerSubPix",
+            warnings=blurred + (("points_dropped",) if dropped else ()),
+            attempt="+".join(found.contributing) or "default",
+            attempts=found.attempts,
+            dropped=dropped,
             **common,
         )
 
     from jcalib.vision.orientation import assign_grid_indices
+    from jcalib.vision.validate import consistent_points
 
     if isinstance(target, Checkerboard):
         from jcalib.vision.chessboard import find_chessboard, find_partial_chessboard
 
-        pixels, method = find_chessboard(gray, target.cols, target.rows)
+        pixels, method, tried = find_chessboard(gray, target.cols, target.rows, retry=retry)
         if pixels is None:
             size = find_partial_chessboard(gray)
             detail = None
@@ -154,7 +193,7 @@ def detect_target(
     else:
         from jcalib.vision.circles import count_blobs, find_circles
 
-        pixels = find_circles(gray, target)
+        pixels, tried = find_circles(gray, target, retry=retry)
         method = "findCirclesGrid"
         if pixels is None:
             n_blobs, n_border = count_blobs(gray)
@@ -165,15 +204,53 @@ def detect_target(
                 )
             raise fail(detail)
     point_index, ambiguous = assign_grid_indices(target, pixels, gray.f32)
-    order = np.argsort(point_index)
+    good = consistent_points(target.points[point_index, :2], pixels)
+    dropped = int(np.sum(~good))
+    if dropped > 0.1 * len(good):
+        raise DetectionError(
+            f"{name}: {target.type} {_describe(target)} not found: the grid found ({method}, attempt {tried[-1]}) has "
+            f"{dropped} of {len(good)} points inconsistent with the board layout (a wrong or distorted grid)",
+            "not_found",
+        )
+    order = np.argsort(point_index[good])
     return TargetDetection(
-        point_index=point_index[order],
-        pixels=pixels[order],
-        fraction_found=1.0,
+        point_index=point_index[good][order],
+        pixels=pixels[good][order],
+        fraction_found=float(np.sum(good)) / target.num_points,
         method=method,
-        warnings=(("orientation_ambiguous",) if ambiguous else ()) + blurred,
+        warnings=(("orientation_ambiguous",) if ambiguous else ()) + blurred + (("points_dropped",) if dropped else ()),
+        attempt=tried[-1],
+        attempts=tried,
+        dropped=dropped,
         **common,
     )
+
+
+def _tried(attempts: tuple[str, ...]) -> str:
+    return f" (attempts: {', '.join(attempts)})" if len(attempts) > 1 else ""
+
+
+def _layout_hint(gray, target) -> str:
+    """When markers but no corners are found: does the transposed or legacy layout fit the markers?"""
+    import dataclasses
+
+    from jcalib.vision.charuco import find_charuco
+
+    for alt in (
+        dataclasses.replace(target, squares_x=target.squares_y, squares_y=target.squares_x),
+        dataclasses.replace(target, legacy=not target.legacy),
+        dataclasses.replace(target, squares_x=target.squares_y, squares_y=target.squares_x, legacy=not target.legacy),
+    ):
+        if alt == target:
+            continue
+        try:
+            found = find_charuco(gray, alt, retry=False)
+        except Exception:  # noqa: BLE001  (only a hint)
+            continue
+        if len(found.ids) >= 4:
+            return (f"; the markers fit a {alt.squares_x}x{alt.squares_y} board (legacy={alt.legacy}): check "
+                    "squares_x/squares_y (squares along the board's x axis, its first marker row) and legacy")  # fmt: skip
+    return ""
 
 
 def _check_arguments(target, min_points) -> None:

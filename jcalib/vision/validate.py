@@ -1,0 +1,159 @@
+"""Geometric consistency of a detection with the board model: the guard against accepting a wrong board.
+
+A detector can return a board that is not there, or not there in that order: a ChArUco marker decoded
+with a wrong id or rotation (clutter that happens to decode, a bit error the dictionary corrects
+wrongly), a chessboard corner that the sub-pixel step dragged onto the next edge, a grid found with
+a skipped row. Each of these puts a point far from where its neighbours say it must be. Locally a
+planar board is seen through a smooth lens as a homography, so every point is predicted from a
+homography fitted to its neighbours *on the board* (never including itself, nor, for a marker, its own
+other corners), and a point whose prediction misses by more than a fraction of the local spacing is
+inconsistent. The check removes the worst inconsistent point and repeats, so one wrong point does not
+condemn its neighbours.
+
+Thresholds are fractions of the local spacing in the image (the distance between neighbouring board
+points), not pixels: a wrong id or a skipped row moves a point by at least one spacing; detection
+noise and the lens's departure from a homography over a few squares stay far below a tenth of one.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["consistent_points", "consistent_markers", "GRID_TOLERANCE", "MARKER_TOLERANCE"]
+
+#: Largest distance of a grid point from its neighbours' prediction, in local spacings (but at least
+#: :data:`MIN_TOLERANCE_PX`). 0.2 let a block of corners dragged 5-7 px by glare through (35 px squares).
+GRID_TOLERANCE = 0.1
+#: Floor of the grid tolerance, px: noisy corners of small squares (σ up to ~0.5 px) stay inside it.
+MIN_TOLERANCE_PX = 1.5
+#: Largest distance of a marker corner from its neighbour markers' prediction, in marker sides.
+MARKER_TOLERANCE = 0.3
+
+
+def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
+    if len(src) < 4:
+        return None
+    H, _ = cv2.findHomography(src.astype(np.float64), dst.astype(np.float64), 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return None
+    return H
+
+
+def _apply(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    p = np.column_stack([xy, np.ones(len(xy))]) @ H.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return p[:, :2] / p[:, 2:]
+
+
+def _local_scale(H: np.ndarray, xy: np.ndarray, step: float) -> np.ndarray:
+    """Image length (px) of a board step of ``step`` (m) at each ``xy``, the smaller of the two axes."""
+    p0 = _apply(H, xy)
+    dx = np.linalg.norm(_apply(H, xy + [step, 0.0]) - p0, axis=1)
+    dy = np.linalg.norm(_apply(H, xy + [0.0, step]) - p0, axis=1)
+    return np.minimum(dx, dy)
+
+
+def consistent_points(
+    board_xy: np.ndarray,
+    pixels: np.ndarray,
+    *,
+    neighbours: int = 8,
+    tolerance: float = GRID_TOLERANCE,
+) -> np.ndarray:
+    """Which detected points agree with their board neighbours (see the module docstring).
+
+    Args:
+        board_xy: (N, 2) board coordinates of the detected points, m.
+        pixels: (N, 2) their detected image positions, px.
+        neighbours: how many nearest board points predict each point (>= 4).
+        tolerance: largest prediction error, in local spacings (distance to the nearest board
+            neighbour), at least :data:`MIN_TOLERANCE_PX`.
+
+    Returns:
+        (N,) bool: True for consistent points. Points that cannot be checked (fewer than 5 points in
+        all) are all False: an unverifiable detection is not accepted.
+    """
+    xy = np.asarray(board_xy, dtype=np.float64)
+    px = np.asarray(pixels, dtype=np.float64)
+    n = len(xy)
+    ok = np.isfinite(px).all(axis=1)
+    if n < 5:
+        return np.zeros(n, dtype=bool)
+    d_board = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
+    np.fill_diagonal(d_board, np.inf)
+    spacing_m = float(np.min(d_board))
+
+    def error(i: int, idx: np.ndarray) -> float:
+        others = idx[idx != i]
+        near = others[np.argsort(d_board[i, others])[: max(4, neighbours)]]
+        H = _homography(xy[near], px[near])
+        if H is None:
+            return np.inf
+        pred = _apply(H, xy[i : i + 1])[0]
+        scale = _local_scale(H, xy[i : i + 1], spacing_m)[0]
+        return float(np.linalg.norm(pred - px[i])) / max(scale, MIN_TOLERANCE_PX / tolerance, 1e-9)
+
+    return _prune(ok, error, tolerance, minimum=5)
+
+
+def consistent_markers(
+    marker_xy: np.ndarray,
+    marker_pixels: np.ndarray,
+    *,
+    neighbours: int = 4,
+    tolerance: float = MARKER_TOLERANCE,
+) -> np.ndarray:
+    """Which detected markers sit where their neighbour markers say (ids and rotations consistent).
+
+    Args:
+        marker_xy: (M, 4, 2) board coordinates of each detected marker's corners, in the order the
+            detector reports image corners, m.
+        marker_pixels: (M, 4, 2) the detected corners, px.
+        neighbours: how many nearest markers (by board distance of the centres) predict each marker.
+        tolerance: largest corner prediction error, in marker sides (image length of the marker's side).
+
+    Returns:
+        (M,) bool. With fewer than 2 markers nothing can be checked: all False.
+    """
+    xy = np.asarray(marker_xy, dtype=np.float64)
+    px = np.asarray(marker_pixels, dtype=np.float64)
+    m = len(xy)
+    ok = np.isfinite(px).reshape(m, -1).all(axis=1)
+    if m < 2:
+        return np.zeros(m, dtype=bool)
+    centres = xy.mean(axis=1)
+    d_board = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=-1)
+    np.fill_diagonal(d_board, np.inf)
+    side_m = float(np.median(np.linalg.norm(xy[:, 1] - xy[:, 0], axis=1)))
+
+    def error(i: int, idx: np.ndarray) -> float:
+        others = idx[idx != i]
+        near = others[np.argsort(d_board[i, others])[:neighbours]]
+        H = _homography(xy[near].reshape(-1, 2), px[near].reshape(-1, 2))
+        if H is None:
+            return np.inf
+        pred = _apply(H, xy[i])
+        side_px = float(np.mean(_local_scale(H, xy[i], side_m)))
+        return float(np.max(np.linalg.norm(pred - px[i], axis=1))) / max(side_px, 1e-9)
+
+    return _prune(ok, error, tolerance, minimum=2)
+
+
+def _prune(ok: np.ndarray, error, tolerance: float, minimum: int) -> np.ndarray:
+    """Drop the worst point while any error exceeds ``tolerance``; then re-admit dropped points that
+    the kept ones predict within it (a good point can look bad while a wrong neighbour is still in)."""
+    ok = ok.copy()
+    while True:
+        idx = np.flatnonzero(ok)
+        if len(idx) < minimum:
+            return np.zeros(len(ok), dtype=bool)
+        errors = np.array([error(i, idx) for i in idx])
+        worst = int(np.argmax(errors))
+        if not errors[worst] > tolerance:
+            break
+        ok[idx[worst]] = False
+    idx = np.flatnonzero(ok)
+    back = [i for i in np.flatnonzero(~ok) if error(i, np.append(idx, i)) <= tolerance]
+    ok[back] = True
+    return ok
