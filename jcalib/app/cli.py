@@ -100,58 +100,63 @@ def detect(
     )
 
 
+def _opt(help_: str, *flags: str):
+    return typer.Option(*flags, help=help_)
+
+
 @app.command()
 def calibrate(
     cell: Annotated[Path, typer.Argument(help="Cell spec (jcalib.cell/1 YAML).")],
     observations: Annotated[Path, typer.Argument(help="Observations (jcalib.observations/1 JSON).")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Result JSON to write.")],
-    loss: Annotated[str, typer.Option(help="Robust loss: none, huber or cauchy.")] = "none",
-    sigma_px: Annotated[float, typer.Option(help="Stated corner noise σ in pixels.")] = 0.25,
-    noise: Annotated[
-        str, typer.Option(help="Covariance scale: a_posteriori (from residuals) or stated.")
-    ] = "a_posteriori",
-    outlier_threshold: Annotated[
-        float, typer.Option(help="Reject corners beyond this many σ (0 keeps every corner).")
-    ] = 5.0,
-    pose_model: Annotated[
-        Optional[bool],
-        typer.Option("--pose-model/--no-pose-model",
-                     help="Hand-eye: estimate per-station robot pose errors (default: as the cell's robot.pose_noise says)."),
-    ] = None,
-    fix_unobservable: Annotated[
-        bool, typer.Option(help="Hand-eye: hold a translation the motion cannot determine at a prior instead of failing.")
-    ] = False,
-    unobservable_prior_m: Annotated[
-        float, typer.Option(help="Hand-eye: prior value (m) of that translation component.")
-    ] = 0.0,
-    unobservable_prior_sigma_m: Annotated[
-        float, typer.Option(help="Hand-eye: prior σ (m) of that translation component.")
-    ] = 1e-6,
-    prior: Annotated[
-        Optional[Path],
-        typer.Option(help="Previous result.json: re-optimise (reuse what still holds, flag what moved by a χ² test)."),
-    ] = None,
+    sigma_px: Annotated[Optional[float], _opt("Target-corner noise σ, pixels [0.25].")] = None,
+    tip_sigma_px: Annotated[Optional[float], _opt("Tool-tip detection noise σ, pixels [0.25].")] = None,
+    axis_sigma_px: Annotated[Optional[float], _opt("Tool-axis point noise σ across the axis, pixels [0.5].")] = None,
+    contact_sigma_m: Annotated[Optional[float], _opt("Tool-tip contact noise σ per axis, m [5e-5].")] = None,
+    pose_sigma_deg: Annotated[Optional[float], _opt("6-DOF pose measurement σ per rotation axis, deg [0.1].")] = None,
+    pose_sigma_m: Annotated[Optional[float], _opt("6-DOF pose measurement σ per translation axis, m [1e-3].")] = None,
+    noise: Annotated[Optional[str], _opt("Covariance scale: a_posteriori (variance components from the residuals) "
+                                         "or stated [a_posteriori].")] = None,
+    loss: Annotated[Optional[str], _opt("Robust loss on corners, tips, axis points, contacts: none, huber or cauchy "
+                                        "[none].")] = None,
+    loss_scale: Annotated[Optional[float], _opt("Robust loss scale, in σ [3].")] = None,
+    outlier_threshold: Annotated[Optional[float], _opt("Reject measurements beyond this many σ of their kind "
+                                                       "(0 keeps every measurement) [5].")] = None,
+    reseed_views: Annotated[Optional[bool], _opt("Re-start far-off views of free targets from their other PnP pose "
+                                                 "[on].", "--reseed-views/--no-reseed-views")] = None,
+    pose_model: Annotated[Optional[bool], _opt("Estimate per-station robot pose errors under the robot's pose_noise "
+                                               "[as the cell says].", "--pose-model/--no-pose-model")] = None,
+    method: Annotated[Optional[str], _opt("Closed-form hand-eye start: park_martin, tsai_lenz, horaud, andreff or "
+                                          "daniilidis [park_martin].")] = None,
+    max_iterations: Annotated[Optional[int], _opt("Levenberg–Marquardt iterations per solve [100].")] = None,
+    reference_camera: Annotated[Optional[str], _opt("Camera whose frame is the rig frame (cells without robots) "
+                                                    "[the first].")] = None,
+    fix_unobservable: Annotated[Optional[bool], _opt("Hold a hand-eye translation one-axis motion cannot determine "
+                                                     "at a prior instead of failing.", "--fix-unobservable")] = None,
+    unobservable_prior_m: Annotated[Optional[float], _opt("Prior value of that translation, m [0].")] = None,
+    unobservable_prior_sigma_m: Annotated[Optional[float], _opt("Prior σ of that translation, m [1e-6].")] = None,
+    prior: Annotated[Optional[Path], _opt("Previous result.json: re-optimise (reuse what still holds, flag what moved "
+                                          "by a χ² test).")] = None,
 ) -> None:
-    """Calibrate a cell from observations and write result.json."""
+    """Calibrate a cell from observations and write result.json.
+
+    Every option applies to every kind of cell; one the cell cannot use (e.g. --pose-model without a robot)
+    is refused with a message naming it.
+    """
     enable_compilation_cache()
-    from jcalib.problems.calibrate import calibrate as run
-    from jcalib.io.cell import load_cell
-    from jcalib.problems.camera import CameraCalibrationOptions
-    from jcalib.problems.handeye import HandEyeOptions, is_hand_eye_cell
+    from jcalib.problems.api import calibrate as run
     from jcalib.report.console import print_result
 
-    options = CameraCalibrationOptions(
-        loss=loss,
-        sigma_px=sigma_px,
-        noise=noise,
-        outlier_threshold=outlier_threshold if outlier_threshold > 0 else None,
-    )
-    if is_hand_eye_cell(load_cell(cell)):
-        options = HandEyeOptions.from_camera_options(
-            options, pose_model=pose_model, fix_unobservable=fix_unobservable,
-            unobservable_prior_m=unobservable_prior_m, unobservable_prior_sigma_m=unobservable_prior_sigma_m,
-        )
-    result = run(cell, observations, options, prior=prior) if prior is not None else run(cell, observations, options)
+    given = {k: v for k, v in dict(
+        sigma_px=sigma_px, tip_sigma_px=tip_sigma_px, axis_sigma_px=axis_sigma_px, contact_sigma_m=contact_sigma_m,
+        pose_sigma_deg=pose_sigma_deg, pose_sigma_m=pose_sigma_m, noise=noise, loss=loss, loss_scale=loss_scale,
+        outlier_threshold=outlier_threshold, reseed_views=reseed_views, pose_model=pose_model, method=method,
+        max_iterations=max_iterations, reference_camera=reference_camera, fix_unobservable=fix_unobservable,
+        unobservable_prior_m=unobservable_prior_m, unobservable_prior_sigma_m=unobservable_prior_sigma_m,
+    ).items() if v is not None}
+    if given.get("outlier_threshold") == 0:
+        given["outlier_threshold"] = None
+    result = run(cell, observations, given, prior=prior)
     result.to_json(out)
     print_result(result.file)
     typer.echo(f"wrote {out}")

@@ -27,7 +27,7 @@ def run_demo(out_dir: Path, num_views: int = 20, seed: int = 0, console: Console
     """Run the demo; returns ``{parameter: (truth, estimate, σ)}`` for camera ``cam0``."""
     from rich.progress import Progress
 
-    from jcalib.problems.calibrate import calibrate
+    from jcalib.problems.api import calibrate
     from jcalib.pipeline.images import detect_images
     from jcalib.geometry import Checkerboard, camera_from_opencv
     from jcalib.io.export import write_opencv_yaml, write_ros_camera_info

@@ -114,7 +114,7 @@ def run_cell_demo(
         ``{quantity: (truth, estimate, σ)}`` in the units printed (px, mm, deg).
     """
     from jcalib.app.commands import parse_image_size, run_capture
-    from jcalib.problems.calibrate import calibrate
+    from jcalib.problems.api import calibrate
     from jcalib.io.atomic import write_text_atomic
     from jcalib.io.export import export_result
     from jcalib.report.html import write_report

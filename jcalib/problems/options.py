@@ -109,15 +109,16 @@ APPLIES = {
     "contact_sigma_m": ("tool contacts with cell points", lambda g: bool(g.contacts)),
     "pose_sigma_deg": ("6-DOF pose measurements", lambda g: bool(g.poses)),
     "pose_sigma_m": ("6-DOF pose measurements", lambda g: bool(g.poses)),
-    "reseed_views": ("a free-moving target (mount: free)", lambda g: bool(g.free_things())),
-    "pose_model": ("a robot with pose_noise", lambda g: any(g.has_noise(r) for r in g.used_robots)),
-    "method": ("a camera and a target that move relative to each other on a robot (a hand-eye pair)",
-               lambda g: any(g.moving(c, t) and None in (g.holder(g.cell.cameras[c]), g.holder(g.cell.targets[t]))
-                             and not g.free_things() for (c, t) in list(g.pairs) + list(g.poses))),
-    "reference_camera": ("a cell without robots (a camera rig)", lambda g: not g.has_robot),
-    "fix_unobservable": ("a hand-eye pair (cameras and targets moved by a robot)", lambda g: g.has_robot),
-    "unobservable_prior_m": ("fix_unobservable", lambda g: g.has_robot),
-    "unobservable_prior_sigma_m": ("fix_unobservable", lambda g: g.has_robot),
+    "reseed_views": ("free-moving targets (mount: free)", lambda g: bool(g.free_things())),
+    "pose_model": ("a robot with pose_noise in the cell spec", lambda g: any(g.has_noise(r) for r in g.used_robots)),
+    "method": ("a camera and a target that a robot moves relative to each other (a hand-eye pair)",
+               lambda g: any(g.holder(g.cell.cameras[c]) != g.holder(g.cell.targets[t])
+                             and "~free" not in (g.holder(g.cell.cameras[c]), g.holder(g.cell.targets[t]))
+                             for (c, t) in list(g.pairs) + list(g.poses))),
+    "reference_camera": ("cells without robots (camera rigs)", lambda g: not g.has_robot),
+    "fix_unobservable": ("cells with a robot (hand-eye pairs)", lambda g: g.has_robot),
+    "unobservable_prior_m": ("cells with a robot (hand-eye pairs)", lambda g: g.has_robot),
+    "unobservable_prior_sigma_m": ("cells with a robot (hand-eye pairs)", lambda g: g.has_robot),
 }
 
 
@@ -132,8 +133,8 @@ def check_applicable(options: CalibrationOptions, graph, given: set[str]) -> Non
             need, ok = APPLIES[name]
             if not ok(graph):
                 raise BadInputError(
-                    f"option {name.replace('_', '-')}: this cell has no {need}, so the option would have no effect; "
-                    "drop it (or fix the cell spec / observations if you expected one)")
+                    f"option --{name.replace('_', '-')} has no effect here: it applies to {need}, and this cell has "
+                    "none; drop it (or fix the cell spec / observations if you expected one)")
     if options.pose_model is True and not any(graph.has_noise(r) for r in graph.used_robots):
         where = "robots.<name>.pose_noise" if graph.multi else "robot.pose_noise"
         raise BadInputError(f"options.pose_model: got True, but {graph.cell.source} has no {where}; state the "

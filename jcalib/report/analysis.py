@@ -1269,7 +1269,7 @@ def cross_validate(cell: Any, observations: Any, options: Any = None, grid: tupl
     """
     from dataclasses import replace
 
-    from jcalib.problems.calibrate import calibrate
+    from jcalib.problems.api import calibrate
     from jcalib.io.observations import load_observations
 
     obs = load_observations(observations)
