@@ -19,7 +19,7 @@ defaults, so ``jcalib plan`` and ``jcalib simulate`` agree on one geometry for t
 - **base camera**: looking at the first base target from 1.3 x its viewing distance, tilted 25 deg;
   without a base target it looks back (along -x) at a *presentation point* 0.2 m below and 0.1 m in
   front of the home flange, where the robot presents a flange target facing +x.
-- **tool** (TCP): 150 mm along the tool axis.
+- **tool** (TCP): 150 mm along the tool axis; its z axis along the tool axis (``rotation_z_to``).
 
 A ``pose`` in the cell spec (camera, target) replaces the default. Lengths in metres.
 """
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from jcalib.geometry.se3 import invert, make_pose, rot_x
+from jcalib.geometry.se3 import invert, make_pose, rot_x, rotation_z_to
 from jcalib.errors import BadInputError
 
 DEFAULT_ROBOT = "kuka_kr10_r1100_sixx"
@@ -285,7 +285,8 @@ def cell_layout(
                 pose = look_at(p + np.array([D, 0.0, 0.0]), p, np.array([0.0, -1.0, 0.0]))
         cameras[name] = CameraLayout(name, cam.model, cam.K, cam.dist, cam.image_size, cam.mount, np.asarray(pose, dtype=np.float64))
 
-    tools = {name: make_pose(np.eye(3), 0.15 * a) for name in spec.tools}
+    # the TCP's z axis is the tool axis, from the flange towards the tip (jcalib's tool convention)
+    tools = {name: make_pose(rotation_z_to(a), 0.15 * a) for name in spec.tools}
     return CellLayout(str(robot_name), home, T_home, a, work, cameras, targets, tools, spec, data)
 
 

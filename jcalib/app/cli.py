@@ -169,11 +169,22 @@ def export(
     out: Annotated[Path, typer.Option("--out", "-o", help="File to write.")],
     camera: Annotated[Optional[str], typer.Option(help="Camera id (ros).")] = None,
     module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
+    tool_orientation: Annotated[
+        Optional[list[str]],
+        typer.Option(help="rapid, krl: TOOL=flange or TOOL=X,Y,Z (tool axis in the flange frame) for a tool whose "
+                          "orientation was not calibrated; such tools are refused without it."),
+    ] = None,
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID or KUKA KRL."""
+    from jcalib.errors import BadInputError
     from jcalib.io.export import export_result
+    from jcalib.io.export._common import parse_tool_orientation
 
-    options = {"ros": {"camera": camera}, "rapid": {"module": module}}.get(format, {})
+    orientations = dict(parse_tool_orientation(t) for t in tool_orientation or [])
+    if orientations and format not in ("rapid", "krl"):
+        raise BadInputError(f"--tool-orientation: applies to the rapid and krl formats, not {format!r}")
+    options = {"ros": {"camera": camera}, "rapid": {"module": module, "orientations": orientations or None},
+               "krl": {"orientations": orientations or None}}.get(format, {})
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")
 

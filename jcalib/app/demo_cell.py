@@ -256,8 +256,8 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
 
     Rotation rows give the error rotation ``Log(R_true⁻¹ R_est)`` per axis (truth 0), in the frame in
     which the covariance is stated (right perturbation), so error / σ is meaningful per axis. A tool's
-    TCP ``T_flange_<tool>`` gives translation rows only: tip pixels determine the tip, not the tool's
-    orientation (held at identity by the solve, σ 0).
+    TCP ``T_flange_<tool>`` gives its translation rows and, when its orientation was calibrated (imaged
+    tool axis), the tilt of its axis (rx, ry); the rotation about the axis is a convention (no row).
     """
     rows: dict[str, tuple[float, float, float]] = {}
     for name, cam in result.cameras.items():
@@ -290,9 +290,12 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
         d_r = _rotation_error_deg(T_true[:3, :3], T[:3, :3])
         for i, ax in enumerate("xyz"):
             rows[f"{key} t{ax} (mm, frame b)"] = (0.0, float(d_t[i] * 1e3), float(std[3 + i] * 1e3))
+        axes = "xyz"
         if key in tcps:
-            continue
-        for i, ax in enumerate("xyz"):
+            if entry.extra.get("orientation") != "calibrated":
+                continue
+            axes = "xy"
+        for i, ax in enumerate(axes):
             rows[f"{key} r{ax} (deg)"] = (0.0, float(d_r[i]), float(np.degrees(std[i])))
     return rows
 

@@ -205,3 +205,19 @@ def log_se3(T: np.ndarray) -> np.ndarray:
     coef = np.where(small, 1.0 / 12.0, (1.0 - th_safe * np.sin(th_safe) / (2.0 * (1.0 - np.cos(th_safe)))) / th_safe**2)
     V_inv = np.eye(3) - 0.5 * K + coef * (K @ K)
     return np.concatenate([w, np.einsum("...ij,...j->...i", V_inv, t)], axis=-1)
+
+
+def rotation_z_to(a: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking the z axis to the unit vector ``a`` (3, 3).
+
+    jcalib's convention for the rotation of a symmetric tool about its own axis: a TCP whose z axis is
+    the tool axis ``a`` (in the flange frame) has the orientation ``rotation_z_to(a)``.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    e = np.array([0.0, 0.0, 1.0])
+    v = np.cross(e, a)
+    s, c = np.linalg.norm(v), float(a @ e)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K * ((1.0 - c) / s**2)

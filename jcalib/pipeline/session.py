@@ -10,7 +10,8 @@ images without the target are reported as :class:`SessionFailure` records.
 shows no target. So an image of a camera that observes a tool (``tools.<tool>.observed_by`` in the
 cell) in which *no* target is found (every target ``not_found``) is searched for the tool's tip
 (:func:`jcalib.vision.tooltip.detect_tool_tip`; with the camera's ``intrinsics`` from the cell, the
-cone edges are undistorted first). A tip found gives a ``{"camera", "tool", "pixel"}`` detection and
+cone edges are undistorted first). A tip found gives a ``{"camera", "tool", "pixel", "axis"}`` detection
+(``axis``: one point of the imaged tool axis, :data:`AXIS_POINT_PX` into the tool) and
 replaces that image's target failures; otherwise the tool's failure is listed as well. An image gives
 target corners or a tool tip, never both. A camera that observes several tools cannot tell which one
 was on the flange: pass ``tool=`` to say it.
@@ -26,6 +27,10 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
+
+#: Distance (px) from the tip, into the tool along the detected axis direction, of the one axis point a tip
+#: detection carries (the tool's orientation comes from it; one point: the direction is one measurement).
+AXIS_POINT_PX = 50.0
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,7 @@ def detect_session(
                 notes[f"{sid} {cam} {tname}"] = note
 
     # tool tips: images of a camera observing a tool in which no target was found at all
-    tips: dict[tuple[str, str], tuple[str, np.ndarray]] = {}
+    tips: dict[tuple[str, str], tuple[str, np.ndarray, np.ndarray]] = {}
     for sid, cam, path in jobs:
         fails = image_failures.get((sid, cam), [])
         if cam not in tool_of or any(f.reason != "not_found" for f in fails) or len(fails) < len(geometries):
@@ -167,7 +172,10 @@ def detect_session(
             fails.append(SessionFailure(sid, cam, tname, res.reason, str(res)))
             continue
         check_size(cam, path, res.image_size)
-        tips[(sid, cam)] = (tname, np.asarray(res.pixel, dtype=np.float64).reshape(1, 2))
+        pixel = np.asarray(res.pixel, dtype=np.float64).reshape(1, 2)
+        # one point on the imaged tool axis, AXIS_POINT_PX into the tool: it carries the axis direction
+        axis = pixel + AXIS_POINT_PX * np.asarray(res.axis_direction, dtype=np.float64).reshape(1, 2)
+        tips[(sid, cam)] = (tname, pixel, axis)
         image_failures[(sid, cam)] = []  # a tool image: its targets were not expected
     for sid, cam, _ in jobs:
         failures.extend(image_failures.get((sid, cam), []))
@@ -180,7 +188,8 @@ def detect_session(
                       pixels=np.asarray(r.pixels, dtype=np.float64))
             for (s, cam, tname), r in found.items() if s == sid
         ]  # fmt: skip
-        dets += [Detection(camera=cam, pixels=px, tool=tname) for (s, cam), (tname, px) in tips.items() if s == sid]
+        dets += [Detection(camera=cam, pixels=px, tool=tname, axis=axis)
+                 for (s, cam), (tname, px, axis) in tips.items() if s == sid]
         if not dets:
             continue
         T = rec.get("T_base_flange")

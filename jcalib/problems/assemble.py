@@ -21,7 +21,8 @@ from jcalib.problems.build import Built, se3_matrix
 from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.refine import Refined, residuals
 from jcalib.problems.start import Start
-from jcalib.problems.tools import given_orientation, rotation_z_to
+from jcalib.geometry.se3 import rotation_z_to
+from jcalib.problems.tools import given_orientation
 
 
 @dataclass
@@ -192,7 +193,9 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
             Q = R_conv.T @ T[:3, :3]
             B = np.kron(np.eye(2), Q)
             transforms[name] = np.block([[R_conv, T[:3, 3:]], [np.zeros((1, 3)), np.ones((1, 1))]])
-            tcov[name] = B @ tcov[name] @ B.T
+            C = B @ tcov[name] @ B.T
+            C[2, :] = C[:, 2] = 0.0  # Q is a rotation about z: the held rotation about the axis stays held
+            tcov[name] = C
         else:
             tool_orientation[tool.name] = "given" if given_orientation(tool) is not None else "not calibrated"
     points = {n: vals[f"point:{n}"][0].copy() for n in cell.points}

@@ -21,12 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import NotObservableError
-from jcalib.geometry.se3 import make_pose
+from jcalib.geometry.se3 import make_pose, rotation_z_to
 from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, check_rotations, rotation_spread
 from jcalib.problems.graph import Graph
-
-_E_Z = np.array([0.0, 0.0, 1.0])
-
 
 def _fmt(v: np.ndarray) -> str:
     return "[" + ", ".join(f"{c:.4f}" for c in v) + "]"
@@ -34,17 +31,6 @@ def _fmt(v: np.ndarray) -> str:
 
 def _canonical_sign(v: np.ndarray) -> np.ndarray:
     return v * (1.0 if v[np.argmax(np.abs(v))] > 0 else -1.0)
-
-
-def rotation_z_to(a: np.ndarray) -> np.ndarray:
-    """Smallest rotation taking the z axis to the unit vector ``a`` (3, 3): the convention for the
-    rotation of a symmetric tool about its own axis."""
-    v = np.cross(_E_Z, a)
-    s, c = np.linalg.norm(v), float(a @ _E_Z)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + K + K @ K * ((1.0 - c) / s**2)
 
 
 def given_orientation(tool) -> np.ndarray | None:

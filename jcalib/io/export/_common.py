@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.geometry.se3 import rotation_z_to
 from jcalib.io.result import ResultFile
 
 
@@ -106,3 +107,52 @@ def provenance_lines(result: ResultFile) -> list[str]:
     if "rms_px" in stats:
         lines.append(f"reprojection RMS: {stats['rms_px']:.4g} px")
     return lines
+
+
+def parse_tool_orientation(text: str) -> tuple[str, np.ndarray]:
+    """``TOOL=flange`` (the TCP axes parallel to the flange's) or ``TOOL=X,Y,Z`` (the tool's z axis in
+    the flange frame; the rotation about it by the smallest-rotation convention) -> ``(tool, (3, 3))``."""
+    tool, sep, value = str(text).partition("=")
+    if not sep or not tool:
+        raise BadInputError(f"--tool-orientation: expected TOOL=flange or TOOL=X,Y,Z (the tool axis in the flange "
+                            f"frame), got {text!r}")
+    if value.strip().lower() == "flange":
+        return tool, np.eye(3)
+    try:
+        a = np.asarray([float(v) for v in value.split(",")], np.float64)
+    except ValueError:
+        a = np.zeros(0)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.linalg.norm(a) > 0:
+        raise BadInputError(f"--tool-orientation {tool}: expected 'flange' or three numbers X,Y,Z (a non-zero tool "
+                            f"axis in the flange frame), got {value!r}")
+    return tool, rotation_z_to(a / np.linalg.norm(a))
+
+
+def tool_pose(result: ResultFile, tool: str, orientations: Mapping[str, np.ndarray] | None) -> tuple[np.ndarray, str]:
+    """The pose ``T_flange_<tool>`` to write to a controller and a comment on its orientation.
+
+    A tool whose orientation the calibration did not determine (``"orientation": "not calibrated"``:
+    only its tip was observed) is refused unless ``orientations`` supplies one; a supplied orientation
+    replaces the result's rotation (the tip is kept).
+
+    Raises:
+        BadInputError: an uncalibrated orientation with none supplied, naming the tool and the fix.
+    """
+    entry = result.transforms[f"T_flange_{tool}"]
+    T = np.array(entry.matrix, dtype=np.float64)
+    how = entry.extra.get("orientation", "calibrated") if isinstance(entry.extra, Mapping) else "calibrated"
+    given = (orientations or {}).get(tool)
+    if given is not None:
+        T[:3, :3] = np.asarray(given, np.float64)
+        return T, "orientation: supplied at export (not calibrated)"
+    if how == "not calibrated":
+        raise BadInputError(
+            f"tool '{tool}': its orientation was not calibrated (only its tip was observed, no imaged tool axis), so "
+            "the exported tool frame would carry a guessed rotation. Supply it: --tool-orientation "
+            f"{tool}=flange (TCP axes parallel to the flange's) or {tool}=X,Y,Z (the tool axis in the flange frame), "
+            f"or state tools.{tool}.orientation / axis in the cell spec and calibrate again")
+    if how == "given":
+        return T, "orientation: as stated in the cell spec (not calibrated)"
+    if how == "calibrated" and "calibrated" in entry.extra and "rz" not in entry.extra["calibrated"]:
+        return T, "orientation: tool axis calibrated; rotation about it by convention (smallest from the flange z)"
+    return T, "orientation: calibrated"

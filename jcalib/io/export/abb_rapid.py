@@ -33,7 +33,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import check_identifier, fixed, frame_selection, provenance_lines
+from jcalib.io.export._common import check_identifier, fixed, frame_selection, provenance_lines, tool_pose
 from jcalib.io.result import ResultFile, TransformResult, load_result
 
 __all__ = [
@@ -108,16 +108,19 @@ def abb_pose_literal(matrix) -> str:
     return f"[{_vec(trans_mm, MM_DECIMALS)}, {_vec(quat, QUAT_DECIMALS)}]"
 
 
-def abb_tooldata(result: ResultFile, tool: str, load: ToolLoad | None = None) -> str:
+def abb_tooldata(result: ResultFile, tool: str, load: ToolLoad | None = None,
+                 orientations: Mapping[str, np.ndarray] | None = None) -> str:
     """The ``tooldata`` literal of ``T_flange_<tool>``: ``[TRUE, [[x, y, z], [q1..q4]], [mass, ...]]``.
 
     Args:
         result: the calibration result.
         tool: the tool name (the result must hold ``T_flange_<tool>``).
         load: the tool's load; None = :data:`DEFAULT_TOOL_LOAD` (1 kg at the TCP).
+        orientations: tool -> ``(3, 3)`` orientation supplied for a tool whose orientation the
+            calibration did not determine (refused without it, see :func:`tool_pose`).
     """
     frame_selection(result, "flange", tool, "tool")
-    T = result.transforms[f"T_flange_{tool}"].matrix
+    T, _ = tool_pose(result, tool, orientations)
     load = DEFAULT_TOOL_LOAD if load is None else load
     cog = T[:3, 3] * 1e3 if load.cog_mm is None else np.asarray(load.cog_mm, dtype=np.float64)
     inertia = ", ".join(fixed(v, LOAD_DECIMALS) for v in load.inertia_kgm2)
@@ -168,6 +171,7 @@ def abb_rapid_module(
     wobjs: Mapping[str, str] | Sequence[str] | str | None = None,
     module: str = "jcalib_cal",
     loads: Mapping[str, ToolLoad] | None = None,
+    orientations: Mapping[str, np.ndarray] | None = None,
 ) -> str:
     """A RAPID module declaring one ``PERS tooldata`` per tool and one ``PERS wobjdata`` per work
     object.
@@ -181,10 +185,11 @@ def abb_rapid_module(
             them, a name, a list, or a mapping -> RAPID name (default ``wobj_<wobj>``).
         module: the module name.
         loads: tool -> :class:`ToolLoad`; tools not listed get :data:`DEFAULT_TOOL_LOAD`.
+        orientations: tool -> ``(3, 3)`` orientation for tools whose orientation was not calibrated.
 
     Raises:
         BadInputError: unknown tool/work object, an invalid or duplicate RAPID name, nothing to
-            export.
+            export, a tool whose orientation was not calibrated and is not supplied.
     """
     module = check_identifier(module, "module", RAPID_NAME_MAX)
     tool_names = _names(frame_selection(result, "flange", tools, "tools"), "tool_", "tool")
@@ -212,6 +217,7 @@ def abb_rapid_module(
         load = loads.get(tool)
         lines.append("")
         lines.append(f"    ! {name}: T_flange_{tool}, the TCP in the tool0 (flange) frame.")
+        lines.append(f"    ! {tool_pose(result, tool, orientations)[1]}.")
         std = _position_std_mm(result.transforms[f"T_flange_{tool}"])
         if std is not None:
             lines.append(f"    ! 1-sigma TCP position std x/y/z (tool0 frame): {std} mm.")
@@ -219,7 +225,7 @@ def abb_rapid_module(
             lines.append(
                 "    ! Load: default 1 kg at the TCP (not calibrated); identify the real load before use."
             )
-        lines.append(f"    PERS tooldata {name} := {abb_tooldata(result, tool, load)};")
+        lines.append(f"    PERS tooldata {name} := {abb_tooldata(result, tool, load, orientations)};")
     for wobj, name in wobj_names.items():
         lines.append("")
         lines.append(

@@ -27,7 +27,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import fixed, frame_selection, provenance_lines
+from jcalib.io.export._common import fixed, frame_selection, provenance_lines, tool_pose
 from jcalib.io.result import ResultFile, load_result
 
 __all__ = [
@@ -93,6 +93,7 @@ def kuka_config_lines(
     result: ResultFile,
     tools: Mapping[str, int] | Sequence[str] | str | None = None,
     bases: Mapping[str, int] | Sequence[str] | str | None = None,
+    orientations: Mapping[str, np.ndarray] | None = None,
 ) -> str:
     """``TOOL_DATA``/``TOOL_NAME`` and ``BASE_DATA``/``BASE_NAME`` lines for ``$config.dat``.
 
@@ -102,6 +103,8 @@ def kuka_config_lines(
             included), a name, a list, or a mapping tool -> ``TOOL_DATA`` index (1..16). Tools
             without an index take the lowest free ones in order. ``[]`` = none.
         bases: bases (frames with ``T_base_<base>``), likewise with ``BASE_DATA`` indices (1..32).
+        orientations: tool -> ``(3, 3)`` orientation for tools whose orientation was not calibrated
+            (refused without it, see :func:`jcalib.io.export._common.tool_pose`).
 
     Returns:
         The text: ``;`` comments with the provenance, then the lines to replace in ``$config.dat``.
@@ -124,7 +127,8 @@ def kuka_config_lines(
         "; X, Y, Z in mm; A, B, C in degrees (R = Rz(A) Ry(B) Rx(C)). Load data not included."
     )
     for tool, i in tool_idx.items():
-        T = result.transforms[f"T_flange_{tool}"].matrix
+        T, note = tool_pose(result, tool, orientations)
+        lines.append(f"; TOOL_DATA[{i}] {tool}: {note}.")
         lines.append(f"TOOL_DATA[{i}]={kuka_frame_literal(T)}")
         lines.append(f'TOOL_NAME[{i},]="{_krl_name(tool, "tools")}"')
     for base, i in base_idx.items():
