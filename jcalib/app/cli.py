@@ -14,8 +14,14 @@ from typing import Annotated, Optional
 import typer
 
 import jcalib
-from jcalib.solve.cache import enable_compilation_cache
 from jcalib.errors import JcalibError
+
+def enable_compilation_cache() -> None:
+    """JAX's persistent compilation cache (imported on first use: ``jcalib --help`` stays instant)."""
+    from jcalib.solve.cache import enable_compilation_cache as enable
+
+    enable()
+
 
 app = typer.Typer(
     name="jcalib",

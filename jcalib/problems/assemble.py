@@ -179,7 +179,7 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         if flag:
             prm[1] = prm[0] / ratio
             _aspect_tie(cov, ratio)
-        cameras[cam.name] = start.models[cam.name].with_params(jnp.asarray(prm))
+        cameras[cam.name] = start.models[cam.name].with_params(prm)
         intr_cov[cam.name] = cov
     transforms = {n: se3_matrix(vals[n][0]) for n in built.transforms}
     tcov = {n: sol.covariance(n, noise=noise) for n in built.transforms}

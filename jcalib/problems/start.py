@@ -129,10 +129,26 @@ def initial_model(name: str, model_name: str, image_size, skew: bool, fix, K0, d
     dist_names = [n for n in names if n not in ("fx", "fy", "cx", "cy", "skew", "alpha")]
     for n, value in zip(dist_names, dist_given):
         values[n] = value
-    model = template.with_params(jnp.asarray(np.array([values.get(n, 0.0) for n in names], np.float64)))
+    model = template.with_params(np.array([values.get(n, 0.0) for n in names], np.float64))
     if zhang_poses is not None and model_name != "fisheye":
         return model, list(zhang_poses)
     return model, pnp_poses(model, points, pixels)
+
+
+def rays(model: AbstractCameraModel, pixels: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` viewing directions ``(x, y, 1)`` of pixels in the camera frame, by OpenCV's
+    undistortion (a start needs no more, and it compiles nothing)."""
+    import cv2
+
+    K, dist = model.to_opencv()
+    pix = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
+    if model.name == "fisheye":
+        xy = cv2.fisheye.undistortPoints(pix, K, dist)
+    else:
+        xy = cv2.undistortPointsIter(pix, K, dist if dist.size else None, None, None,
+                                     (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
+    xy = xy.reshape(-1, 2)
+    return np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
 
 
 def pnp_poses(model: AbstractCameraModel, points: list[np.ndarray], pixels: list[np.ndarray], second: bool = False):
@@ -140,8 +156,7 @@ def pnp_poses(model: AbstractCameraModel, points: list[np.ndarray], pixels: list
     out = []
     if model.name == "fisheye":
         for pts, pix in zip(points, pixels):
-            und = np.asarray(model.unproject(jnp.asarray(pix)))
-            out.append(planar_pnp(pts, und[:, :2] / und[:, 2:3], np.eye(3)).T_cam_target[int(second)])
+            out.append(planar_pnp(pts, rays(model, pix)[:, :2], np.eye(3)).T_cam_target[int(second)])
         return out
     K_cv, dist_cv = (np.asarray(a, np.float64) for a in model.to_opencv())
     for pts, pix in zip(points, pixels):
@@ -182,7 +197,7 @@ def start_intrinsics(g: Graph, start: Start, seed=None) -> None:
         if flag:
             prm = np.asarray(model.params).copy()
             prm[1] = prm[0] / ratio
-            model = model.with_params(jnp.asarray(prm))
+            model = model.with_params(prm)
         start.models[cam.name], start.fixed_masks[cam.name], start.aspects[cam.name] = model, mask, (flag, ratio)
         i = 0
         for p in use:

@@ -17,13 +17,13 @@
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import NotObservableError
 from jcalib.geometry.se3 import make_pose, rotation_z_to
 from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, check_rotations, rotation_spread
 from jcalib.problems.graph import Graph
+from jcalib.problems.start import rays
 
 def _fmt(v: np.ndarray) -> str:
     return "[" + ", ".join(f"{c:.4f}" for c in v) + "]"
@@ -135,7 +135,7 @@ def tip_ray_start(name: str, tip_views: list, free_centre: bool = False,
     rows_A, rows_b, Rs, idx, dirs_all, cam_of = [], [], [], [], [], []
     off = 0
     for ci, (model, Tc, Tb, px) in enumerate(tip_views):
-        d = np.asarray(model.unproject(jnp.asarray(px))) @ Tc[:3, :3].T
+        d = rays(model, px) @ Tc[:3, :3].T
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         dirs_all.append(d)
         Rs.append(Tb[:, :3, :3])
@@ -178,7 +178,7 @@ def axis_start(name: str, axis_views: list, tip: np.ndarray) -> np.ndarray:
     normals, Rs = [], []
     for model, Tc, Tb, tip_px, pts in axis_views:
         px = np.concatenate([tip_px[None], pts])
-        d = np.asarray(model.unproject(jnp.asarray(px))) @ Tc[:3, :3].T
+        d = rays(model, px) @ Tc[:3, :3].T
         # the plane through the camera centre containing every ray of the imaged axis
         _, _, Vt = np.linalg.svd(d)
         normals.append(Vt[-1])

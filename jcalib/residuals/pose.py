@@ -10,6 +10,7 @@ import jax.numpy as jnp
 
 from jcalib.geometry import lie
 from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian, chain_pose
+from jcalib.residuals.reprojection import recipe
 
 
 @functools.cache
@@ -31,6 +32,7 @@ def contact(chain: Chain):
         tip, blocks, _ = chain_jacobian(poses, chain, jnp.zeros((3,), point.dtype))
         return tip - point, (*blocks, -jnp.eye(3, dtype=point.dtype))
 
+    fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("contact", chain)
     return fn, jacobian
 
 
@@ -52,6 +54,7 @@ def pose_measurement(chain: Chain, part: str):
         return lie.se3_log(lie.se3_compose(lie.se3_inverse(T_meas), chain_pose(poses, chain)))[sl]
 
     fn.__name__ = f"pose_measurement_{part}"
+    fn.__jcalib_key__ = recipe("pose_measurement", chain, part)
     return fn
 
 

@@ -29,4 +29,5 @@ def gaussian_prior_residual(manifold) -> Callable:
         return jnp.matmul(sqrt_info, manifold.local(mean, x))
 
     prior.__name__ = f"gaussian_prior_{type(manifold).__name__}"
+    prior.__jcalib_key__ = repr(("gaussian_prior", type(manifold).__name__, manifold.param_dim))
     return prior

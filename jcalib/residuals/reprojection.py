@@ -17,6 +17,12 @@ import jax.numpy as jnp
 from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian
 
 
+def recipe(kind: str, *args) -> str:
+    """A residual function's process-independent name (``fn.__jcalib_key__``): its factory and arguments,
+    classes by module and qualified name (:mod:`jcalib.solve.traced` keys compiled solves by it)."""
+    return repr((kind,) + tuple(f"{a.__module__}.{a.__qualname__}" if isinstance(a, type) else a for a in args))
+
+
 def _model(model_cls: type, image_size: tuple[int, int], skew: bool, intrinsics, aspect):
     fy = jnp.where(aspect[0] > 0.5, intrinsics[0] / aspect[1], intrinsics[1])
     return model_cls.from_params(image_size, intrinsics.at[1].set(fy), skew=skew)
@@ -49,6 +55,7 @@ def reprojection(model_cls: type, image_size: tuple[int, int], skew: bool, chain
         (J_cam, J_intr), r = jax.jacrev(project, argnums=(0, 1), has_aux=True)(p_cam, intrinsics, obs)
         return r, (J_intr, *[J_cam @ b for b in blocks])
 
+    fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("reprojection", model_cls, image_size, skew, chain)
     return fn, jacobian
 
 
@@ -95,4 +102,5 @@ def tool_axis(model_cls: type, image_size: tuple[int, int], skew: bool, chain: C
         cross = e[0] * d[1] - e[1] * d[0]
         return jnp.where(good, cross * inv_n, jnp.sqrt(jnp.sum(d * d) + 1e-12))[None]
 
+    fn.__jcalib_key__ = recipe("tool_axis", model_cls, image_size, skew, chain)
     return fn

@@ -25,9 +25,9 @@ import jax.scipy.linalg as jsl
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
-from jcalib.solve import linear
+from jcalib.solve import linear, traced
 from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
-from jcalib.solve.lm import RawSolution, SolveOptions, Status, lm_solve
+from jcalib.solve.lm import Observability, RawSolution, SolveOptions, Status, lm_solve
 from jcalib.solve.problem import Problem
 from jcalib.solve.solution import Solution, unobservable_names
 
@@ -96,6 +96,16 @@ def _core(problem: Problem, options: SolveOptions, traces: bool) -> Outcome:
 
 
 _core_jit = eqx.filter_jit(_core)
+
+
+def _outcome_treedef(problem: Problem):
+    """The pytree structure of :func:`_core`'s output for ``problem``, from a skeleton (no tracing)."""
+    e = linear.make_layout(problem).num_elim
+    z = 0
+    system = linear.System(z, z, (z,) * e, (z,) * e, (z,) * e)
+    obs = Observability(z, z, (z,) * e, (z,) * e, z)
+    raw = RawSolution({v.name: z for v in problem.variables}, z, z, z, z, z, system, obs, None)
+    return jax.tree.structure(Outcome(raw, (z,) * len(problem.factors), z, (z,) * e, z, z, z))
 _core_vmap_jit = eqx.filter_jit(eqx.filter_vmap(_core, in_axes=(0, None, None)))
 
 
@@ -144,7 +154,9 @@ def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = Solv
         problem = problem.with_values(x0)
     check_finite_start(problem)
     padded = pad_problem(problem) if pad else problem
-    out = jax.device_get(_core_jit(padded, options, bool(traces)))
+    out = traced.run(_core, padded, options, bool(traces), _outcome_treedef(padded))
+    if out is None:
+        out = jax.device_get(_core_jit(padded, options, bool(traces)))
     sol = Solution(problem, padded, out, options)
     if raise_on_unobservable:
         raise_if_unobservable(sol)

@@ -106,6 +106,8 @@ class AbstractCameraModel(eqx.Module):
         Args:
             params: shape ``(len(self.param_names),)``, float64.
         """
+        if not isinstance(params, jax.core.Tracer):  # on the host: no JAX dispatch, nothing to compile
+            return self.with_params_many(np.asarray(params, dtype=np.float64)[None])[0]
         return type(self).from_params(self.image_size, params, skew=self.has_skew)
 
     def with_params_many(self, params) -> list[AbstractCameraModel]:
@@ -130,10 +132,8 @@ class AbstractCameraModel(eqx.Module):
             return [self.with_params(p) for p in params]
         treedef, fields = layout
         columns = [params[:, idx] for idx in fields]  # (B, *field shape) per field
-        return [
-            jax.tree.unflatten(treedef, [jnp.asarray(c[i]) for c in columns])
-            for i in range(params.shape[0])
-        ]
+        # NumPy fields: a model on the host dispatches and compiles nothing until it is traced
+        return [jax.tree.unflatten(treedef, [np.array(c[i]) for c in columns]) for i in range(params.shape[0])]
 
     @property
     @abc.abstractmethod
@@ -355,3 +355,11 @@ def safe_divide(num: jax.Array, den: jax.Array, tiny: float = 1e-12) -> jax.Arra
     """``num / den`` with ``|den|`` floored at ``tiny`` (sign kept), so values and gradients stay finite."""
     den_safe = jnp.where(jnp.abs(den) > tiny, den, jnp.where(den < 0.0, -tiny, tiny))
     return num / den_safe
+
+
+def concatenate_params(parts) -> jax.Array | np.ndarray:
+    """One flat parameter vector from a model's fields: NumPy when every field is (a host model),
+    JAX otherwise (a traced or device model)."""
+    if all(isinstance(p, np.ndarray) for p in parts):
+        return np.concatenate([np.asarray(p, np.float64).reshape(-1) for p in parts])
+    return jnp.concatenate([jnp.reshape(p, (-1,)) for p in parts])

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.geometry.cameras.base import (
+    concatenate_params,
     MIN_DEPTH_M,
     UNPROJECT_TOLERANCE,
     AbstractCameraModel,
@@ -144,7 +145,7 @@ class Fisheye(AbstractCameraModel):
         if self.alpha is not None:
             parts.append(self.alpha[None])
         parts.append(self.distortion)
-        return jnp.concatenate(parts)
+        return concatenate_params(parts)
 
     @classmethod
     def from_params(cls, image_size, params, skew: bool = False):
@@ -170,9 +171,11 @@ class Fisheye(AbstractCameraModel):
         return jnp.stack([fx, s, cx, zero, fy, cy, zero, zero, one]).reshape(3, 3)
 
     def to_opencv(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.asarray(self.K, dtype=np.float64), np.asarray(
-            self.distortion, np.float64
-        ).copy()
+        fx, fy = np.asarray(self.focal, dtype=np.float64)
+        cx, cy = np.asarray(self.principal_point, dtype=np.float64)
+        s = 0.0 if self.alpha is None else float(np.asarray(self.alpha)) * fx
+        K = np.array([[fx, s, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        return K, np.asarray(self.distortion, np.float64).copy()
 
     # ---------------------------------------------------------------- projection
 

@@ -56,6 +56,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.geometry.cameras.base import (
+    concatenate_params,
     MIN_DEPTH_M,
     UNPROJECT_REFINE_ITERATIONS,
     UNPROJECT_TOLERANCE,
@@ -333,7 +334,7 @@ class AbstractPerspectiveModel(AbstractCameraModel):
             parts.append(self.skew[None])
         if self.distortion is not None:
             parts.append(self.distortion)
-        return jnp.concatenate(parts)
+        return concatenate_params(parts)
 
     @classmethod
     def from_params(cls, image_size, params, skew: bool = False):
@@ -361,7 +362,10 @@ class AbstractPerspectiveModel(AbstractCameraModel):
         return jnp.stack([fx, s, cx, zero, fy, cy, zero, zero, one]).reshape(3, 3)
 
     def to_opencv(self) -> tuple[np.ndarray, np.ndarray]:
-        K = np.asarray(self.K, dtype=np.float64)
+        fx, fy = np.asarray(self.focal, dtype=np.float64)
+        cx, cy = np.asarray(self.principal_point, dtype=np.float64)
+        s = 0.0 if self.skew is None else float(np.asarray(self.skew))
+        K = np.array([[fx, s, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         if self.distortion is None:
             return K, np.zeros(0, dtype=np.float64)
         return K, np.asarray(self.distortion, dtype=np.float64).copy()
