@@ -110,20 +110,20 @@ def _aspect_tie(cov: np.ndarray, ratio: float, row: int = 1, src: int = 0) -> No
     cov[row, row] = cov[src, src] / ratio**2
 
 
-def _chain_matrices(g: Graph, built: Built, values: dict, spec, thing: str, k: int) -> np.ndarray:
-    """Cell-frame pose ``(4, 4)`` of a thing at station ``k`` at the estimate."""
+def _world_poses(g: Graph, built: Built, values: dict, spec, thing: str, ks: np.ndarray) -> np.ndarray:
+    """``(n, 4, 4)`` cell-frame poses of a thing at stations ``ks``, at the estimate."""
     h = g.holder(spec)
     if h == FREE:
-        return se3_matrix(values[g.free_name(thing)][built.free_entry[thing][k]])
-    T = np.eye(4)
+        entries = [built.free_entry[thing][int(k)] for k in ks]
+        return se3_matrix(values[g.free_name(thing)][entries])
+    T = np.broadcast_to(np.eye(4), (len(ks), 4, 4))
     if h is not None:
         b = g.base_name(h)
         if b is not None:
-            T = se3_matrix(values[b][0])
-        e = built.flange_entry[h][k]
-        T = T @ se3_matrix(values[g.flange_name(h)][e])
+            T = se3_matrix(values[b][0]) @ T
+        T = T @ se3_matrix(values[g.flange_name(h)][built.flange_entry[h][ks]])
     m = g.mount_name(spec)
-    return T @ se3_matrix(values[m][0]) if m is not None else T
+    return T @ se3_matrix(values[m][0]) if m is not None else np.array(T)
 
 
 def robot_statistics(g: Graph, built: Built, sol, robot: str) -> dict:
@@ -232,12 +232,13 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         per = np.sum(res[gr.name] ** 2, axis=1) * w
         total = np.bincount(gr.stations, weights=per)
         count = np.bincount(gr.stations, weights=w.astype(float))
-        for k in g.pairs[gr.key].views:
+        ks = np.asarray(g.pairs[gr.key].views)
+        T_ct = np.linalg.inv(_world_poses(g, built, vals, cell.cameras[c], c, ks)) @ _world_poses(
+            g, built, vals, cell.targets[t], t, ks)
+        for k, T in zip(ks, T_ct):
             sid = g.station_ids[k]
             view_rms[(c, sid)] = float(np.sqrt(total[k] / max(count[k], 1.0))) if count[k] else 0.0
-            W_c = _chain_matrices(g, built, vals, cell.cameras[c], c, k)
-            W_t = _chain_matrices(g, built, vals, cell.targets[t], t, k)
-            T_cam_target.setdefault(sid, {})[c] = np.linalg.inv(W_c) @ W_t
+            T_cam_target.setdefault(sid, {})[c] = T
     for kind, parts in sq.items():
         a = np.concatenate([p.reshape(-1) for p in parts])
         rms[kind] = float(np.sqrt(np.mean(a))) if a.size else float("nan")

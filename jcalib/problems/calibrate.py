@@ -62,10 +62,31 @@ class Result:
 
 
 def input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
-    """Hash of the inputs as given (files by content, objects by their JSON form)."""
-    parts = []
-    for arg, obj in ((cell_arg, cell_to_dict(cell)), (obs_arg, obs.to_dict())):
-        parts.append(Path(arg) if isinstance(arg, (str, os.PathLike)) else json.dumps(obj, sort_keys=True).encode())
+    """Hash of the inputs as given: files by content, a cell object by its JSON form, observations by
+    their numbers (ids, poses, detections) in file order."""
+    parts = [Path(cell_arg) if isinstance(cell_arg, (str, os.PathLike))
+             else json.dumps(cell_to_dict(cell), sort_keys=True).encode()]
+    if isinstance(obs_arg, (str, os.PathLike)):
+        parts.append(Path(obs_arg))
+    else:
+        chunks = [json.dumps({"cameras": obs.cameras, "targets": sorted(obs.targets)}, sort_keys=True).encode()]
+        chunks += [np.ascontiguousarray(obs.targets[t]).tobytes() for t in sorted(obs.targets)]
+        for st in obs.stations:
+            chunks.append(st.id.encode())
+            if st.T_base_flange is not None:
+                chunks.append(np.ascontiguousarray(st.T_base_flange).tobytes())
+            for r, T in sorted(st.flange_poses.items()):
+                chunks += [r.encode(), np.ascontiguousarray(T).tobytes()]
+            for d in st.detections:
+                chunks += [f"{d.camera}|{d.target}|{d.tool}".encode(), np.ascontiguousarray(d.point_index).tobytes(),
+                           np.ascontiguousarray(d.pixels).tobytes()]
+                if d.axis is not None:
+                    chunks.append(np.ascontiguousarray(d.axis).tobytes())
+            for c in st.contacts:
+                chunks.append(f"{c.tool}|{c.point}".encode())
+            for m in st.poses:
+                chunks += [f"{m.camera}|{m.target}".encode(), np.ascontiguousarray(m.T_cam_target).tobytes()]
+        parts.append(b"\x00".join(chunks))
     return hash_inputs(*parts)
 
 

@@ -100,7 +100,8 @@ def uses_components(built: Built, options) -> bool:
 class _Rounds:
     def __init__(self, members: list[Member], options, batched: bool):
         self.m, self.o, self.batched = members, options, batched
-        self.so = SolveOptions(max_iterations=options.max_iterations)
+        # mu0 1e-6: closed-form starts are close enough that near-Gauss-Newton steps are accepted at once
+        self.so = SolveOptions(max_iterations=options.max_iterations, mu0=1e-6)
         self.traces = [uses_components(x.built, options) for x in members]
 
     def solve(self, idx: list[int], x0s: list[dict | None] | None = None) -> list[Solution | None]:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import json
 import os
 from pathlib import Path
 
@@ -57,22 +58,37 @@ def _source_hash() -> str:
     return h.hexdigest()
 
 
-def structure_key(problem: Problem, options, traces: bool) -> str | None:
-    """The cache key of a padded problem's compiled solve, or None when some function has no name."""
-    parts = [_source_hash(), jax.__version__, jax.default_backend(), str(jax.config.jax_enable_x64), repr(options),
-             str(bool(traces))]
+_STATIC: dict = {}
+
+
+def _static_description(problem: Problem, treedef) -> str | None:
+    """The static part of a problem's key (cached per pytree structure), or None when uncacheable."""
+    if treedef in _STATIC:
+        return _STATIC[treedef]
+    parts = []
     for v in problem.variables:
         parts.append(f"V|{v.name}|{type(v.manifold).__name__}|{v.manifold.param_dim}|{v.eliminate}|{v.constant}|"
                      f"{v.coord_names}|{v.entry_label}")
     for f in problem.factors:
         fk, jk = function_key(f.fn), function_key(f.jacobian)
         if fk is None or jk is None:
+            _STATIC[treedef] = None
             return None
-        parts.append(f"F|{f.name}|{fk}|{jk}|{f.args}|{f.chunk}|{f.loss!r}")
-    dyn, _ = eqx.partition(problem, eqx.is_array)
-    # leaf paths and shapes (the treedef's repr would carry the functions' addresses)
-    parts += [f"{jax.tree_util.keystr(path)}|{np.shape(x)}|{np.asarray(x).dtype}"
-              for path, x in jax.tree_util.tree_flatten_with_path(dyn)[0]]
+        parts.append(f"F|{f.name}|{fk}|{jk}|{f.args}|{f.chunk}|{f.loss!r}|{jax.tree.structure(f.observations)}")
+    _STATIC[treedef] = "\n".join(parts)
+    return _STATIC[treedef]
+
+
+def structure_key(problem: Problem, options, traces: bool, leaves=None, treedef=None) -> str | None:
+    """The cache key of a padded problem's compiled solve, or None when some function has no name."""
+    if leaves is None:
+        dyn, _ = eqx.partition(problem, eqx.is_array)
+        leaves, treedef = jax.tree.flatten(dyn)
+    desc = _static_description(problem, treedef)
+    if desc is None:
+        return None
+    parts = [_source_hash(), jax.__version__, jax.default_backend(), str(jax.config.jax_enable_x64), repr(options),
+             str(bool(traces)), desc, ";".join(f"{np.shape(x)}{np.asarray(x).dtype}" for x in leaves)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
 
 
@@ -83,46 +99,93 @@ def cache_dir() -> Path | None:
     return None if not base else Path(base) / SUBDIR
 
 
-_LOADED: dict[str, object] = {}
+_KINDS = ("f", "i")  # packed buffers: float64, and int64 (integers and booleans)
+
+
+def _kind(dtype) -> str:
+    return "f" if np.issubdtype(np.dtype(dtype), np.floating) else "i"
+
+
+def pack(arrays, xp=np) -> tuple:
+    """``(float64 buffer, int64 buffer)``: every array ravelled into one of two buffers (one transfer each)."""
+    out = []
+    for k in _KINDS:
+        parts = [xp.ravel(a).astype(xp.float64 if k == "f" else xp.int64) for a in arrays if _kind(a.dtype) == k]
+        out.append(xp.concatenate(parts) if parts else xp.zeros((0,), xp.float64 if k == "f" else xp.int64))
+    return tuple(out)
+
+
+def unpack(buffers, layout, xp=np) -> list:
+    """The arrays of :func:`pack` back: ``layout`` is ``[(shape, dtype), ...]`` in their order."""
+    offsets = dict.fromkeys(_KINDS, 0)
+    out = []
+    for shape, dtype in layout:
+        k = _kind(dtype)
+        n = int(np.prod(shape, dtype=np.int64))
+        buf = buffers[_KINDS.index(k)]
+        out.append(buf[offsets[k]:offsets[k] + n].reshape(shape).astype(dtype))
+        offsets[k] += n
+    return out
+
+
+_LOADED: dict[str, tuple] = {}
+
+
+def _export(core, static, in_tree, in_layout, options, traces, path: Path):
+    out_layout = []
+
+    def flat(f, i):
+        xs = unpack((f, i), in_layout, jax.numpy)
+        outs = jax.tree.leaves(core(eqx.combine(jax.tree.unflatten(in_tree, xs), static), options, traces))
+        out_layout[:] = [(tuple(o.shape), str(o.dtype)) for o in outs]
+        return pack(outs, jax.numpy)
+
+    bufs = pack([np.zeros(s, d) for s, d in in_layout])
+    exported = jax.export.export(jax.jit(flat))(*[jax.ShapeDtypeStruct(b.shape, b.dtype) for b in bufs])
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_bytes(json.dumps([[list(s), d] for s, d in out_layout]).encode() + b"\n" + exported.serialize())
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only cache: solve anyway
+    return exported, out_layout
+
+
+def _load(path: Path):
+    try:
+        head, _, body = path.read_bytes().partition(b"\n")
+        layout = [(tuple(s), d) for s, d in json.loads(head)]
+        return jax.export.deserialize(bytearray(body)), layout
+    except Exception:  # noqa: BLE001 - a damaged or foreign file: trace again
+        return None
 
 
 def run(core, problem: Problem, options, traces: bool, out_treedef):
     """``core(problem, options, traces)`` through the cache of traced solves (see the module docstring).
 
-    Returns the host copy of the output pytree (structure ``out_treedef``), or None when the problem
-    cannot be cached (the caller then uses its plain jitted function).
+    Inputs and outputs travel packed in two buffers each. Returns the host copy of the output pytree
+    (structure ``out_treedef``), or None when the problem cannot be cached (the caller then uses its plain
+    jitted function).
     """
     folder = cache_dir()
     if folder is None:
         return None
-    key = structure_key(problem, options, traces)
-    if key is None:
-        return None
     dyn, static = eqx.partition(problem, eqx.is_array)
     leaves, in_tree = jax.tree.flatten(dyn)
-    fn = _LOADED.get(key)
-    if fn is None:
+    key = structure_key(problem, options, traces, leaves, in_tree)
+    if key is None:
+        return None
+    entry = _LOADED.get(key)
+    if entry is None:
         path = folder / f"{key}.jax"
-        exported = None
-        if path.is_file():
-            try:
-                exported = jax.export.deserialize(bytearray(path.read_bytes()))
-            except Exception:  # noqa: BLE001 - a damaged or foreign file: trace again
-                exported = None
-        if exported is None:
-            def flat(*xs):
-                return tuple(jax.tree.leaves(core(eqx.combine(jax.tree.unflatten(in_tree, xs), static), options, traces)))
-
-            avals = [jax.ShapeDtypeStruct(np.shape(x), np.asarray(x).dtype) for x in leaves]
-            exported = jax.export.export(jax.jit(flat))(*avals)
-            try:
-                folder.mkdir(parents=True, exist_ok=True)
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_bytes(exported.serialize())
-                os.replace(tmp, path)
-            except OSError:
-                pass  # a read-only cache: solve anyway
-        fn = jax.jit(exported.call)
-        _LOADED[key] = fn
-    outs = jax.device_get(fn(*leaves))
-    return jax.tree.unflatten(out_treedef, list(outs))
+        loaded = _load(path) if path.is_file() else None
+        if loaded is None:
+            in_layout = [(tuple(np.shape(x)), str(np.asarray(x).dtype)) for x in leaves]
+            loaded = _export(core, static, in_tree, in_layout, options, traces, path)
+        exported, out_layout = loaded
+        entry = (jax.jit(exported.call), out_layout)
+        _LOADED[key] = entry
+    fn, out_layout = entry
+    bufs = jax.device_get(fn(*pack([np.asarray(x) for x in leaves])))
+    return jax.tree.unflatten(out_treedef, unpack(bufs, out_layout))
