@@ -353,5 +353,4 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
                    + ("T_base_flange = /tf chain " + " * ".join(f"T_{p}_{c}" if f else f"inv(T_{p}_{c})" for p, c, f in steps)
                       if mode == "tf" else f"{js_topic} positions rad -> deg (prismatic m -> mm)")
                    + "; geometry_msgs/Transform m, quaternion x y z w")
-    return write_session(out, cell, stations, fmt=FORMAT, source=path, conventions=conventions, notes=tuple(notes),
-                         validate_cell=mode == "tf")
+    return write_session(out, cell, stations, fmt=FORMAT, source=path, conventions=conventions, notes=tuple(notes))
