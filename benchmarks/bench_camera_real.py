@@ -26,7 +26,7 @@ from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
 from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "problems"))
 from test_camera_real import board_points, cell, detect, observations  # noqa: E402
 

@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python benchmarks/bench_handeye_pairs.py [--trials 100] [--stations 12]``
 
-1. Real data, ``../shared/data/real/handeye_camodocal_example`` (jhu-lcsr/handeye_calib_camodocal,
+1. Real data, ``tests/data/real/handeye_camodocal_example`` (jhu-lcsr/handeye_calib_camodocal,
    42 pairs, AR marker on the gripper, camera fixed: eye-to-hand). Prints X = ``T_base_cam`` and
    Y = ``T_flange_target`` (the marker in the end-effector frame, the source project's unknown) with
    their σ per axis, the estimated pose noise, flagged stations, and Y against the source's published
@@ -30,7 +30,7 @@ from jcalib.geometry import lie
 from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "data" / "real" / "handeye_camodocal_example"
+REAL = ROOT / "tests" / "data" / "real" / "handeye_camodocal_example"
 _spec = importlib.util.spec_from_file_location("_pairs_helpers", ROOT / "tests" / "problems" / "test_handeye_pairs.py")
 T = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(T)

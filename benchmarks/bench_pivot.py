@@ -1,7 +1,7 @@
 """Pivot calibration on real tracker data: linear solve vs the engine's joint refinement, and how
 honest the reported uncertainty is.
 
-Data: ``../shared/data/real/pivot_ucl_ndi`` (1151 poses of a tracked pointer pivoting in a divot, NDI
+Data: ``tests/data/real/pivot_ucl_ndi`` (1151 poses of a tracked pointer pivoting in a divot, NDI
 optical tracker, mm; file names are time stamps in ns). Prints the tip and pivot from plain numpy
 least squares, :func:`jcalib.init.pivot.pivot_calibration` (closed form), :func:`refine_pivot` (engine)
 and the sphere fit; the residual RMS; the a-posteriori sigma and the reported standard deviations
@@ -26,7 +26,7 @@ import numpy as np
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path,
-                    default=Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "pivot_ucl_ndi")
+                    default=Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "pivot_ucl_ndi")
     ap.add_argument("--block", type=int, default=200, help="bootstrap block length (consecutive poses)")
     ap.add_argument("--boot", type=int, default=200, help="bootstrap resamples")
     ap.add_argument("--seed", type=int, default=0)

@@ -10,8 +10,8 @@
 # %% [markdown]
 # # 04 — Real data tour: jcalib against the published answers
 #
-# Five public data sets recorded by other people (`../shared/data/real/README.md`, beside the
-# repository root), each solved with jcalib's public API and compared with the answer its authors
+# Five public data sets recorded by other people (`tests/data/real/README.md`, bundled
+# with the repository), each solved with jcalib's public API and compared with the answer its authors
 # published:
 #
 # | data | jcalib call | published answer |
@@ -60,7 +60,7 @@ enable_compilation_cache()
 TRIALS = int(os.environ.get("JCALIB_NB_TRIALS", "3"))
 OUT = Path(os.environ.get("JCALIB_NB_OUT", Path(__file__).resolve().parent / "_out"))
 OUT.mkdir(parents=True, exist_ok=True)
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real"
 assert REAL.is_dir(), f"real data not found at {REAL}"
 ROWS: list[tuple] = []  # (data set, quantity, unit, jcalib, sigma, published)
 

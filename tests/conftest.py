@@ -28,12 +28,12 @@ from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 
-REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL_DATA = Path(__file__).resolve().parent / "data" / "real"
 
 
 @pytest.fixture(scope="session")
 def real_data() -> Path:
-    """``../shared/data/real`` beside the repository (present in every checkout and in CI)."""
+    """``tests/data/real``: the public real calibration data bundled with the repository (README.md there)."""
     assert REAL_DATA.is_dir(), f"real calibration data not found at {REAL_DATA}"
     return REAL_DATA
 

@@ -293,6 +293,42 @@ def frame(
     typer.echo(f"wrote {summary.path}" + (f" and {summary.export_path}" if summary.export_path else ""))
 
 
+@app.command("import")
+def import_(
+    format: Annotated[str, typer.Argument(help="industrial-calibration, calibration-rs, easy-handeye, moveit, opencv-pairs or rosbag.")],
+    source: Annotated[Path, typer.Argument(help="The data set: file or folder (see the format).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Session folder to create.")],
+    mount: Annotated[
+        Optional[str],
+        typer.Option(help="Where the camera is: flange (eye-in-hand) or base (eye-to-hand), for sources that do not say."),
+    ] = None,
+    option: Annotated[
+        Optional[list[str]], typer.Option("--option", help="Format option KEY=VALUE (repeat); a wrong key lists the valid ones.")
+    ] = None,
+) -> None:
+    """Turn another tool's data set into a capture session (images + robot poses + cell spec).
+
+    Then `jcalib detect --session OUT` and `jcalib calibrate OUT/cell.yaml OUT/observations.json -o RESULT`.
+    Each format states the conventions it assumes (frames, units, quaternion order) and refuses
+    ambiguous input instead of guessing.
+    """
+    from jcalib.errors import BadInputError
+    from jcalib.io.importers import import_session
+
+    options = {}
+    for item in option or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise BadInputError(f"--option: expected KEY=VALUE, got {item!r}")
+        options[key.strip().replace("-", "_")] = value
+    summary = import_session(format, source, out, mount=mount, **options)
+    for note in summary.notes:
+        typer.echo(f"note: {note}", err=True)
+    typer.echo(f"wrote {summary.out}: {summary.num_stations} stations, cameras {', '.join(summary.cameras)}")
+    for step in summary.next_steps:
+        typer.echo(f"next: {step}")
+
+
 # --- acquisition commands (simulate, plan, capture) live below this line ---
 
 

@@ -24,8 +24,6 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 CASES = HERE / "cases"
 REAL = ROOT / "tests" / "data" / "real"
-if not REAL.is_dir():
-    REAL = ROOT.parent / "shared" / "data" / "real"
 
 
 def _load(rel: str, name: str):

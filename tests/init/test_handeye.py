@@ -21,7 +21,7 @@ from jcalib.init.handeye import (
 )
 
 METHODS = list(HAND_EYE_METHODS)
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 
 # A 9x6 checkerboard (25 mm), target frame at its centre, seen by a 1400 px pinhole camera.
 BOARD = np.column_stack(

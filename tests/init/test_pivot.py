@@ -12,7 +12,7 @@ from scipy.stats import chi2
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.init.pivot import pivot_calibration, pivot_sphere_fit
 
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 
 
 def load_ndi() -> np.ndarray:

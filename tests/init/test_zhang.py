@@ -18,7 +18,7 @@ from jcalib.init.zhang import (
 
 GRID = np.stack(np.meshgrid(np.arange(9), np.arange(6)), axis=-1).reshape(-1, 2) * 0.025  # m
 GRID3 = np.column_stack([GRID, np.zeros(len(GRID))])
-ZHANG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "zhang1998"
+ZHANG = Path(__file__).resolve().parents[1] / "data" / "real" / "zhang1998"
 
 
 def _rotation_deg(Ra, Rb):

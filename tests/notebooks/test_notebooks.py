@@ -64,7 +64,7 @@ def test_simulation_notebook_runs(name, tmp_path):
 
 def test_real_data_notebook_matches_published(real_data, tmp_path):
     name = "04_real_data.py"
-    assert (NOTEBOOKS.parents[1] / "shared" / "data" / "real").resolve() == real_data.resolve()
+    assert (NOTEBOOKS.parent / "tests" / "data" / "real").resolve() == real_data.resolve()
     run_notebook(name, tmp_path)
     check_outputs(name, tmp_path)
     with open(tmp_path / "04_real_data_table.csv") as f:

@@ -1,6 +1,6 @@
 """Camera calibration on OpenCV's left/right sample images (J.-Y. Bouguet's stereo example 5).
 
-References (``shared/data/real/opencv_left_right_chessboard/README``):
+References (``tests/data/real/README.md``):
 - OpenCV's own ``left_intrinsics.yml``, written by ``samples/cpp/calibration.cpp`` with ``-a 1``
   (CALIB_FIX_ASPECT_RATIO) and ``-s 0.025``;
 - ``cv2.calibrateCamera`` with the same flags on the very corners we feed jcalib (tight);
@@ -25,7 +25,7 @@ from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
 from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
 
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "opencv_left_right_chessboard"
+DATA = Path(__file__).resolve().parents[1] / "data" / "real" / "opencv_left_right_chessboard"
 IMAGES = DATA / "images"
 VIEWS = [i for i in range(1, 15) if i != 10]  # 13 pairs, no pair 10
 COLS, ROWS = 9, 6
