@@ -38,6 +38,26 @@ def real_data() -> Path:
     return REAL_DATA
 
 
+def _shared_compilation_cache() -> None:
+    """JAX's persistent compilation cache (and jcalib's traced solves) shared by the test workers of a run.
+
+    ``$JCALIB_CACHE_DIR`` when set (CI starts it empty), else one folder per run (the xdist workers of
+    a run share ``PYTEST_XDIST_TESTRUNUID``): a problem structure that several modules or workers solve is
+    traced and compiled once per run, starting from an empty cache every run.
+    """
+    import tempfile
+
+    if not os.environ.get("JCALIB_CACHE_DIR"):
+        run = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
+        os.environ["JCALIB_CACHE_DIR"] = os.path.join(tempfile.gettempdir(), f"jcalib-tests-{run}")
+    from jcalib.solve.cache import enable_compilation_cache
+
+    enable_compilation_cache()
+
+
+_shared_compilation_cache()
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_code():
     """Drop JAX's compiled functions after every test module.

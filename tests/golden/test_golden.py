@@ -37,8 +37,6 @@ from jcalib.problems.options import CalibrationOptions
 
 CASES = Path(__file__).resolve().parent / "cases"
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
-if not REAL.is_dir():  # until the real data sets live in the repository
-    REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 
 #: case -> (estimate tolerance in σ, σ tolerance relative); see the module docstring for the reasons.
 EXACT = (1e-5, 1e-5)
