@@ -57,7 +57,7 @@ cameras:
     intrinsics: {K: [[720.0, 0.0, 322.0], [0.0, 718.0, 241.0], [0.0, 0.0, 1.0]], dist: [-0.12, 0.05, 0.0, 0.0, 0.0]}
     fix: [fx, fy, cx, cy, k1, k2, p1, p2, k3]
 targets:
-  board: {type: checkerboard, cols: 8, rows: 6, square: 0.025, mount: base}
+  board: {type: checkerboard, cols: 9, rows: 6, square: 0.025, mount: base}  # 9x6: no 180° ambiguity
 tools:
   torch: {observed_by: [cam_fixed]}
 """
@@ -142,9 +142,8 @@ def run_cell_demo(
     t0 = time.perf_counter()
     cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "simulate", "--cell", str(cell_path),
            "--robot-protocol", protocol, "--robot-port", "0", "--time-scale", "0", "--truth",
-           str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed)]
-    # TODO(lead): add "--noise", "realistic" (a fair σ table) once the engine survives it: at 480x360 the
-    # cell solve raises "matrix (rotation block) ... det = -1" in problems/cell.py (see the h-vision report).
+           str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed),
+           "--noise", "realistic"]  # sensor noise as a real camera has it: a fair table of errors in σ
     for name, addr in ADDRESSES.items():
         cmd += ["--camera", f"{name}={addr}"]
     with open(out_dir / "simulate.log", "w") as log:
