@@ -14,8 +14,9 @@ from typing import Annotated, Optional
 import typer
 
 import jcalib
-from jcalib.solve.cache import enable_compilation_cache
 from jcalib.errors import JcalibError
+from jcalib.io.outputs import check_output_dir, check_outputs
+from jcalib.solve.cache import enable_compilation_cache
 
 app = typer.Typer(
     name="jcalib",
@@ -58,6 +59,7 @@ def demo(
     The second camera needs its own loopback address, so the demo runs in a private network namespace
     (`unshare -n`, or `unshare -rn` when not root); nothing is broadcast on real interfaces.
     """
+    check_output_dir("--out", out)
     enable_compilation_cache()
     if camera_only:
         from jcalib.app.demo_camera import run_demo
@@ -87,12 +89,15 @@ def detect(
     if session is not None:
         from jcalib.pipeline.session import detect_session_to_file
 
+        check_outputs({"-o": out if out is not None else session / "observations.json"}, [cell, *(images or [])],
+                      input_dirs={session: ["observations.json"]})  # fmt: skip
         detect_session_to_file(session, cell, out, target=target)
         return
     if not images or cell is None or camera is None or out is None:
         from jcalib.errors import BadInputError
 
         raise BadInputError("detect: give IMAGES with --cell, --camera and -o, or --session SESSION")
+    check_outputs({"-o": out}, [cell, *images])
     from jcalib.pipeline.images import detect_images_to_file
 
     detect_images_to_file(
@@ -133,9 +138,19 @@ def calibrate(
     ] = None,
 ) -> None:
     """Calibrate a cell from observations and write result.json."""
+    check_outputs({"-o": out}, [cell, observations, prior])
+    from jcalib.io.cell import load_cell
+    from jcalib.io.observations import load_observations
+    from jcalib.io.schema import check_cell_observations
+
+    cell_spec = load_cell(cell)  # every input checked before the solve
+    check_cell_observations(cell_spec, load_observations(observations))
+    if prior is not None:
+        from jcalib.io.result import load_result
+
+        load_result(prior)
     enable_compilation_cache()
     from jcalib.problems.calibrate import calibrate as run
-    from jcalib.io.cell import load_cell
     from jcalib.problems.camera import CameraCalibrationOptions
     from jcalib.problems.handeye import HandEyeOptions, is_hand_eye_cell
     from jcalib.report.console import print_result
@@ -146,7 +161,7 @@ def calibrate(
         noise=noise,
         outlier_threshold=outlier_threshold if outlier_threshold > 0 else None,
     )
-    if is_hand_eye_cell(load_cell(cell)):
+    if is_hand_eye_cell(cell_spec):
         options = HandEyeOptions.from_camera_options(
             options, pose_model=pose_model, fix_unobservable=fix_unobservable,
             unobservable_prior_m=unobservable_prior_m, unobservable_prior_sigma_m=unobservable_prior_sigma_m,
@@ -166,6 +181,7 @@ def export(
     module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID or KUKA KRL."""
+    check_outputs({"-o": out}, [result])
     from jcalib.io.export import export_result
 
     options = {"ros": {"camera": camera}, "rapid": {"module": module}}.get(format, {})
@@ -187,6 +203,8 @@ def report(
     ] = None,
 ) -> None:
     """Write a one-page, self-contained HTML report of a result (tables, warnings, plots)."""
+    check_outputs({"-o": out}, [result, observations, cell])
+    _check_report_inputs(result, observations, cell)
     enable_compilation_cache()
     from jcalib.report.html import write_report
 
@@ -219,6 +237,7 @@ def triangulate(
     noise, intrinsics, camera and robot poses, with their correlations. OUT (jcalib.pipeline.points/1) holds
     the points, their joint covariance and the pairwise distances with σ.
     """
+    check_outputs({"-o": out}, [observations, cell, result])
     enable_compilation_cache()
     from jcalib.pipeline.points import triangulate_file
 
@@ -256,6 +275,9 @@ def frame(
     the third on the +Y side, origin the first projected onto the plane. OUT holds
     T_<frame>_<name>; --export writes ABB wobjdata or KUKA BASE_DATA. Collinear points: exit 3.
     """
+    if export is not None and export_out is None:
+        export_out = out.with_suffix(".mod" if export == "rapid" else ".dat")
+    check_outputs({"-o": out, "--export-out": export_out if export is not None else None}, [points])
     enable_compilation_cache()
     import math
 
@@ -269,6 +291,30 @@ def frame(
         typer.echo(f"{summary.transform}: σ rotation {' '.join(f'{math.degrees(s):.4f}' for s in std[:3])} deg, "
                    f"translation {' '.join(f'{s * 1e3:.3f}' for s in std[3:])} mm")  # fmt: skip
     typer.echo(f"wrote {summary.path}" + (f" and {summary.export_path}" if summary.export_path else ""))
+
+
+def _check_cell(cell: Path) -> None:
+    """Read and validate a cell spec before a command hands its path to code that reads it again."""
+    from jcalib.io.cell import load_cell
+
+    load_cell(cell)
+
+
+def _check_report_inputs(result: Path, observations: Path | None, cell: Path | None) -> None:
+    from jcalib.io.result import load_result
+
+    load_result(result)
+    if observations is not None:
+        from jcalib.io.observations import load_observations
+
+        obs = load_observations(observations)
+        if cell is not None:
+            from jcalib.io.cell import load_cell
+            from jcalib.io.schema import check_cell_observations
+
+            check_cell_observations(load_cell(cell), obs)
+    elif cell is not None:
+        _check_cell(cell)
 
 
 # --- acquisition commands (simulate, plan, capture) live below this line ---
@@ -288,6 +334,8 @@ def plan(
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
 ) -> None:
     """Plan robot stations (flange poses) for camera, hand-eye or TCP calibration."""
+    check_outputs({"-o": out}, [cell])
+    _check_cell(cell)
     enable_compilation_cache()
     from jcalib.app.commands import parse_image_size, run_plan
 
@@ -311,6 +359,8 @@ def simulate(
     seed: Annotated[int, typer.Option(help="Noise seed.")] = 0,
 ) -> None:
     """Run a simulated cell (robot server + fake GigE cameras) on loopback until interrupted."""
+    check_outputs({"--truth": truth}, [cell])
+    _check_cell(cell)
     enable_compilation_cache()
     import signal
     import threading
@@ -341,6 +391,12 @@ def capture(
     packet_size: Annotated[Optional[int], typer.Option(help="GigE packet size, bytes (jumbo: 8000+).")] = None,
 ) -> None:
     """Drive the robot through a plan, grab every camera at every station, write a session."""
+    check_output_dir("--out", out, [plan, cell], managed=("session.json", "stations.jsonl", ".lock", "images"))
+    if cell is not None:
+        _check_cell(cell)
+    from jcalib.io.plan import load_plan
+
+    load_plan(plan)
     from jcalib.app.commands import parse_named, run_capture
 
     res = run_capture(robot_url=robot, camera_urls=parse_named(camera), plan_path=plan, out=out, cell=cell,
@@ -362,25 +418,55 @@ def _register_study() -> None:
 _register_study()
 
 
-def main() -> None:
-    """Console-script entry point: maps jcalib errors to exit statuses without tracebacks."""
+def _printable(text: str) -> str:
+    """``text`` with control characters (terminal escapes, carriage returns) shown as escapes."""
+    return "".join(c if c in "\n\t" or (ord(c) >= 32 and ord(c) != 127 and not 0x80 <= ord(c) < 0xA0)
+                   else repr(c)[1:-1] for c in text)
+
+
+def _print_error(prefix: str, message: str, style: str = "bold red") -> None:
+    """Print ``prefix`` + ``message`` on stderr; the message is plain text (no rich markup)."""
+    from rich.console import Console
+    from rich.text import Text
+
+    Console(stderr=True, soft_wrap=True, highlight=False, emoji=False).print(
+        Text.assemble((prefix, style), _printable(message)))
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    from jcalib.errors import InputWarning
+
+    if issubclass(category, InputWarning):
+        _print_error("jcalib warning: ", str(message), style="bold yellow")
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
+
+
+_default_showwarning = None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: exit status 0 on success, 2 on bad input (a jcalib error or a
+    usage error: click's usage message), 3 not observable, 4 device error, 130 interrupted; never
+    a traceback (an unexpected error is reported as a bug, its traceback shown with JCALIB_DEBUG=1)."""
+    import warnings
+
+    global _default_showwarning
     # Small numpy solves (closed forms) run far slower with a multithreaded BLAS on busy cores.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if _default_showwarning is None:
+        _default_showwarning = warnings.showwarning
+        warnings.showwarning = _show_warning
     try:
-        app(standalone_mode=False)
+        app(args=argv, prog_name="jcalib", standalone_mode=True)
     except JcalibError as e:
-        from rich.console import Console
-
-        Console(stderr=True, soft_wrap=True).print(f"[bold red]jcalib error:[/] {e}", highlight=False)
+        _print_error("jcalib error: ", str(e))
         sys.exit(e.exit_code)
-    except typer.Abort:
-        sys.exit(130)
     except SystemExit:
         raise
-    except Exception as e:  # click usage errors
-        import click
-
-        if isinstance(e, click.ClickException):
-            e.show()
-            sys.exit(2)
-        raise
+    except (Exception, RecursionError, MemoryError) as e:  # a bug: say so in one paragraph
+        if os.environ.get("JCALIB_DEBUG"):
+            raise
+        _print_error("jcalib internal error (a bug, please report it with the command and its input files): ",
+                     f"{type(e).__name__}: {str(e)[:500]}; run with JCALIB_DEBUG=1 for the traceback")
+        sys.exit(1)

@@ -60,11 +60,12 @@ def detect_images(
 def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None) -> Observations:
     """``jcalib detect``: detect, write observations.json, print a summary of failures."""
     from rich.console import Console
+    from rich.markup import escape
 
     obs, failures = detect_images(cell_path, camera, image_paths, target=target)
     console = Console(stderr=True)
     for path, err in failures.items():
-        console.print(f"[yellow]skipped[/] {path}: {err.reason} — {err}", highlight=False)
+        console.print(f"[yellow]skipped[/] {escape(f'{path}: {err.reason} — {err}')}", highlight=False)
     if not obs.stations:
         raise BadInputError(
             f"the target was found in none of the {len(failures)} images; check the cell's target "
@@ -72,6 +73,6 @@ def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None)
         )
     save_observations(out_path, obs)
     console.print(
-        f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped", highlight=False
+        escape(f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped"), highlight=False
     )
     return obs

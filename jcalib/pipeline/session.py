@@ -256,13 +256,14 @@ def detect_session_to_file(
         BadInputError: as :func:`detect_session`, or the target was found in no image at all.
     """
     from rich.console import Console
+    from rich.markup import escape
 
     from jcalib.io.observations import save_observations
 
     obs, failures = detect_session(session_dir, cell, target=target, progress=progress)
     console = Console(stderr=True, soft_wrap=True)
     for f in failures:
-        console.print(f"[yellow]skipped[/] {f}", highlight=False)
+        console.print(f"[yellow]skipped[/] {escape(str(f))}", highlight=False)
     if not obs.stations:
         raise BadInputError(
             f"session {session_dir}: the target was found in no image ({len(failures)} failures); check the "
@@ -271,7 +272,7 @@ def detect_session_to_file(
     out = Path(out_path) if out_path is not None else Path(session_dir) / "observations.json"
     save_observations(out, obs)
     console.print(
-        f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
-        f"{len(failures)} failures", highlight=False,
+        escape(f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
+               f"{len(failures)} failures"), highlight=False,
     )  # fmt: skip
     return obs, failures
