@@ -181,11 +181,11 @@ def detect_session(
             Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64))
         )
     for cam in {c for _, c, _ in jobs} - set(sizes):  # cameras that never saw a target: size from an image
-        import cv2
+        from jcalib.vision.image import image_header_size
 
-        img = cv2.imread(str(next(p for _, c, p in jobs if c == cam)), cv2.IMREAD_UNCHANGED)
-        if img is not None:
-            sizes[cam] = (int(img.shape[1]), int(img.shape[0]))
+        size = image_header_size(next(p for _, c, p in jobs if c == cam))
+        if size is not None:
+            sizes[cam] = size
     obs = Observations(
         cameras=dict(sorted(sizes.items())),
         targets={name: np.asarray(g.points, dtype=np.float64) for name, g in geometries.items()},
@@ -217,13 +217,13 @@ def _tool_per_camera(spec: Any, tool: str | None) -> dict[str, tuple[str, str]]:
 def _detect_tip(path: Path, cam_spec: Any):
     """The tool tip in one image (a :class:`~jcalib.vision.tooltip.ToolTipDetection`) or the
     :class:`DetectionError` saying why not; the camera's cell intrinsics undistort the edges when given."""
-    import cv2
-
+    from jcalib.vision.image import load_image
     from jcalib.vision.tooltip import detect_tool_tip
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return DetectionError(f"{path}: cannot read the image", "unreadable")
+    try:
+        img = load_image(path)  # within the pixel budget
+    except DetectionError as e:
+        return e
     camera = None
     if cam_spec.K is not None:
         from jcalib.geometry.cameras.factory import camera_from_opencv
