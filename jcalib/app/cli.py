@@ -27,13 +27,19 @@ app = typer.Typer(
 )
 
 
-@app.callback()
-def _root(
-    version: Annotated[bool, typer.Option("--version", help="Print the version and exit.")] = False,
-) -> None:
-    if version:
+def _print_version(value: bool) -> None:
+    if value:
         typer.echo(f"jcalib {jcalib.__version__}")
         raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", help="Print the version and exit.", is_eager=True, callback=_print_version)
+    ] = False,
+) -> None:
+    """Calibrate robot cells: cameras, hand-eye, TCP — one joint problem, honest uncertainty."""
 
 
 @app.command()
@@ -177,14 +183,20 @@ def export(
     result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
     format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid or krl.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="File to write.")],
-    camera: Annotated[Optional[str], typer.Option(help="Camera id (ros).")] = None,
+    camera: Annotated[Optional[str], typer.Option(help="Camera id (opencv, ros).")] = None,
     module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID or KUKA KRL."""
+    from jcalib.errors import BadInputError
+
     check_outputs({"-o": out}, [result])
+    if camera is not None and format not in ("opencv", "ros"):
+        raise BadInputError(f"--camera applies to the opencv and ros formats, not {format!r}")
+    if module is not None and format != "rapid":
+        raise BadInputError(f"--module applies to the rapid format, not {format!r}")
     from jcalib.io.export import export_result
 
-    options = {"ros": {"camera": camera}, "rapid": {"module": module}}.get(format, {})
+    options = {"opencv": {"cameras": camera}, "ros": {"camera": camera}, "rapid": {"module": module}}.get(format, {})
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")
 
@@ -451,14 +463,17 @@ def main(argv: list[str] | None = None) -> None:
     a traceback (an unexpected error is reported as a bug, its traceback shown with JCALIB_DEBUG=1)."""
     import warnings
 
+    from jcalib.errors import InputWarning
+
     global _default_showwarning
     # Small numpy solves (closed forms) run far slower with a multithreaded BLAS on busy cores.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    if _default_showwarning is None:
-        _default_showwarning = warnings.showwarning
-        warnings.showwarning = _show_warning
     try:
-        app(args=argv, prog_name="jcalib", standalone_mode=True)
+        with warnings.catch_warnings():
+            _default_showwarning = warnings.showwarning
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = _show_warning  # jcalib's warnings as one plain line on stderr
+            app(args=argv, prog_name="jcalib", standalone_mode=True)
     except JcalibError as e:
         _print_error("jcalib error: ", str(e))
         sys.exit(e.exit_code)
