@@ -219,9 +219,10 @@ def _transform_matrix(value: Any, where: str) -> np.ndarray:
     if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
         raise _fail(where, f"expected the last row [0, 0, 0, 1], got {T[3].tolist()}")
     R = T[:3, :3]
-    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > _ORTHONORMAL_TOL or det <= 0.0:
+    with np.errstate(over="ignore", invalid="ignore"):  # huge finite entries: err = inf, refused below
+        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        det = float(np.linalg.det(R))
+    if not err <= _ORTHONORMAL_TOL or not det > 0.0:
         raise _fail(
             where,
             f"expected a proper rotation in the 3x3 block (orthonormal, det +1), got "
@@ -279,7 +280,7 @@ class CameraResult:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        if self.model not in CAMERA_MODEL_DIST_NAMES:
+        if not isinstance(self.model, str) or self.model not in CAMERA_MODEL_DIST_NAMES:
             raise _fail(
                 "model",
                 f"unknown camera model {self.model!r}; expected one of "

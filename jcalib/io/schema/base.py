@@ -119,7 +119,7 @@ def check_name(value: Any, what: str = "name") -> str:
         raise ValueError(f"a {what} has at most {_MAX_NAME} characters, got {len(value)}")
     bad = sorted({c for c in value if unicodedata.category(c)[0] in "CZ" and c != " " or c in FORBIDDEN_NAME_CHARACTERS})
     if bad or value != value.strip() or value.startswith("."):
-        why = (f"contains {', '.join(repr(c) for c in bad)}" if bad else
+        why = (f"contains {', '.join(repr(c) for c in bad[:5])}{' and more' if len(bad) > 5 else ''}" if bad else
                "starts with '.'" if value.startswith(".") else "has spaces around it")
         raise ValueError(
             f"the {what} {value!r} {why}; names become file names, controller identifiers and console text: "

@@ -28,6 +28,7 @@ from jcalib.io.schema.common import (
     YMat3,
     YMat4,
     YVec3,
+    norm,
     pose_problem,
     rotation_problem,
 )
@@ -160,7 +161,7 @@ class Target(Closed):
                               "(observations.targets.<id>.points); remove the grid fields", key=f)
             raise _custom(f"not a field of a {self.type} target (its fields: {', '.join(required + optional)})", key=f)
         for f in required:
-            if f not in given:
+            if f not in given or getattr(self, f) is None:
                 raise _custom(f"missing: a {self.type} target needs {', '.join(required)}", key=f)
         return self
 
@@ -280,12 +281,12 @@ def _check_tools_points(data: dict, problems: list) -> None:
             why = rotation_problem(tool["orientation"])
             if why:
                 problems.append((f"tools.{name}.orientation", why))
-        if tool.get("axis") is not None and not np.linalg.norm(np.asarray(tool["axis"], dtype=np.float64)) > 1e-9:
+        if tool.get("axis") is not None and not norm(tool["axis"]) > 1e-9:
             problems.append((f"tools.{name}.axis", "expected a non-zero direction [x, y, z]"))
     for name, point in (data.get("points") or {}).items():
         pos = (point or {}).get("position")
-        if pos is not None and float(np.linalg.norm(np.asarray(pos, dtype=np.float64))) > MAX_CELL_EXTENT_M:
-            problems.append((f"points.{name}.position", f"{float(np.linalg.norm(pos)):.4g} m from the origin, more than "
+        if pos is not None and float(norm(pos)) > MAX_CELL_EXTENT_M:
+            problems.append((f"points.{name}.position", f"{float(norm(pos)):.4g} m from the origin, more than "
                                                         f"{MAX_CELL_EXTENT_M:g} m: positions are in metres; are these "
                                                         "millimetres? (divide by 1000)"))
 

@@ -28,6 +28,7 @@ __all__ = [
     "YMat4",
     "YVec3",
     "max_reach_m",
+    "norm",
     "pose_problem",
     "rotation_problem",
 ]
@@ -69,12 +70,19 @@ YMat3 = _rows(3, YNum)
 YMat4 = _rows(4, YNum)
 
 
+def norm(x: Any, axis: int | None = None) -> Any:
+    """Euclidean norm of finite numbers that may be huge (1e300): ``inf`` on overflow, no warning."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.linalg.norm(np.asarray(x, dtype=np.float64), axis=axis)
+
+
 def rotation_problem(R: Any, tol: float = 1e-6) -> str | None:
     """Why the 3x3 ``R`` is not a proper rotation (None if it is)."""
     R = np.asarray(R, dtype=np.float64)
-    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > tol or det <= 0:
+    with np.errstate(over="ignore", invalid="ignore"):
+        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        det = float(np.linalg.det(R))
+    if not err <= tol or not det > 0:
         return (f"the rotation is not a proper rotation matrix (max |R^T R - I| = {err:.3g}, det = {det:.4g}); "
                 "write it with at least 7 significant digits")
     return None
@@ -82,14 +90,18 @@ def rotation_problem(R: Any, tol: float = 1e-6) -> str | None:
 
 def pose_problem(T: Any, max_translation_m: float | None = None, what: str = "translation") -> str | None:
     """Why the 4x4 ``T`` (m) is not a rigid transform within ``max_translation_m`` (None if it is)."""
-    T = np.asarray(T, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _pose_problem(np.asarray(T, dtype=np.float64), max_translation_m, what)
+
+
+def _pose_problem(T: np.ndarray, max_translation_m: float | None, what: str) -> str | None:
     if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
         return f"the last row of a pose must be [0, 0, 0, 1], got {T[3].tolist()}"
     why = rotation_problem(T[:3, :3])
     if why:
         return why
     if max_translation_m is not None:
-        dist = float(np.linalg.norm(T[:3, 3]))
+        dist = float(norm(T[:3, 3]))
         if dist > max_translation_m:
             return (f"the {what} is {dist:.4g} m from the origin, more than {max_translation_m:g} m: poses are in "
                     f"metres; are these millimetres? (divide by 1000)")

@@ -17,6 +17,7 @@ import numpy as np
 
 from jcalib.errors import InputWarning
 from jcalib.io.schema.base import SchemaError, did_you_mean
+from jcalib.io.schema.common import norm
 
 __all__ = ["GEOMETRY_TOLERANCE_M", "check_cell_observations"]
 
@@ -44,7 +45,7 @@ def _check_target_points(cell: Any, obs: Any, problems: list) -> None:
                                                        f"{name!r} has {nominal.shape[0]}: the observations were detected "
                                                        "with another target geometry; detect again with this cell"))
             continue
-        dev = float(np.max(np.linalg.norm(observed - nominal, axis=1))) if len(nominal) else 0.0
+        dev = float(np.max(norm(observed - nominal, axis=1))) if len(nominal) else 0.0
         if dev > GEOMETRY_TOLERANCE_M:
             warnings.warn(
                 f"{obs.source}: targets.{name}.points differ from the cell's {spec.type} geometry by up to "

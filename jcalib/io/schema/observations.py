@@ -20,7 +20,7 @@ from pydantic import BeforeValidator, Field, model_validator
 from pydantic_core import PydanticCustomError
 
 from jcalib.io.schema.base import Closed, Int, Name, Num, SchemaError, StationId, did_you_mean, format_value, validate
-from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat4, Vec3, max_reach_m, pose_problem
+from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat4, Vec3, max_reach_m, norm, pose_problem
 
 __all__ = ["ObservationsDocument", "check_pixels_in_image", "station_label", "validate_observations_document"]
 
@@ -207,7 +207,7 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> Observa
         sizes = {c: tuple(e["image_size"]) for c, e in (data.get("cameras") or {}).items()}
         targets = {t: len(e["points"]) for t, e in (data.get("targets") or {}).items()}
         for t, e in (data.get("targets") or {}).items():
-            extent = float(np.max(np.linalg.norm(np.asarray(e["points"], dtype=np.float64), axis=1)))
+            extent = float(np.max(norm(e["points"], axis=1)))
             if extent > MAX_CELL_EXTENT_M:
                 problems.append((f"targets.{t}.points", f"a point lies {extent:.4g} m from the target's origin, more than "
                                                         f"{MAX_CELL_EXTENT_M:g} m: points are in metres; are these "

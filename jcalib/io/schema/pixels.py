@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import Field
 
 from jcalib.io.schema.base import Closed, Int, Name, Num, Open, SchemaError, StationId, validate
-from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat3, Mat4, Vec3, max_reach_m, pose_problem
+from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat3, Mat4, Vec3, max_reach_m, norm, pose_problem
 from jcalib.io.schema.observations import check_pixels_in_image
 
 __all__ = ["PixelsDocument", "PointsDocument", "validate_pixels_document", "validate_points_document"]
@@ -94,7 +94,7 @@ def validate_points_document(data: Any, source: str) -> PointsDocument:
     doc = validate(PointsDocument, data, source)
     problems = []
     for name, entry in data["points"].items():
-        d = float(np.linalg.norm(np.asarray(entry["position"], dtype=np.float64)))
+        d = float(norm(entry["position"]))
         if d > MAX_CELL_EXTENT_M:
             problems.append((f"points.{name}.position", f"{d:.4g} m from the origin, more than {MAX_CELL_EXTENT_M:g} m: "
                                                         "positions are in metres; are these millimetres? (divide by 1000)"))

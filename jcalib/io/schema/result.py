@@ -10,28 +10,53 @@ types. Free text (provenance) may hold anything; the exports escape it.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from jcalib.io.schema.base import Name, Open, SchemaError, validate
+from jcalib.io.schema.base import Int, Name, Num, Open, SchemaError, validate
+from jcalib.io.schema.common import MAX_IMAGE_SIDE_PX, Mat3, Mat4, Vec3
 
 __all__ = ["ResultDocument", "validate_result_document"]
 
 SCHEMA = "jcalib.result/1"
 
 
+class CameraEntry(Open):
+    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye"]
+    image_size: Annotated[list[Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE_PX)]], Field(min_length=2, max_length=2)]
+    K: Mat3
+    dist: list[Num]
+    std: dict[str, Num] | None = None
+    covariance: list[list[Num]] | None = None
+    skew: bool | None = None
+
+
+class TransformEntry(Open):
+    matrix: Mat4
+    covariance: list[list[Num]] | None = None
+
+
 class PointEntry(Open):
+    position: Vec3
     frame: Name
+    covariance: Mat3 | None = None
+
+
+class Provenance(Open):
+    input_hash: str | None = None
+    jcalib_version: str | None = None
+    options: dict | None = None
+    created: str | None = None
 
 
 class ResultDocument(Open):
     schema_: Literal["jcalib.result/1"] = Field(alias="schema")
-    cameras: dict[Name, dict] | None = None
-    transforms: dict[Name, dict] | None = None
+    cameras: dict[Name, CameraEntry] | None = None
+    transforms: dict[Name, TransformEntry] | None = None
     points: dict[Name, PointEntry] | None = None
     stats: dict | None = None
-    provenance: dict | None = None
+    provenance: Provenance | None = None
 
 
 def validate_result_document(data: Any, source: str = "<dict>") -> ResultDocument:
