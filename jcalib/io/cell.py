@@ -377,7 +377,7 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
     """
     if not isinstance(data, dict):
         raise _fail(source, "a cell spec must be a mapping with 'schema: jcalib.cell/1'")
-    validate_cell_document(data, source)  # types, keys, units, names (jcalib.io.schema.cell)
+    data = validate_cell_document(data, source)  # types, keys, units, names (jcalib.io.schema.cell)
     schema = data.get("schema")
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")

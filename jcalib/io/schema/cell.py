@@ -312,11 +312,12 @@ def _check_robots(data: dict, problems: list) -> None:
                 problems.append((f"{where}.base", why))
 
 
-def validate_cell_document(data: Any, source: str = "<dict>") -> CellDocument:
+def validate_cell_document(data: Any, source: str = "<dict>") -> dict:
     """Check a cell spec document (a loaded YAML / JSON mapping) against the schema.
 
     Returns:
-        The validated document (the caller keeps using ``data``; nothing is rewritten).
+        The document as validated: a new mapping, numbers written as text (``1e-4``) converted,
+        keys not given left out.
 
     Raises:
         SchemaError: naming ``source``, the key path and what to do.
@@ -343,4 +344,4 @@ def validate_cell_document(data: Any, source: str = "<dict>") -> CellDocument:
                                             "T_base_<name>, T_flange_<name>, T_world_<name>)"))
     if problems:
         raise SchemaError(source, problems)
-    return doc
+    return doc.model_dump(by_alias=True, exclude_unset=True)
