@@ -210,3 +210,14 @@ def test_flange_translations_scaled_as_millimetres_are_refused(scale):
         st_["T_base_flange"] = T.tolist()
     with pytest.raises(BadInputError, match="millimetres"):
         parse_observations(doc, "obs.json")
+
+
+SCENARIO = __import__("yaml").safe_load(__import__("fuzz_files").SCENARIO_YAML)
+
+
+@settings(max_examples=EXAMPLES, derandomize=not RANDOM)
+@given(mutated(SCENARIO))
+def test_mutated_study_scenarios_are_accepted_or_refused(doc):
+    from jcalib.study.scenario import load_scenario
+
+    _refused_or_accepted(load_scenario, doc)

@@ -2,9 +2,12 @@
 
 :func:`validate_observations_document` runs before :func:`jcalib.io.observations.parse_observations`
 builds the data classes: types and shapes (a fractional ``point_index`` is refused, never
-truncated), finite numbers, known keys, then plausibility: every pixel inside its camera's
-``image_size`` (an image size smaller than the pixels it holds is refused), flange poses rigid and
+truncated), finite numbers, known keys, then plausibility: pixels inside their camera's
+``image_size``, flange poses rigid and
 within a robot's reach (millimetres written as metres are caught), target points within a cell.
+A pixel outside its camera's ``image_size`` gives an :class:`~jcalib.errors.InputWarning` (an image
+size smaller than the pixels it holds is never kept silently); one farther than an image size
+beyond it (``1e300``, another camera's pixel) is refused.
 
 Extensions accepted here (their meaning is the calibration code's): stations ``joints_deg`` (a list,
 or a mapping robot -> list, as sessions record them) and ``poses: [{camera, target, T_cam_target}]``
@@ -13,16 +16,20 @@ or a mapping robot -> list, as sessions record them) and ``poses: [{camera, targ
 
 from __future__ import annotations
 
+import warnings
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 from pydantic_core import PydanticCustomError
 
+from jcalib.errors import InputWarning
+
 from jcalib.io.schema.base import Closed, Int, Name, Num, SchemaError, StationId, did_you_mean, format_value, validate
 from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat4, Vec3, max_reach_m, norm, pose_problem
 
-__all__ = ["ObservationsDocument", "check_pixels_in_image", "station_label", "validate_observations_document"]
+__all__ = ["ObservationsDocument", "pixels_outside", "station_label", "validate_observations_document",
+           "warn_pixels_outside"]
 
 SCHEMA = "jcalib.observations/1"
 #: A pixel may lie this far (px) outside the image area [-0.5, size - 0.5] (sub-pixel refinement).
@@ -128,18 +135,36 @@ def station_label(data: Any, path: str) -> str:
     return f"station {str(sid)!r}" + path[end + 1:]
 
 
-def check_pixels_in_image(pixels: np.ndarray, size: tuple[int, int]) -> int | None:
-    """Index of the first pixel outside the image ``size = (width, height)`` (OpenCV convention:
-    the image covers [-0.5, width - 0.5] x [-0.5, height - 0.5]), or None when all are inside."""
+def pixels_outside(pixels: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Which pixels lie outside the image ``size = (width, height)`` (OpenCV convention: the image
+    covers [-0.5, width - 0.5] x [-0.5, height - 0.5], plus :data:`PIXEL_MARGIN_PX`), and which lie
+    farther than one image size beyond it (no detection of this image: another camera, image scale
+    or unit).
+
+    Returns:
+        ``(outside, far)``: boolean masks, shape ``(n,)``.
+    """
     px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    w, h = float(size[0]), float(size[1])
     lo = -0.5 - PIXEL_MARGIN_PX
-    outside = (px[:, 0] < lo) | (px[:, 1] < lo) | (px[:, 0] > size[0] - 0.5 + PIXEL_MARGIN_PX) | (
-        px[:, 1] > size[1] - 0.5 + PIXEL_MARGIN_PX)
-    hits = np.flatnonzero(outside)
-    return int(hits[0]) if hits.size else None
+    outside = (px[:, 0] < lo) | (px[:, 1] < lo) | (px[:, 0] > w - 0.5 + PIXEL_MARGIN_PX) | (
+        px[:, 1] > h - 0.5 + PIXEL_MARGIN_PX)
+    far = (px[:, 0] < -w) | (px[:, 1] < -h) | (px[:, 0] > 2 * w) | (px[:, 1] > 2 * h)
+    return outside, far
 
 
-def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, problems: list) -> None:
+def warn_pixels_outside(source: str, outside: dict[str, list]) -> None:
+    """One :class:`~jcalib.errors.InputWarning` per camera with pixels outside its image:
+    ``outside`` maps camera -> ``[count, size, first key path, first pixel]``."""
+    for cam, (count, size, where, px) in outside.items():
+        warnings.warn(
+            f"{source}: {count} pixel(s) of camera {cam!r} lie outside its {size[0]}x{size[1]} image (first: "
+            f"{where} = {np.round(px, 2).tolist()}); a detection cannot lie outside the image it was found in: "
+            "is the image_size right?", InputWarning, stacklevel=4)
+
+
+def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, problems: list,
+                   outside: dict) -> None:
     where = f"stations[{i}]"
     poses = {"T_base_flange": st["T_base_flange"]} if st.get("T_base_flange") is not None else {}
     poses.update({f"flange_poses.{r}": T for r, T in (st.get("flange_poses") or {}).items()})
@@ -182,12 +207,17 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
             if len(set(index)) != len(index):
                 problems.append((f"{at}.point_index", "a target point appears twice in one detection"))
                 continue
-        k = check_pixels_in_image(px, sizes[cam])
-        if k is not None:
+        out, far = pixels_outside(px, sizes[cam])
+        if far.any():
+            k = int(np.flatnonzero(far)[0])
             w, h = sizes[cam]
             problems.append((f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"),
-                             f"pixel {px[k].tolist()} lies outside camera {cam!r}'s image of {w}x{h} px: the image_size "
-                             "is too small, or the pixel belongs to another camera or image scale"))
+                             f"pixel {px[k].tolist()} lies far outside camera {cam!r}'s image of {w}x{h} px: the "
+                             "image_size is wrong, or the pixel belongs to another camera, image scale or unit"))
+        elif out.any():
+            k = int(np.flatnonzero(out)[0])
+            entry = outside.setdefault(cam, [0, sizes[cam], f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"), px[k]])
+            entry[0] += int(out.sum())
 
 
 def validate_observations_document(data: Any, source: str = "<dict>") -> ObservationsDocument:
@@ -213,13 +243,14 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> Observa
                                                         f"{MAX_CELL_EXTENT_M:g} m: points are in metres; are these "
                                                         "millimetres? (divide by 1000)"))
         reach = max_reach_m()
+        outside: dict[str, list] = {}
         seen: dict[str, int] = {}
         for i, st in enumerate(data.get("stations") or []):
             sid = str(st["id"])
             if sid in seen:
                 problems.append((f"stations[{i}].id", f"duplicate station id {sid!r} (also stations[{seen[sid]}])"))
             seen.setdefault(sid, i)
-            _check_station(i, st, sizes, targets, reach, problems)
+            _check_station(i, st, sizes, targets, reach, problems, outside)
             if len(problems) >= 20:
                 break
         if problems:
@@ -227,4 +258,5 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> Observa
     except SchemaError as e:
         raise SchemaError(source, [(station_label(data, p), m) for p, m in e.problems],
                           total=e.total) from None
+    warn_pixels_outside(source, {c: [n, size, station_label(data, w), px] for c, (n, size, w, px) in outside.items()})
     return doc

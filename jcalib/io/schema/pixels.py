@@ -15,7 +15,7 @@ from pydantic import Field
 
 from jcalib.io.schema.base import Closed, Int, Name, Num, Open, SchemaError, StationId, validate
 from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat3, Mat4, Vec3, max_reach_m, norm, pose_problem
-from jcalib.io.schema.observations import check_pixels_in_image
+from jcalib.io.schema.observations import pixels_outside, warn_pixels_outside
 
 __all__ = ["PixelsDocument", "PointsDocument", "validate_pixels_document", "validate_points_document"]
 
@@ -67,6 +67,7 @@ def validate_pixels_document(data: Any, source: str) -> PixelsDocument:
     sizes = {c: tuple(e["image_size"]) for c, e in (data.get("cameras") or {}).items()}
     reach = max_reach_m()
     problems = []
+    outside: dict[str, list] = {}
     for i, st in enumerate(data["stations"]):
         if st.get("T_base_flange") is not None:
             why = pose_problem(st["T_base_flange"], reach, "flange translation")
@@ -76,12 +77,16 @@ def validate_pixels_document(data: Any, source: str) -> PixelsDocument:
             if cam not in sizes:
                 continue
             for name, uv in pts.items():
-                if check_pixels_in_image(np.asarray([uv]), sizes[cam]) is not None:
+                out, far = pixels_outside(np.asarray([uv]), sizes[cam])
+                where = f"stations[{i}].pixels.{cam}.{name}"
+                if far[0]:
                     w, h = sizes[cam]
-                    problems.append((f"stations[{i}].pixels.{cam}.{name}", f"pixel {uv} lies outside camera {cam!r}'s "
-                                                                           f"image of {w}x{h} px"))
+                    problems.append((where, f"pixel {uv} lies far outside camera {cam!r}'s image of {w}x{h} px"))
+                elif out[0]:
+                    outside.setdefault(cam, [0, sizes[cam], where, np.asarray(uv)])[0] += 1
     if problems:
         raise SchemaError(source, problems)
+    warn_pixels_outside(source, outside)
     return doc
 
 

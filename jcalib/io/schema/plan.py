@@ -24,7 +24,23 @@ class PlanStation(Closed):
 class PlanDocument(Closed):
     schema_: Literal["jcalib.plan/1"] = Field(alias="schema")
     stations: Annotated[list[PlanStation], Field(min_length=1)]
-    digest: str | None = None
+    digest: str | None = None  # a session's copy of its plan
+    planner: dict | None = None  # what jcalib plan planned for (kind, robot, camera, target, tool, dropped)
+
+
+def _station_label(data: Any, path: str) -> str:
+    """``stations[k].rest`` shown as ``station k (id) rest`` (as the plan's own messages name stations)."""
+    if not path.startswith("stations["):
+        return path
+    end = path.index("]")
+    k = path[len("stations["):end]
+    try:
+        sid = data["stations"][int(k)].get("id")
+    except (ValueError, IndexError, KeyError, TypeError, AttributeError):
+        sid = None
+    label = f"station {k}" + (f" ({sid})" if isinstance(sid, str) else "")
+    rest = path[end + 1:].lstrip(".")
+    return f"{label} {rest}" if rest else label
 
 
 def validate_plan_document(data: Any, source: str = "plan") -> PlanDocument:
@@ -33,13 +49,16 @@ def validate_plan_document(data: Any, source: str = "plan") -> PlanDocument:
     Raises:
         SchemaError: naming ``source``, the station and key.
     """
-    doc = validate(PlanDocument, data, source)
-    reach = max_reach_m()
-    problems = []
-    for i, st in enumerate(data["stations"]):
-        why = pose_problem(st["T_base_flange"], reach, "flange translation")
-        if why:
-            problems.append((f"stations[{i}].T_base_flange", why))
-    if problems:
-        raise SchemaError(source, problems)
+    try:
+        doc = validate(PlanDocument, data, source)
+        reach = max_reach_m()
+        problems = []
+        for i, st in enumerate(data["stations"]):
+            why = pose_problem(st["T_base_flange"], reach, "flange translation")
+            if why:
+                problems.append((f"stations[{i}].T_base_flange", why))
+        if problems:
+            raise SchemaError(source, problems)
+    except SchemaError as e:
+        raise SchemaError(source, [(_station_label(data, p), m) for p, m in e.problems], total=e.total) from None
     return doc
