@@ -25,7 +25,7 @@ class PlanDocument(Closed):
     schema_: Literal["jcalib.plan/1"] = Field(alias="schema")
     stations: Annotated[list[PlanStation], Field(min_length=1)]
     digest: str | None = None  # a session's copy of its plan
-    planner: dict | None = None  # what jcalib plan planned for (kind, robot, camera, target, tool, dropped)
+    planner: Any = None  # what jcalib plan planned for (kind, robot, camera, ...; a list when plans are joined)
 
 
 def _station_label(data: Any, path: str) -> str:
