@@ -315,6 +315,8 @@ SILENT_OBS = {
         lambda d: d["stations"][-1]["contacts"][0].__setitem__("point", "divit"), "did you mean 'divot'"),
     "image_size far smaller than the pixels": (
         lambda d: d["cameras"]["cam_hand"].__setitem__("image_size", [120, 90]), "far outside"),
+    "image_size smaller than the pixels": (
+        lambda d: d["cameras"]["cam_hand"].__setitem__("image_size", [320, 240]), "image_size is wrong"),
     "fractional point_index": (
         lambda d: d["stations"][0]["detections"][0]["point_index"].__setitem__(2, 1.5), "integer"),
     "target points in millimetres": (
@@ -366,11 +368,11 @@ def test_silent_wrong_answers_in_the_cell_exit_2(inputs, tmp_path, case):
     assert code == 2 and needle in text and _solve_not_reached(text), text
 
 
-def test_image_size_smaller_than_the_pixels_gives_a_named_warning(inputs, tmp_path):
-    _write_obs(inputs["observations"], lambda d: d["cameras"]["cam_hand"].__setitem__("image_size", [320, 240]))
+def test_a_pixel_just_outside_the_image_gives_a_named_warning(inputs, tmp_path):
+    _write_obs(inputs["observations"], lambda d: d["stations"][1]["detections"][0]["pixels"][3].__setitem__(0, 645.0))
     code, text = calibrate(inputs, tmp_path)
-    assert code == 3 and "jcalib warning:" in text and "outside its 320x240 image" in text, text
-    assert "station 's000'.detections[0].pixels[" in text, text
+    assert code == 3 and "jcalib warning:" in text and "outside its 640x480 image" in text, text
+    assert "station 's001'.detections[0].pixels[3]" in text, text
 
 
 def test_target_points_off_the_cells_geometry_give_a_named_warning(inputs, tmp_path):

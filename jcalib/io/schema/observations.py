@@ -5,9 +5,9 @@ builds the data classes: types and shapes (a fractional ``point_index`` is refus
 truncated), finite numbers, known keys, then plausibility: pixels inside their camera's
 ``image_size``, flange poses rigid and
 within a robot's reach (millimetres written as metres are caught), target points within a cell.
-A pixel outside its camera's ``image_size`` gives an :class:`~jcalib.errors.InputWarning` (an image
-size smaller than the pixels it holds is never kept silently); one farther than an image size
-beyond it (``1e300``, another camera's pixel) is refused.
+An ``image_size`` smaller than the pixels it holds is refused (more than 5 % of a camera's pixels
+outside its image, or any pixel farther than an image size beyond it: ``1e300``, another camera's
+pixel); a few pixels just outside give an :class:`~jcalib.errors.InputWarning` naming the first.
 
 Extensions accepted here (their meaning is the calibration code's): stations ``joints_deg`` (a list,
 or a mapping robot -> list, as sessions record them) and ``poses: [{camera, target, T_cam_target}]``
@@ -34,6 +34,9 @@ __all__ = ["ObservationsDocument", "pixels_outside", "station_label", "validate_
 SCHEMA = "jcalib.observations/1"
 #: A pixel may lie this far (px) outside the image area [-0.5, size - 0.5] (sub-pixel refinement).
 PIXEL_MARGIN_PX = 0.5
+#: More than this fraction of a camera's pixels outside its image: the image_size is wrong (refused);
+#: fewer give a warning (synthetic data with a few corners off the image).
+MAX_OUTSIDE_FRACTION = 0.05
 
 Pixel = Annotated[list[Num], Field(min_length=2, max_length=2)]
 ImageSide = Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE_PX)]
@@ -214,10 +217,14 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
             problems.append((f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"),
                              f"pixel {px[k].tolist()} lies far outside camera {cam!r}'s image of {w}x{h} px: the "
                              "image_size is wrong, or the pixel belongs to another camera, image scale or unit"))
-        elif out.any():
-            k = int(np.flatnonzero(out)[0])
-            entry = outside.setdefault(cam, [0, sizes[cam], f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"), px[k]])
-            entry[0] += int(out.sum())
+        else:
+            entry = outside.setdefault(cam, [0, sizes[cam], None, None, 0])
+            entry[4] += len(px)
+            if out.any():
+                k = int(np.flatnonzero(out)[0])
+                entry[0] += int(out.sum())
+                if entry[2] is None:
+                    entry[2], entry[3] = f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"), px[k]
 
 
 def validate_observations_document(data: Any, source: str = "<dict>") -> ObservationsDocument:
@@ -253,10 +260,16 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> Observa
             _check_station(i, st, sizes, targets, reach, problems, outside)
             if len(problems) >= 20:
                 break
+        for cam, (n, size, where, px, total) in outside.items():
+            if n > MAX_OUTSIDE_FRACTION * total:
+                problems.append((where, f"{n} of the {total} pixels of camera {cam!r} lie outside its image of "
+                                        f"{size[0]}x{size[1]} px (first: {np.round(px, 2).tolist()}): its image_size is "
+                                        "wrong (too small), or the pixels belong to another camera or image scale"))
         if problems:
             raise SchemaError(source, problems)
     except SchemaError as e:
         raise SchemaError(source, [(station_label(data, p), m) for p, m in e.problems],
                           total=e.total) from None
-    warn_pixels_outside(source, {c: [n, size, station_label(data, w), px] for c, (n, size, w, px) in outside.items()})
+    warn_pixels_outside(source, {c: [n, size, station_label(data, w), px]
+                                 for c, (n, size, w, px, total) in outside.items() if n})
     return doc
