@@ -33,6 +33,8 @@ from jcalib.io.schema import (
 )
 
 #: Examples per property; ``JCALIB_FUZZ_EXAMPLES=5000`` runs a longer, randomised fuzz (CI: 150, fixed).
+pytestmark = pytest.mark.filterwarnings("ignore::jcalib.errors.InputWarning")  # mutations warn, by design
+
 EXAMPLES = int(os.environ.get("JCALIB_FUZZ_EXAMPLES", "150"))
 RANDOM = "JCALIB_FUZZ_EXAMPLES" in os.environ
 
@@ -163,7 +165,10 @@ def test_mutated_session_files_are_accepted_or_refused(meta, record):
 @settings(max_examples=EXAMPLES, derandomize=not RANDOM)
 @given(mutated(points()))
 def test_mutated_point_files_are_accepted_or_refused(doc):
+    from jcalib.pipeline import points as pipeline_points
+
     _refused_or_accepted(validate_points_document, doc, "points.json")
+    _refused_or_accepted(pipeline_points._load_points, doc, "points.json")
 
 
 @settings(max_examples=EXAMPLES, derandomize=not RANDOM)
