@@ -93,8 +93,11 @@ def detect(
 ) -> None:
     """Detect the cell's calibration target in images (or a capture session) and write observations.json."""
     if session is not None:
+        from jcalib.errors import BadInputError
         from jcalib.pipeline.session import detect_session_to_file
 
+        if not session.is_dir():
+            raise BadInputError(f"--session {session}: no such folder (expected a jcalib capture session)")
         check_outputs({"-o": out if out is not None else session / "observations.json"}, [cell, *(images or [])],
                       input_dirs={session: ["observations.json"]})  # fmt: skip
         detect_session_to_file(session, cell, out, target=target)
