@@ -16,7 +16,13 @@ import typer
 import jcalib
 from jcalib.errors import JcalibError
 from jcalib.io.outputs import check_output_dir, check_outputs
-from jcalib.solve.cache import enable_compilation_cache
+
+
+def enable_compilation_cache() -> None:
+    """JAX's persistent compilation cache (imported here, not at the top: ``--help`` stays instant)."""
+    from jcalib.solve.cache import enable_compilation_cache as enable
+
+    enable()
 
 app = typer.Typer(
     name="jcalib",
