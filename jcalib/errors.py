@@ -52,3 +52,8 @@ class DeviceError(JcalibError):
     """A camera or robot could not be reached or refused a command. CLI exit status 4."""
 
     exit_code = 4
+
+
+class InputWarning(UserWarning):
+    """The input is usable but probably not what was meant (e.g. observed target points that differ
+    from the cell's target geometry). The CLI prints it as ``jcalib warning: ...`` on stderr."""

@@ -15,9 +15,11 @@ import typer
 
 import jcalib
 from jcalib.errors import JcalibError
+from jcalib.io.outputs import check_output_dir, check_outputs
+
 
 def enable_compilation_cache() -> None:
-    """JAX's persistent compilation cache (imported on first use: ``jcalib --help`` stays instant)."""
+    """JAX's persistent compilation cache (imported here, not at the top: ``--help`` stays instant)."""
     from jcalib.solve.cache import enable_compilation_cache as enable
 
     enable()
@@ -32,13 +34,19 @@ app = typer.Typer(
 )
 
 
-@app.callback()
-def _root(
-    version: Annotated[bool, typer.Option("--version", help="Print the version and exit.")] = False,
-) -> None:
-    if version:
+def _print_version(value: bool) -> None:
+    if value:
         typer.echo(f"jcalib {jcalib.__version__}")
         raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", help="Print the version and exit.", is_eager=True, callback=_print_version)
+    ] = False,
+) -> None:
+    """Calibrate robot cells: cameras, hand-eye, TCP — one joint problem, honest uncertainty."""
 
 
 @app.command()
@@ -64,6 +72,7 @@ def demo(
     The second camera needs its own loopback address, so the demo runs in a private network namespace
     (`unshare -n`, or `unshare -rn` when not root); nothing is broadcast on real interfaces.
     """
+    check_output_dir("--out", out)
     enable_compilation_cache()
     if camera_only:
         from jcalib.app.demo_camera import run_demo
@@ -91,14 +100,20 @@ def detect(
 ) -> None:
     """Detect the cell's calibration target in images (or a capture session) and write observations.json."""
     if session is not None:
+        from jcalib.errors import BadInputError
         from jcalib.pipeline.session import detect_session_to_file
 
+        if not session.is_dir():
+            raise BadInputError(f"--session {session}: no such folder (expected a jcalib capture session)")
+        check_outputs({"-o": out if out is not None else session / "observations.json"}, [cell, *(images or [])],
+                      input_dirs={session: ["observations.json"]})  # fmt: skip
         detect_session_to_file(session, cell, out, target=target)
         return
     if not images or cell is None or camera is None or out is None:
         from jcalib.errors import BadInputError
 
         raise BadInputError("detect: give IMAGES with --cell, --camera and -o, or --session SESSION")
+    check_outputs({"-o": out}, [cell, *images])
     from jcalib.pipeline.images import detect_images_to_file
 
     detect_images_to_file(
@@ -149,6 +164,11 @@ def calibrate(
     Every option applies to every kind of cell; one the cell cannot use (e.g. --pose-model without a robot)
     is refused with a message naming it.
     """
+    check_outputs({"-o": out}, [cell, observations, prior])
+    if prior is not None:
+        from jcalib.io.result import load_result
+
+        load_result(prior)  # every input checked before the solve (the cell and observations in calibrate)
     enable_compilation_cache()
     from jcalib.problems.api import calibrate as run
     from jcalib.report.console import print_result
@@ -173,7 +193,7 @@ def export(
     result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
     format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid or krl.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="File to write.")],
-    camera: Annotated[Optional[str], typer.Option(help="Camera id (ros).")] = None,
+    camera: Annotated[Optional[str], typer.Option(help="Camera id (opencv, ros).")] = None,
     module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
     tool_orientation: Annotated[
         Optional[list[str]],
@@ -183,13 +203,20 @@ def export(
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID or KUKA KRL."""
     from jcalib.errors import BadInputError
+
+    check_outputs({"-o": out}, [result])
+    if camera is not None and format not in ("opencv", "ros"):
+        raise BadInputError(f"--camera applies to the opencv and ros formats, not {format!r}")
+    if module is not None and format != "rapid":
+        raise BadInputError(f"--module applies to the rapid format, not {format!r}")
     from jcalib.io.export import export_result
     from jcalib.io.export._common import parse_tool_orientation
 
     orientations = dict(parse_tool_orientation(t) for t in tool_orientation or [])
     if orientations and format not in ("rapid", "krl"):
-        raise BadInputError(f"--tool-orientation: applies to the rapid and krl formats, not {format!r}")
-    options = {"ros": {"camera": camera}, "rapid": {"module": module, "orientations": orientations or None},
+        raise BadInputError(f"--tool-orientation applies to the rapid and krl formats, not {format!r}")
+    options = {"opencv": {"cameras": camera}, "ros": {"camera": camera},
+               "rapid": {"module": module, "orientations": orientations or None},
                "krl": {"orientations": orientations or None}}.get(format, {})
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")
@@ -209,6 +236,8 @@ def report(
     ] = None,
 ) -> None:
     """Write a one-page, self-contained HTML report of a result (tables, warnings, plots)."""
+    check_outputs({"-o": out}, [result, observations, cell])
+    _check_report_inputs(result, observations, cell)
     enable_compilation_cache()
     from jcalib.report.html import write_report
 
@@ -241,6 +270,7 @@ def triangulate(
     noise, intrinsics, camera and robot poses, with their correlations. OUT (jcalib.pipeline.points/1) holds
     the points, their joint covariance and the pairwise distances with σ.
     """
+    check_outputs({"-o": out}, [observations, cell, result])
     enable_compilation_cache()
     from jcalib.pipeline.points import triangulate_file
 
@@ -278,6 +308,9 @@ def frame(
     the third on the +Y side, origin the first projected onto the plane. OUT holds
     T_<frame>_<name>; --export writes ABB wobjdata or KUKA BASE_DATA. Collinear points: exit 3.
     """
+    if export is not None and export_out is None:
+        export_out = out.with_suffix(".mod" if export == "rapid" else ".dat")
+    check_outputs({"-o": out, "--export-out": export_out if export is not None else None}, [points])
     enable_compilation_cache()
     import math
 
@@ -329,6 +362,30 @@ def import_(
         typer.echo(f"next: {step}")
 
 
+def _check_cell(cell: Path) -> None:
+    """Read and validate a cell spec before a command hands its path to code that reads it again."""
+    from jcalib.io.cell import load_cell
+
+    load_cell(cell)
+
+
+def _check_report_inputs(result: Path, observations: Path | None, cell: Path | None) -> None:
+    from jcalib.io.result import load_result
+
+    load_result(result)
+    if observations is not None:
+        from jcalib.io.observations import load_observations
+
+        obs = load_observations(observations)
+        if cell is not None:
+            from jcalib.io.cell import load_cell
+            from jcalib.io.schema import check_cell_observations
+
+            check_cell_observations(load_cell(cell), obs)
+    elif cell is not None:
+        _check_cell(cell)
+
+
 # --- acquisition commands (simulate, plan, capture) live below this line ---
 
 
@@ -346,6 +403,8 @@ def plan(
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
 ) -> None:
     """Plan robot stations (flange poses) for camera, hand-eye or TCP calibration."""
+    check_outputs({"-o": out}, [cell])
+    _check_cell(cell)
     enable_compilation_cache()
     from jcalib.app.commands import parse_image_size, run_plan
 
@@ -372,6 +431,8 @@ def simulate(
     ] = "clean",
 ) -> None:
     """Run a simulated cell (robot server + fake GigE cameras) on loopback until interrupted."""
+    check_outputs({"--truth": truth}, [cell])
+    _check_cell(cell)
     enable_compilation_cache()
     import signal
     import threading
@@ -411,6 +472,12 @@ def capture(
     ] = "stations",
 ) -> None:
     """Drive the robot through a plan, grab every camera at every station, write a session."""
+    check_output_dir("--out", out, [plan, cell], managed=("session.json", "stations.jsonl", ".lock", "images"))
+    if cell is not None:
+        _check_cell(cell)
+    from jcalib.io.plan import load_plan
+
+    load_plan(plan)
     from jcalib.app.commands import parse_named, parse_settings, run_capture
 
     res = run_capture(robot_url=robot, camera_urls=parse_named(camera), plan_path=plan, out=out, cell=cell,
@@ -433,25 +500,58 @@ def _register_study() -> None:
 _register_study()
 
 
-def main() -> None:
-    """Console-script entry point: maps jcalib errors to exit statuses without tracebacks."""
+def _printable(text: str) -> str:
+    """``text`` with control characters (terminal escapes, carriage returns) shown as escapes."""
+    return "".join(c if c in "\n\t" or (ord(c) >= 32 and ord(c) != 127 and not 0x80 <= ord(c) < 0xA0)
+                   else repr(c)[1:-1] for c in text)
+
+
+def _print_error(prefix: str, message: str, style: str = "bold red") -> None:
+    """Print ``prefix`` + ``message`` on stderr; the message is plain text (no rich markup)."""
+    from rich.console import Console
+    from rich.text import Text
+
+    Console(stderr=True, soft_wrap=True, highlight=False, emoji=False).print(
+        Text.assemble((prefix, style), _printable(message)))
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    from jcalib.errors import InputWarning
+
+    if issubclass(category, InputWarning):
+        _print_error("jcalib warning: ", str(message), style="bold yellow")
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
+
+
+_default_showwarning = None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: exit status 0 on success, 2 on bad input (a jcalib error or a
+    usage error: click's usage message), 3 not observable, 4 device error, 130 interrupted; never
+    a traceback (an unexpected error is reported as a bug, its traceback shown with JCALIB_DEBUG=1)."""
+    import warnings
+
+    from jcalib.errors import InputWarning
+
+    global _default_showwarning
     # Small numpy solves (closed forms) run far slower with a multithreaded BLAS on busy cores.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
-        app(standalone_mode=False)
+        with warnings.catch_warnings():
+            _default_showwarning = warnings.showwarning
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = _show_warning  # jcalib's warnings as one plain line on stderr
+            app(args=argv, prog_name="jcalib", standalone_mode=True)
     except JcalibError as e:
-        from rich.console import Console
-
-        Console(stderr=True, soft_wrap=True).print(f"[bold red]jcalib error:[/] {e}", highlight=False)
+        _print_error("jcalib error: ", str(e))
         sys.exit(e.exit_code)
-    except typer.Abort:
-        sys.exit(130)
     except SystemExit:
         raise
-    except Exception as e:  # click usage errors
-        import click
-
-        if isinstance(e, click.ClickException):
-            e.show()
-            sys.exit(2)
-        raise
+    except (Exception, RecursionError, MemoryError) as e:  # a bug: say so in one paragraph
+        if os.environ.get("JCALIB_DEBUG"):
+            raise
+        _print_error("jcalib internal error (a bug, please report it with the command and its input files): ",
+                     f"{type(e).__name__}: {str(e)[:500]}; run with JCALIB_DEBUG=1 for the traceback")
+        sys.exit(1)

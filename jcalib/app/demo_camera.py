@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from jcalib.io.atomic import write_text_atomic
@@ -66,7 +67,7 @@ def run_demo(out_dir: Path, num_views: int = 20, seed: int = 0, console: Console
     save_observations(out_dir / "observations.json", obs)
     timings["detect"] = time.perf_counter() - t0
     for path, err in failures.items():
-        console.print(f"[yellow]skipped[/] {path}: {err.reason}", highlight=False)
+        console.print(f"[yellow]skipped[/] {escape(f'{path}: {err.reason}')}", highlight=False)
 
     t0 = time.perf_counter()
     with Progress(console=console, transient=True) as progress:
@@ -105,5 +106,5 @@ def run_demo(out_dir: Path, num_views: int = 20, seed: int = 0, console: Console
         + f"; images skipped: {len(failures)}",
         highlight=False,
     )
-    console.print(f"wrote {out_dir}/result.json, cam0_opencv.yaml, cam0_camera_info.yaml", highlight=False)
+    console.print(escape(f"wrote {out_dir}/result.json, cam0_opencv.yaml, cam0_camera_info.yaml"), highlight=False)
     return rows

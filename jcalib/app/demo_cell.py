@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from jcalib.errors import BadInputError, DeviceError
@@ -189,7 +190,7 @@ def run_cell_demo(
             export_result(out_dir / "result.json", fmt, out_dir / name, **names)
             written.append(name)
         except BadInputError as e:
-            console.print(f"[yellow]no {fmt} export:[/] {e}", highlight=False)
+            console.print(f"[yellow]no {fmt} export:[/] {escape(str(e))}", highlight=False)
     timings["report+export"] = time.perf_counter() - t0
 
     truth = json.loads((out_dir / "truth.json").read_text())
@@ -209,7 +210,7 @@ def run_cell_demo(
         highlight=False,
     )
     console.print("timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()), highlight=False)
-    console.print(f"wrote {out_dir}/: " + ", ".join(written), highlight=False)
+    console.print(escape(f"wrote {out_dir}/: " + ", ".join(written)), highlight=False)
     return rows
 
 
@@ -330,6 +331,6 @@ if __name__ == "__main__":
         from jcalib.errors import JcalibError
 
         if isinstance(e, JcalibError):
-            Console(stderr=True, soft_wrap=True).print(f"[red]error:[/] {e}", highlight=False)
+            Console(stderr=True, soft_wrap=True).print(f"[red]error:[/] {escape(str(e))}", highlight=False)
             sys.exit(getattr(e, "exit_code", 1))
         raise

@@ -27,6 +27,8 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.io.schema.cell import validate_cell_document
+from jcalib.io.schema.reading import read_document
 
 SCHEMA = "jcalib.cell/1"
 CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye")
@@ -396,6 +398,7 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
     """
     if not isinstance(data, dict):
         raise _fail(source, "a cell spec must be a mapping with 'schema: jcalib.cell/1'")
+    data = validate_cell_document(data, source)  # types, keys, units, names (jcalib.io.schema.cell)
     schema = data.get("schema")
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
@@ -468,17 +471,10 @@ def load_cell(cell: str | os.PathLike | dict | CellSpec) -> CellSpec:
         return cell
     if isinstance(cell, dict):
         return parse_cell(cell)
-    import yaml
-
     path = Path(cell)
-    if not path.is_file():
+    if not path.exists():
         raise BadInputError(f"cell spec '{path}' does not exist (expected a jcalib.cell/1 YAML file)")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        line = f" line {mark.line + 1}" if mark is not None else ""
-        raise BadInputError(f"{path}{line}: not valid YAML ({getattr(e, 'problem', e)})") from None
+    data = read_document(path, "cell spec", fmt="yaml")  # size, UTF-8, depth and alias limits
     return parse_cell(data, source=str(path))
 
 

@@ -6,7 +6,6 @@ Loading validates shapes, finiteness and indices, and names the station and came
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +15,8 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_json_atomic
+from jcalib.io.schema.observations import validate_observations_document
+from jcalib.io.schema.reading import read_document
 
 SCHEMA = "jcalib.observations/1"
 
@@ -222,6 +223,7 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
         raise _fail(source, f"expected a mapping with 'schema: {SCHEMA}'")
     if data.get("schema") != SCHEMA:
         raise _fail(source, f"schema is {data.get('schema')!r}; expected '{SCHEMA}'")
+    validate_observations_document(data, source)  # types, keys, pixels in the image, units (io.schema)
     cameras: dict[str, tuple[int, int]] = {}
     for name, entry in (data.get("cameras") or {}).items():
         size = (entry or {}).get("image_size")
@@ -283,12 +285,7 @@ def load_observations(obs: str | os.PathLike | dict | Observations) -> Observati
     if isinstance(obs, dict):
         return parse_observations(obs)
     path = Path(obs)
-    if not path.is_file():
-        raise BadInputError(f"observations file '{path}' does not exist")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise BadInputError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
+    data = read_document(path, "observations file", fmt="json")  # size, UTF-8, depth limits
     return parse_observations(data, source=str(path))
 
 

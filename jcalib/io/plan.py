@@ -20,6 +20,8 @@ import numpy as np
 from jcalib.geometry.se3 import check_pose
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_json_atomic
+from jcalib.io.schema.plan import validate_plan_document
+from jcalib.io.schema.reading import read_document
 
 SCHEMA = "jcalib.plan/1"
 _ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -97,25 +99,14 @@ def plan_from_json(obj: dict, where: str = "plan") -> Plan:
     if not isinstance(obj, dict) or obj.get("schema") != SCHEMA:
         got = obj.get("schema") if isinstance(obj, dict) else type(obj).__name__
         raise BadInputError(f"{where}: expected schema {SCHEMA!r}, got {got!r}")
+    validate_plan_document(obj, where)  # keys, shapes, poses within reach (jcalib.io.schema.plan)
     return _validate(obj.get("stations"), where)
 
 
 def load_plan(path: str | Path) -> Plan:
     """Read a plan file (``.json``, ``.yaml`` or ``.yml``)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise BadInputError(f"plan: cannot read {path}: {e}") from e
-    try:
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            obj = yaml.safe_load(text)
-        else:
-            obj = json.loads(text)
-    except Exception as e:
-        raise BadInputError(f"plan: {path} is not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {e}") from e
+    obj = read_document(path, "plan", fmt="yaml" if path.suffix.lower() in (".yaml", ".yml") else "json")
     return plan_from_json(obj, str(path))
 
 

@@ -140,7 +140,7 @@ def _finite_float(value: Any, where: str, minimum: float | None = None) -> float
         raise _fail(where, f"expected a number, got {_short(value)}")
     x = float(value)
     if not math.isfinite(x):
-        raise _fail(where, f"expected a finite number, got {x}")
+        raise _fail(where, f"expected a finite number, got {x} (NaN or infinity)")
     if minimum is not None and x < minimum:
         raise _fail(where, f"expected a number >= {minimum:g}, got {x}")
     return x
@@ -157,11 +157,16 @@ def _count(value: Any, where: str) -> int:
 
 
 def _name(value: Any, where: str) -> str:
+    from jcalib.io.schema.base import check_name
+
     if not isinstance(value, str) or not value or value != value.strip():
         raise _fail(
             where, f"expected a non-empty name without surrounding spaces, got {_short(value)}"
         )
-    return value
+    try:
+        return check_name(value)
+    except ValueError as err:
+        raise _fail(where, str(err)) from None
 
 
 def _json_value(value: Any, where: str) -> Any:
@@ -214,9 +219,10 @@ def _transform_matrix(value: Any, where: str) -> np.ndarray:
     if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
         raise _fail(where, f"expected the last row [0, 0, 0, 1], got {T[3].tolist()}")
     R = T[:3, :3]
-    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > _ORTHONORMAL_TOL or det <= 0.0:
+    with np.errstate(over="ignore", invalid="ignore"):  # huge finite entries: err = inf, refused below
+        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        det = float(np.linalg.det(R))
+    if not err <= _ORTHONORMAL_TOL or not det > 0.0:
         raise _fail(
             where,
             f"expected a proper rotation in the 3x3 block (orthonormal, det +1), got "
@@ -274,7 +280,7 @@ class CameraResult:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        if self.model not in CAMERA_MODEL_DIST_NAMES:
+        if not isinstance(self.model, str) or self.model not in CAMERA_MODEL_DIST_NAMES:
             raise _fail(
                 "model",
                 f"unknown camera model {self.model!r}; expected one of "
@@ -819,33 +825,23 @@ class ResultFile:
             BadInputError: missing file, invalid JSON (with line and column), NaN/Infinity, or any
                 key that fails validation (named with its path).
         """
+        from jcalib.io.schema.reading import read_document
+        from jcalib.io.schema.result import validate_result_document
+
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise BadInputError(
                 f"result file '{path}' does not exist (expected a {SCHEMA} JSON file)"
             )
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as err:
-            raise BadInputError(f"{path}: cannot read the result file ({err})") from None
-        try:
-            data = json.loads(text, parse_constant=_reject_constant)
-        except json.JSONDecodeError as err:
-            raise BadInputError(
-                f"{path} line {err.lineno} column {err.colno}: not valid JSON ({err.msg})"
-            ) from None
-        except ValueError as err:
-            raise BadInputError(f"{path}: {err}") from None
+        data = read_document(path, "result file", fmt="json")  # size, UTF-8, depth limits
+        if isinstance(data, Mapping):
+            validate_result_document(data, str(path))  # names safe for consoles and exports
         return cls.from_dict(data, source=str(path))
 
 
 def load_result(path: str | os.PathLike | ResultFile) -> ResultFile:
     """A :class:`ResultFile` from a path, or the one given."""
     return path if isinstance(path, ResultFile) else ResultFile.load(path)
-
-
-def _reject_constant(name: str) -> Any:
-    raise ValueError(f"expected finite numbers, got {name} (results never hold NaN or infinity)")
 
 
 def _invert(T: np.ndarray) -> np.ndarray:

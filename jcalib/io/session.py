@@ -33,6 +33,8 @@ import numpy as np
 import jcalib
 from jcalib.errors import BadInputError, DeviceError
 from jcalib.io.atomic import append_line_durable, write_bytes_atomic, write_json_atomic
+from jcalib.io.schema.reading import decode_utf8, parse_json, read_bytes_limited, read_document
+from jcalib.io.schema.session import validate_session_meta, validate_station_record
 
 SCHEMA = "jcalib.session/1"
 
@@ -70,17 +72,16 @@ def read_stations(directory: str | Path) -> list[dict]:
         raise BadInputError(f"session: {directory} has no session.json; not a jcalib session")
     if not path.exists():
         return []
-    raw = path.read_bytes()
+    raw = read_bytes_limited(path, "session stations file")
     lines = raw.split(b"\n")
     complete, tail = lines[:-1], lines[-1]  # tail is b"" when the file ends with a newline
     out, seen = [], {}
     for n, line in enumerate(complete, start=1):
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise BadInputError(f"session: {path} line {n} is not JSON ({e}); the file was edited by hand?") from e
+        where = f"session: {path} line {n}"
+        rec = parse_json(decode_utf8(line, where), where)
         if not isinstance(rec, dict) or "id" not in rec:
             raise BadInputError(f"session: {path} line {n} is not a station record (no 'id')")
+        validate_station_record(rec, where)  # types, poses within reach, image paths inside the session
         if rec["id"] in seen:
             if rec.get("retake") is not True:
                 raise BadInputError(f"session: {path} line {n} repeats station {rec['id']!r}")
@@ -95,12 +96,11 @@ def read_stations(directory: str | Path) -> list[dict]:
 def read_session(directory: str | Path) -> tuple[dict, list[dict]]:
     """``(session.json contents, station records)`` of a session directory."""
     d = Path(directory)
-    try:
-        meta = json.loads((d / "session.json").read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        raise BadInputError(f"session: cannot read {d / 'session.json'}: {e}") from e
-    if meta.get("schema") != SCHEMA:
-        raise BadInputError(f"session: {d / 'session.json'} has schema {meta.get('schema')!r}, expected {SCHEMA!r}")
+    meta = read_document(d / "session.json", "session: session file", fmt="json")
+    if not isinstance(meta, dict) or meta.get("schema") != SCHEMA:
+        got = meta.get("schema") if isinstance(meta, dict) else type(meta).__name__
+        raise BadInputError(f"session: {d / 'session.json'} has schema {got!r}, expected {SCHEMA!r}")
+    validate_session_meta(meta, str(d / "session.json"))
     return meta, read_stations(d)
 
 

@@ -77,6 +77,7 @@ def retry_note(det) -> str:
 def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None) -> Observations:
     """``jcalib detect``: detect, write observations.json, print a summary of retries and failures."""
     from rich.console import Console
+    from rich.markup import escape
 
     notes: dict[str, str] = {}
     obs, failures = detect_images(cell_path, camera, image_paths, target=target, notes=notes)
@@ -84,7 +85,7 @@ def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None)
     for path, note in notes.items():
         console.print(f"retried {path}: {note}", highlight=False, markup=False)
     for path, err in failures.items():
-        console.print(f"[yellow]skipped[/] {path}: {err.reason} — {err}", highlight=False)
+        console.print(f"[yellow]skipped[/] {escape(f'{path}: {err.reason} — {err}')}", highlight=False)
     if not obs.stations:
         raise BadInputError(
             f"the target was found in none of the {len(failures)} images; check the cell's target "
@@ -92,8 +93,10 @@ def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None)
         )
     save_observations(out_path, obs)
     console.print(
-        f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped"
-        + (f", {len(notes)} found or cleaned by retries" if notes else ""),
+        escape(
+            f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped"
+            + (f", {len(notes)} found or cleaned by retries" if notes else "")
+        ),
         highlight=False,
     )
     return obs

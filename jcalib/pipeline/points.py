@@ -46,7 +46,6 @@ or KUKA ``BASE_DATA``.
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -78,15 +77,9 @@ MAX_DISTANCE_POINTS = 20
 
 
 def _read_json(path: str | os.PathLike, what: str) -> Any:
-    path = Path(path)
-    if not path.is_file():
-        raise BadInputError(f"{what} '{path}' does not exist")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise BadInputError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
-    except UnicodeDecodeError:
-        raise BadInputError(f"{path}: not a UTF-8 text file (expected {what} as JSON)") from None
+    from jcalib.io.schema.reading import read_document
+
+    return read_document(path, what, fmt="json")  # size, UTF-8, depth limits
 
 
 def _array(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
@@ -120,6 +113,9 @@ def _parse_pixels(data: Any, src: str) -> tuple[list[_Station], float | None, di
     if not isinstance(data, dict) or data.get("schema") != PIXELS_SCHEMA:
         got = data.get("schema") if isinstance(data, dict) else type(data).__name__
         raise BadInputError(f"{src}: schema is {got!r}; expected '{PIXELS_SCHEMA}' (see jcalib triangulate --help)")
+    from jcalib.io.schema.pixels import validate_pixels_document
+
+    validate_pixels_document(data, src)  # types, names, pixels in the image, poses within reach
     unknown = sorted(set(data) - {"schema", "sigma_px", "cameras", "stations"})
     if unknown:
         raise BadInputError(f"{src}: unknown key(s) {unknown}; allowed: schema, sigma_px, cameras, stations")
@@ -418,11 +414,14 @@ class FrameSummary:
 
 
 def _load_points(data: Any, src: str) -> tuple[dict[str, tuple[np.ndarray, np.ndarray | None, str]], dict | None]:
+    from jcalib.io.schema.pixels import validate_points_document
+
     if not isinstance(data, dict) or not isinstance(data.get("points"), dict) or not data["points"]:
         raise BadInputError(
             f"{src}: expected a JSON object with 'points': {{name: {{position: [x, y, z], frame, covariance}}}} "
             f"(as jcalib triangulate writes)"
         )
+    validate_points_document(data, src)  # types, names, units
     points = {}
     for name, entry in data["points"].items():
         where = f"{src}: points.{name}"

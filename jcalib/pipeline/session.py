@@ -197,11 +197,11 @@ def detect_session(
             Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64))
         )
     for cam in {c for _, c, _ in jobs} - set(sizes):  # cameras that never saw a target: size from an image
-        import cv2
+        from jcalib.vision.image import image_header_size
 
-        img = cv2.imread(str(next(p for _, c, p in jobs if c == cam)), cv2.IMREAD_UNCHANGED)
-        if img is not None:
-            sizes[cam] = (int(img.shape[1]), int(img.shape[0]))
+        size = image_header_size(next(p for _, c, p in jobs if c == cam))
+        if size is not None:
+            sizes[cam] = size
     obs = Observations(
         cameras=dict(sorted(sizes.items())),
         targets={name: np.asarray(g.points, dtype=np.float64) for name, g in geometries.items()},
@@ -233,13 +233,13 @@ def _tool_per_camera(spec: Any, tool: str | None) -> dict[str, tuple[str, str]]:
 def _detect_tip(path: Path, cam_spec: Any):
     """The tool tip in one image (a :class:`~jcalib.vision.tooltip.ToolTipDetection`) or the
     :class:`DetectionError` saying why not; the camera's cell intrinsics undistort the edges when given."""
-    import cv2
-
+    from jcalib.vision.image import load_image
     from jcalib.vision.tooltip import detect_tool_tip
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return DetectionError(f"{path}: cannot read the image", "unreadable")
+    try:
+        img = load_image(path)  # within the pixel budget
+    except DetectionError as e:
+        return e
     camera = None
     if cam_spec.K is not None:
         from jcalib.geometry.cameras.factory import camera_from_opencv
@@ -272,6 +272,7 @@ def detect_session_to_file(
         BadInputError: as :func:`detect_session`, or the target was found in no image at all.
     """
     from rich.console import Console
+    from rich.markup import escape
 
     from jcalib.io.observations import save_observations
 
@@ -281,7 +282,7 @@ def detect_session_to_file(
     for what, note in notes.items():
         console.print(f"retried {what}: {note}", highlight=False, markup=False)
     for f in failures:
-        console.print(f"[yellow]skipped[/] {f}", highlight=False)
+        console.print(f"[yellow]skipped[/] {escape(str(f))}", highlight=False)
     if not obs.stations:
         raise BadInputError(
             f"session {session_dir}: the target was found in no image ({len(failures)} failures); check the "
@@ -290,8 +291,8 @@ def detect_session_to_file(
     out = Path(out_path) if out_path is not None else Path(session_dir) / "observations.json"
     save_observations(out, obs)
     console.print(
-        f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
-        f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else ""),
+        escape(f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
+               f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else "")),
         highlight=False,
     )  # fmt: skip
     return obs, failures

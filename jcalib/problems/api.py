@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
+from jcalib.io.schema import check_cell_observations
 from jcalib.problems.calibrate import Result, calibrate_cell, input_hash, options_and_given, result_file
 from jcalib.problems.reoptimise import reoptimise
 
@@ -27,11 +28,13 @@ def calibrate(cell, observations, options=None, *, prior=None) -> Result:
         :class:`Result`. Uncertainties are sampling noise, not model error.
 
     Raises:
-        BadInputError: malformed input, naming the file, station and camera.
+        BadInputError: malformed input, naming the file, station and camera; observations naming a
+            camera, target, tool or point the cell does not define.
         NotObservableError: the data cannot determine some unknowns, naming them.
     """
     cell_spec = load_cell(cell)
     obs = load_observations(observations)
+    check_cell_observations(cell_spec, obs)
     opts, given = options_and_given(options)
     hash_ = input_hash(cell, observations, cell_spec, obs)
     if prior is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -10,7 +11,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
 
-__all__ = ["GrayImage", "load_image", "to_gray", "image_stats"]
+__all__ = ["GrayImage", "image_header_size", "load_image", "max_image_pixels", "to_gray", "image_stats"]
 
 
 @dataclass(frozen=True)
@@ -33,13 +34,49 @@ class GrayImage:
         return (int(self.u8.shape[1]), int(self.u8.shape[0]))
 
 
+def max_image_pixels() -> int:
+    """The pixel budget of one image (``JCALIB_MAX_IMAGE_MP`` megapixels, default 200)."""
+    raw = os.environ.get("JCALIB_MAX_IMAGE_MP", "")
+    try:
+        mp = float(raw) if raw else 200.0
+    except ValueError:
+        raise BadInputError(f"JCALIB_MAX_IMAGE_MP: expected a number of megapixels, got {raw!r}") from None
+    return int(mp * 1e6)
+
+
+_PIL_LOCK = threading.Lock()
+
+
+def image_header_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """``(width, height)`` from the file's header without decoding the pixels (Pillow), or None
+    when Pillow does not know the format."""
+    from PIL import Image
+
+    with _PIL_LOCK:  # Pillow's own bomb limit is lifted while reading a header: the budget is ours
+        old, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+        try:
+            with Image.open(path) as im:
+                return int(im.size[0]), int(im.size[1])
+        except Exception:  # noqa: BLE001 - unknown format: OpenCV decides (within its own limit)
+            return None
+        finally:
+            Image.MAX_IMAGE_PIXELS = old
+
+
 def load_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image file unchanged (8- or 16-bit, grey or colour in OpenCV's BGR order).
 
     Raises:
-        DetectionError: reason ``"unreadable"`` when the file is missing or not an image.
+        DetectionError: reason ``"unreadable"`` when the file is missing, not an image, or holds
+            more pixels than :func:`max_image_pixels` (checked from the header, before decoding).
     """
     name = os.fspath(path)
+    size = image_header_size(name) if os.path.isfile(name) else None
+    budget = max_image_pixels()
+    if size is not None and size[0] * size[1] > budget:
+        raise DetectionError(
+            f"{name}: the image is {size[0]}x{size[1]} px ({size[0] * size[1] / 1e6:.0f} Mpx), more than the "
+            f"{budget / 1e6:.0f} Mpx jcalib decodes (set JCALIB_MAX_IMAGE_MP to raise the budget)", "unreadable")
     image = cv2.imread(name, cv2.IMREAD_UNCHANGED) if os.path.isfile(name) else None
     if image is None:
         raise DetectionError(f"{name}: cannot read the image (missing file or not an image format OpenCV reads)", "unreadable")

@@ -128,9 +128,10 @@ def real_camera_inputs():
                          "point_index": list(range(len(pix))), "pixels": pix.tolist()}]})
     obs = {"schema": "jcalib.observations/1", "cameras": {"cam": {"image_size": [640, 480]}},
            "targets": {"board": {"points": pts.tolist()}}, "stations": stations}
-    # today a target whose points come with the observations needs a stand-in grid type
+    # recorded with a stand-in checkerboard (the old cell format had no target of given points); the
+    # case file now says type: points, the same data
     cell = {"schema": "jcalib.cell/1", "cameras": {"cam": {"model": "opencv5", "skew": True, "fix": ["p1", "p2", "k3"]}},
-            "targets": {"board": {"type": "checkerboard", "cols": 2, "rows": 2, "square": 0.01}}}
+            "targets": {"board": {"type": "points"}}}
     out["camera_zhang1998"] = (cell, obs, {"type": "CameraCalibrationOptions", "outlier_threshold": None})
     # OpenCV left images: corners detected here once, stored with the case
     import cv2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import unicodedata
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -88,21 +89,65 @@ def frame_selection(
     return chosen
 
 
-def provenance_lines(result: ResultFile) -> list[str]:
+#: Characters some reader takes as a line break (Python's ``str.splitlines``, YAML 1.1, C1 NEL).
+_LINE_BREAKS = "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"
+
+
+def _unsafe(c: str, ascii_only: bool) -> bool:
+    return c in _LINE_BREAKS or unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp") or (
+        ascii_only and ord(c) > 126)
+
+
+def comment_text(text: Any, ascii_only: bool = False) -> str:
+    """``text`` made safe for one comment line of an export: every control, format or line-break
+    character (and, for controller files, every non-ASCII one) is written as a ``\\xNN`` /
+    ``\\uNNNN`` escape, so no field copied from a result can start a new line.
+
+    Args:
+        text: the field (converted with ``str``).
+        ascii_only: escape non-ASCII characters too (RAPID and KRL files are read as Latin-1 or ASCII
+            by controllers, where UTF-8 bytes 0x80-0x9F are C1 control characters).
+    """
+    return "".join(c.encode("unicode_escape").decode("ascii") if _unsafe(c, ascii_only) else c for c in str(text))
+
+
+def checked_export(text: str, fmt: str, ascii_only: bool = False) -> str:
+    """``text`` after the last line of defence: no line of an export may hold a character that some
+    reader takes as a line break or a control (and controller files only ASCII).
+
+    Raises:
+        BadInputError: such a character (a field that escaped :func:`comment_text` or a name check).
+    """
+    for n, line in enumerate(text.split("\n"), start=1):
+        bad = next((c for c in line if c != "\t" and _unsafe(c, ascii_only)), None)
+        if bad is not None:
+            raise BadInputError(
+                f"{fmt} export: line {n} would hold the character {bad!r} (a control, line-break or "
+                f"{'non-ASCII ' if ascii_only else ''}character); nothing was written. A name or field of the "
+                "result holds it: fix the result file"
+            )
+    return text
+
+
+def _clip(text: str, limit: int = 100) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def provenance_lines(result: ResultFile, ascii_only: bool = False) -> list[str]:
     """Human-readable provenance lines (no comment marker) from the result's own provenance, so
-    an export is a pure function of the result."""
+    an export is a pure function of the result; every field escaped by :func:`comment_text`."""
     prov = result.provenance
     lines = []
     if prov is not None:
         parts = []
         if prov.jcalib_version:
-            parts.append(f"jcalib {prov.jcalib_version}")
+            parts.append(f"jcalib {_clip(prov.jcalib_version)}")
         if prov.created:
-            parts.append(f"created {prov.created}")
+            parts.append(f"created {_clip(prov.created)}")
         if prov.input_hash:
-            parts.append(f"input {prov.input_hash}")
+            parts.append(f"input {_clip(prov.input_hash)}")
         if parts:
-            lines.append("result: " + ", ".join(parts))
+            lines.append("result: " + comment_text(", ".join(parts), ascii_only))
     stats = result.stats
     if "rms_px" in stats:
         lines.append(f"reprojection RMS: {stats['rms_px']:.4g} px")

@@ -33,7 +33,15 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import check_identifier, fixed, frame_selection, provenance_lines, tool_pose
+from jcalib.io.export._common import (
+    check_identifier,
+    checked_export,
+    comment_text,
+    fixed,
+    frame_selection,
+    provenance_lines,
+    tool_pose,
+)
 from jcalib.io.result import ResultFile, TransformResult, load_result
 
 __all__ = [
@@ -209,15 +217,15 @@ def abb_rapid_module(
                 f"loads: {tool!r} is not an exported tool ({', '.join(tool_names) or 'none'})"
             )
     lines = [f"MODULE {module}", "    ! Written by jcalib from a calibration result."]
-    lines += [f"    ! {line}" for line in provenance_lines(result)]
+    lines += [f"    ! {line}" for line in provenance_lines(result, ascii_only=True)]
     lines.append(
         "    ! Positions in mm, orientations as quaternions [q1, q2, q3, q4] = [w, x, y, z]."
     )
     for tool, name in tool_names.items():
         load = loads.get(tool)
         lines.append("")
-        lines.append(f"    ! {name}: T_flange_{tool}, the TCP in the tool0 (flange) frame.")
-        lines.append(f"    ! {tool_pose(result, tool, orientations)[1]}.")
+        lines.append(f"    ! {name}: T_flange_{comment_text(tool, True)}, the TCP in the tool0 (flange) frame.")
+        lines.append(f"    ! {comment_text(tool_pose(result, tool, orientations)[1], True)}.")
         std = _position_std_mm(result.transforms[f"T_flange_{tool}"])
         if std is not None:
             lines.append(f"    ! 1-sigma TCP position std x/y/z (tool0 frame): {std} mm.")
@@ -229,14 +237,14 @@ def abb_rapid_module(
     for wobj, name in wobj_names.items():
         lines.append("")
         lines.append(
-            f"    ! {name}: T_base_{wobj}, the user frame in the robot base (= world) frame."
+            f"    ! {name}: T_base_{comment_text(wobj, True)}, the user frame in the robot base (= world) frame."
         )
         std = _position_std_mm(result.transforms[f"T_base_{wobj}"])
         if std is not None:
             lines.append(f"    ! 1-sigma origin position std x/y/z (base frame): {std} mm.")
         lines.append(f"    PERS wobjdata {name} := {abb_wobjdata(result, wobj)};")
     lines.append("ENDMODULE")
-    return "\n".join(lines) + "\n"
+    return checked_export("\n".join(lines) + "\n", "rapid", ascii_only=True)
 
 
 def write_abb_rapid(

@@ -27,7 +27,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import fixed, frame_selection, provenance_lines, tool_pose
+from jcalib.io.export._common import checked_export, fixed, frame_selection, provenance_lines, tool_pose
 from jcalib.io.result import ResultFile, load_result
 
 __all__ = [
@@ -121,7 +121,7 @@ def kuka_config_lines(
             f"transforms (it has: {', '.join(result.transforms) or 'none'})"
         )
     lines = ["; Written by jcalib from a calibration result."]
-    lines += [f"; {line}" for line in provenance_lines(result)]
+    lines += [f"; {line}" for line in provenance_lines(result, ascii_only=True)]
     lines.append("; Replace the lines with the same index in KRC:\\R1\\System\\$config.dat.")
     lines.append(
         "; X, Y, Z in mm; A, B, C in degrees (R = Rz(A) Ry(B) Rx(C)). Load data not included."
@@ -135,7 +135,7 @@ def kuka_config_lines(
         T = result.transforms[f"T_base_{base}"].matrix
         lines.append(f"BASE_DATA[{i}]={kuka_frame_literal(T)}")
         lines.append(f'BASE_NAME[{i},]="{_krl_name(base, "bases")}"')
-    return "\n".join(lines) + "\n"
+    return checked_export("\n".join(lines) + "\n", "krl", ascii_only=True)
 
 
 def write_kuka_krl(

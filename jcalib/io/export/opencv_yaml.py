@@ -27,7 +27,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import exact_float, pick_camera, provenance_lines
+from jcalib.io.export._common import checked_export, comment_text, exact_float, pick_camera, provenance_lines
 from jcalib.io.result import CameraResult, ResultFile, load_result
 
 __all__ = ["opencv_yaml", "write_opencv_yaml"]
@@ -58,10 +58,10 @@ def _camera(name: str, cam: CameraResult, suffix: str) -> list[str]:
 
 
 def _check_name(name: str) -> None:
-    if any(c in name for c in '"\\\n'):
+    if any(c in name for c in '"\\') or comment_text(name) != name:
         raise BadInputError(
-            "camera: a camera id for OpenCV YAML must not contain quotes, backslashes or "
-            f"newlines, got {name!r}"
+            "camera: a camera id for OpenCV YAML must not contain quotes, backslashes, control or "
+            f"line-break characters, got {name!r}"
         )
 
 
@@ -107,13 +107,14 @@ def opencv_yaml(result: ResultFile, cameras: str | Sequence[str] | None = None) 
         first, second = names
         T_2_1 = result.transform_between(second, first)
         lines.append(
-            f"# stereo pair: R, T map points of {first} into {second} (p2 = R p1 + T); T in metres"
+            f"# stereo pair: R, T map points of {comment_text(first)} into {comment_text(second)} "
+            "(p2 = R p1 + T); T in metres"
         )
         lines += _camera(first, result.cameras[first], "_1")
         lines += _camera(second, result.cameras[second], "_2")
         lines += _matrix("R", T_2_1[:3, :3])
         lines += _matrix("T", T_2_1[:3, 3:4])
-    return "\n".join(lines) + "\n"
+    return checked_export("\n".join(lines) + "\n", "opencv")
 
 
 def write_opencv_yaml(

@@ -27,7 +27,14 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import check_identifier, exact_float, pick_camera, provenance_lines
+from jcalib.io.export._common import (
+    check_identifier,
+    checked_export,
+    comment_text,
+    exact_float,
+    pick_camera,
+    provenance_lines,
+)
 from jcalib.io.result import ResultFile, load_result
 
 __all__ = ["ros_camera_info", "ros_distortion", "write_ros_camera_info"]
@@ -94,7 +101,7 @@ def ros_camera_info(
     P = np.concatenate([cam.K, np.zeros((3, 1))], axis=1)
     lines = [
         f"# {line}"
-        for line in [f"jcalib camera '{camera}' (model {cam.model})", *provenance_lines(result)]
+        for line in [f"jcalib camera '{comment_text(camera)}' (model {cam.model})", *provenance_lines(result)]
     ]
     lines += [
         f"image_width: {cam.image_size[0]}",
@@ -106,7 +113,7 @@ def ros_camera_info(
         *_matrix("rectification_matrix", np.eye(3)),
         *_matrix("projection_matrix", P),
     ]
-    return "\n".join(lines) + "\n"
+    return checked_export("\n".join(lines) + "\n", "ros")
 
 
 def write_ros_camera_info(

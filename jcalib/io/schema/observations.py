@@ -1,0 +1,279 @@
+"""Schema of observations (``jcalib.observations/1``, DESIGN.md), including the extensions in force.
+
+:func:`validate_observations_document` runs before :func:`jcalib.io.observations.parse_observations`
+builds the data classes: types and shapes (a fractional ``point_index`` is refused, never
+truncated), finite numbers, known keys, then plausibility: pixels inside their camera's
+``image_size``, flange poses rigid and
+within a robot's reach (millimetres written as metres are caught), target points within a cell.
+An ``image_size`` smaller than the pixels it holds is refused (more than 5 % of a camera's pixels
+outside its image, or any pixel farther than an image size beyond it: ``1e300``, another camera's
+pixel); a few pixels just outside give an :class:`~jcalib.errors.InputWarning` naming the first.
+
+Extensions accepted here (their meaning is the calibration code's): stations ``joints_deg`` (a list,
+or a mapping robot -> list, as sessions record them) and ``poses: [{camera, target, T_cam_target}]``
+(6-DOF pose measurements, m).
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BeforeValidator, Field, model_validator
+from pydantic_core import PydanticCustomError
+
+from jcalib.errors import InputWarning
+
+from jcalib.io.schema.base import Closed, Int, Name, Num, SchemaError, StationId, did_you_mean, format_value, validate
+from jcalib.io.schema.common import MAX_CELL_EXTENT_M, MAX_IMAGE_SIDE_PX, Mat4, Vec3, max_reach_m, norm, pose_problem
+
+__all__ = ["ObservationsDocument", "pixels_outside", "station_label", "validate_observations_document",
+           "warn_pixels_outside"]
+
+SCHEMA = "jcalib.observations/1"
+#: A pixel may lie this far (px) outside the image area [-0.5, size - 0.5] (sub-pixel refinement).
+PIXEL_MARGIN_PX = 0.5
+#: More than this fraction of a camera's pixels outside its image: the image_size is wrong (refused);
+#: fewer give a warning (synthetic data with a few corners off the image).
+MAX_OUTSIDE_FRACTION = 0.05
+
+Pixel = Annotated[list[Num], Field(min_length=2, max_length=2)]
+ImageSide = Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE_PX)]
+
+
+def _joints(value: Any) -> Any:
+    def is_list(v: Any) -> bool:
+        return isinstance(v, list) and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
+
+    if is_list(value) or (isinstance(value, dict) and all(isinstance(k, str) and is_list(v) for k, v in value.items())):
+        return value
+    raise PydanticCustomError("jcalib_check", "{why}", {
+        "why": "expected joint values in degrees (mm for prismatic axes): a list of finite numbers, or a mapping "
+               f"robot -> list; got {format_value(value)}"})
+
+
+class CameraEntry(Closed):
+    image_size: Annotated[list[ImageSide], Field(min_length=2, max_length=2)]
+
+
+class TargetEntry(Closed):
+    points: Annotated[list[Vec3], Field(min_length=1)]
+
+
+class Detection(Closed):
+    camera: Name
+    target: Name | None = None
+    tool: Name | None = None
+    point_index: list[Int] | None = None
+    pixels: list[Pixel] | None = None
+    pixel: Pixel | None = None
+    axis: Annotated[list[Pixel], Field(min_length=1)] | None = None
+
+    @model_validator(mode="after")
+    def _kind(self) -> "Detection":
+        if self.tool is not None:
+            for key in ("target", "point_index"):
+                if key in self.model_fields_set:
+                    raise PydanticCustomError("jcalib_check", "{why}", {
+                        "key": key, "why": "a tool-tip detection has 'tool' and one 'pixel', no target or point_index"})
+            pixels = [self.pixel] if self.pixel is not None else self.pixels
+            if pixels is None or len(pixels) != 1 or (self.pixel is not None and self.pixels is not None):
+                raise PydanticCustomError("jcalib_check", "{why}", {
+                    "key": "pixel", "why": "a tool-tip detection needs exactly one pixel [u, v]"})
+            return self
+        if self.target is None:
+            raise PydanticCustomError("jcalib_check", "{why}", {
+                "key": "target", "why": "missing: a detection names a 'target' (with point_index and pixels) "
+                                        "or a 'tool' (with one pixel)"})
+        for key in ("point_index", "pixels"):
+            if key not in self.model_fields_set:
+                raise PydanticCustomError("jcalib_check", "{why}", {"key": key, "why": "missing (required)"})
+        if "pixel" in self.model_fields_set:
+            raise PydanticCustomError("jcalib_check", "{why}", {
+                "key": "pixel", "why": "a target detection has 'pixels' (one per point_index), not 'pixel'"})
+        if "axis" in self.model_fields_set:
+            raise PydanticCustomError("jcalib_check", "{why}", {
+                "key": "axis", "why": "only a tool-tip detection has 'axis' (points on the imaged tool axis)"})
+        return self
+
+
+class Contact(Closed):
+    tool: Name
+    point: Name
+
+
+class PoseMeasurement(Closed):
+    camera: Name
+    target: Name
+    T_cam_target: Mat4
+
+
+class Station(Closed):
+    id: StationId
+    T_base_flange: Mat4 | None = None
+    flange_poses: dict[Name, Mat4] | None = None
+    joints_deg: Annotated[Any, BeforeValidator(_joints)] = None
+    detections: list[Detection] | None = None
+    contacts: list[Contact] | None = None
+    poses: list[PoseMeasurement] | None = None
+
+
+class ObservationsDocument(Closed):
+    schema_: Literal["jcalib.observations/1"] = Field(alias="schema")
+    cameras: dict[Name, CameraEntry] | None = None
+    targets: dict[Name, TargetEntry] | None = None
+    stations: list[Station] | None = None
+
+
+def station_label(data: Any, path: str) -> str:
+    """``path`` with a leading ``stations[i]`` shown as ``station 'id'`` (ids are what users know)."""
+    if not path.startswith("stations["):
+        return path
+    end = path.index("]")
+    try:
+        i = int(path[len("stations["):end])
+        sid = data["stations"][i]["id"]
+    except (ValueError, KeyError, IndexError, TypeError):
+        return path
+    if not isinstance(sid, (str, int)) or isinstance(sid, bool):
+        return path
+    return f"station {str(sid)!r}" + path[end + 1:]
+
+
+def pixels_outside(pixels: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Which pixels lie outside the image ``size = (width, height)`` (OpenCV convention: the image
+    covers [-0.5, width - 0.5] x [-0.5, height - 0.5], plus :data:`PIXEL_MARGIN_PX`), and which lie
+    farther than one image size beyond it (no detection of this image: another camera, image scale
+    or unit).
+
+    Returns:
+        ``(outside, far)``: boolean masks, shape ``(n,)``.
+    """
+    px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    w, h = float(size[0]), float(size[1])
+    lo = -0.5 - PIXEL_MARGIN_PX
+    outside = (px[:, 0] < lo) | (px[:, 1] < lo) | (px[:, 0] > w - 0.5 + PIXEL_MARGIN_PX) | (
+        px[:, 1] > h - 0.5 + PIXEL_MARGIN_PX)
+    far = (px[:, 0] < -w) | (px[:, 1] < -h) | (px[:, 0] > 2 * w) | (px[:, 1] > 2 * h)
+    return outside, far
+
+
+def warn_pixels_outside(source: str, outside: dict[str, list]) -> None:
+    """One :class:`~jcalib.errors.InputWarning` per camera with pixels outside its image:
+    ``outside`` maps camera -> ``[count, size, first key path, first pixel]``."""
+    for cam, (count, size, where, px) in outside.items():
+        warnings.warn(
+            f"{source}: {count} pixel(s) of camera {cam!r} lie outside its {size[0]}x{size[1]} image (first: "
+            f"{where} = {np.round(px, 2).tolist()}); a detection cannot lie outside the image it was found in: "
+            "is the image_size right?", InputWarning, stacklevel=4)
+
+
+def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, problems: list,
+                   outside: dict) -> None:
+    where = f"stations[{i}]"
+    poses = {"T_base_flange": st["T_base_flange"]} if st.get("T_base_flange") is not None else {}
+    poses.update({f"flange_poses.{r}": T for r, T in (st.get("flange_poses") or {}).items()})
+    for key, T in poses.items():
+        why = pose_problem(T, reach, "flange translation")
+        if why:
+            problems.append((f"{where}.{key}", why + ("" if "millimetres" not in why else
+                             "; a robot on a track or a gantry: set JCALIB_MAX_REACH_M")))
+    for j, pm in enumerate(st.get("poses") or []):
+        why = pose_problem(pm["T_cam_target"], MAX_CELL_EXTENT_M, "target position")
+        if why:
+            problems.append((f"{where}.poses[{j}].T_cam_target", why))
+    for j, det in enumerate(st.get("detections") or []):
+        at = f"{where}.detections[{j}]"
+        cam = det["camera"]
+        if cam not in sizes:
+            problems.append((f"{at}.camera", f"camera {cam!r} is not listed in 'cameras'{did_you_mean(cam, sizes)} "
+                                             f"(listed: {', '.join(sizes) or 'none'}); add it with its image_size"))
+            continue
+        if det.get("tool") is not None:
+            px = np.asarray([det["pixel"]] if det.get("pixel") is not None else det["pixels"], dtype=np.float64)
+            key = "pixel"
+        else:
+            tgt = det["target"]
+            if tgt not in targets:
+                problems.append((f"{at}.target", f"target {tgt!r} is not listed in 'targets'"
+                                                 f"{did_you_mean(tgt, targets)} (listed: {', '.join(targets) or 'none'})"))
+                continue
+            index, px, key = det["point_index"], np.asarray(det["pixels"], dtype=np.float64).reshape(-1, 2), "pixels"
+            if len(index) != len(px):
+                problems.append((at, f"point_index has {len(index)} entries but pixels has {len(px)} rows; they pair "
+                                     "one to one"))
+                continue
+            n = targets[tgt]
+            bad = [k for k, v in enumerate(index) if not 0 <= v < n]
+            if bad:
+                problems.append((f"{at}.point_index[{bad[0]}]", f"index {index[bad[0]]} is out of range: target {tgt!r} "
+                                                                f"has {n} points (0..{n - 1})"))
+                continue
+            if len(set(index)) != len(index):
+                problems.append((f"{at}.point_index", "a target point appears twice in one detection"))
+                continue
+        out, far = pixels_outside(px, sizes[cam])
+        if far.any():
+            k = int(np.flatnonzero(far)[0])
+            w, h = sizes[cam]
+            problems.append((f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"),
+                             f"pixel {px[k].tolist()} lies far outside camera {cam!r}'s image of {w}x{h} px: the "
+                             "image_size is wrong, or the pixel belongs to another camera, image scale or unit"))
+        else:
+            entry = outside.setdefault(cam, [0, sizes[cam], None, None, 0])
+            entry[4] += len(px)
+            if out.any():
+                k = int(np.flatnonzero(out)[0])
+                entry[0] += int(out.sum())
+                if entry[2] is None:
+                    entry[2], entry[3] = f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"), px[k]
+
+
+def validate_observations_document(data: Any, source: str = "<dict>") -> ObservationsDocument:
+    """Check an observations document (a loaded JSON mapping) against the schema and for plausibility.
+
+    Raises:
+        SchemaError: naming ``source``, the station id and key path, and what to do.
+    """
+    if isinstance(data, dict) and isinstance(data.get("schema"), str) and data["schema"] != SCHEMA:
+        other = data["schema"]
+        hint = "" if not other.startswith("jcalib.") or other.startswith("jcalib.observations/") else (
+            f"; this looks like a {other} file, not observations")
+        raise SchemaError(source, [("schema", f"expected {SCHEMA!r}, got {other!r}{hint}")])
+    try:
+        doc = validate(ObservationsDocument, data, source)
+        problems: list[tuple[str, str]] = []
+        sizes = {c: tuple(e["image_size"]) for c, e in (data.get("cameras") or {}).items()}
+        targets = {t: len(e["points"]) for t, e in (data.get("targets") or {}).items()}
+        for t, e in (data.get("targets") or {}).items():
+            extent = float(np.max(norm(e["points"], axis=1)))
+            if extent > MAX_CELL_EXTENT_M:
+                problems.append((f"targets.{t}.points", f"a point lies {extent:.4g} m from the target's origin, more than "
+                                                        f"{MAX_CELL_EXTENT_M:g} m: points are in metres; are these "
+                                                        "millimetres? (divide by 1000)"))
+        reach = max_reach_m()
+        outside: dict[str, list] = {}
+        seen: dict[str, int] = {}
+        for i, st in enumerate(data.get("stations") or []):
+            sid = str(st["id"])
+            if sid in seen:
+                problems.append((f"stations[{i}].id", f"duplicate station id {sid!r} (also stations[{seen[sid]}])"))
+            seen.setdefault(sid, i)
+            _check_station(i, st, sizes, targets, reach, problems, outside)
+            if len(problems) >= 20:
+                break
+        for cam, (n, size, where, px, total) in outside.items():
+            if n > MAX_OUTSIDE_FRACTION * total:
+                problems.append((where, f"{n} of the {total} pixels of camera {cam!r} lie outside its image of "
+                                        f"{size[0]}x{size[1]} px (first: {np.round(px, 2).tolist()}): its image_size is "
+                                        "wrong (too small), or the pixels belong to another camera or image scale"))
+        if problems:
+            raise SchemaError(source, problems)
+    except SchemaError as e:
+        raise SchemaError(source, [(station_label(data, p), m) for p, m in e.problems],
+                          total=e.total) from None
+    warn_pixels_outside(source, {c: [n, size, station_label(data, w), px]
+                                 for c, (n, size, w, px, total) in outside.items() if n})
+    return doc

@@ -1,0 +1,64 @@
+"""Schema of station plans (``jcalib.plan/1``): known keys, 4x4 flange poses within a robot's reach."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, StringConstraints
+
+from jcalib.io.schema.base import Closed, SchemaError, validate
+from jcalib.io.schema.common import YMat4, max_reach_m, pose_problem
+
+__all__ = ["PlanDocument", "validate_plan_document"]
+
+SCHEMA = "jcalib.plan/1"
+PlanId = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+
+
+class PlanStation(Closed):
+    id: PlanId | None = None
+    T_base_flange: YMat4
+    move: Literal["joint", "linear"] = "joint"
+
+
+class PlanDocument(Closed):
+    schema_: Literal["jcalib.plan/1"] = Field(alias="schema")
+    stations: Annotated[list[PlanStation], Field(min_length=1)]
+    digest: str | None = None  # a session's copy of its plan
+    planner: Any = None  # what jcalib plan planned for (kind, robot, camera, ...; a list when plans are joined)
+
+
+def _station_label(data: Any, path: str) -> str:
+    """``stations[k].rest`` shown as ``station k (id) rest`` (as the plan's own messages name stations)."""
+    if not path.startswith("stations["):
+        return path
+    end = path.index("]")
+    k = path[len("stations["):end]
+    try:
+        sid = data["stations"][int(k)].get("id")
+    except (ValueError, IndexError, KeyError, TypeError, AttributeError):
+        sid = None
+    label = f"station {k}" + (f" ({sid})" if isinstance(sid, str) else "")
+    rest = path[end + 1:].lstrip(".")
+    return f"{label} {rest}" if rest else label
+
+
+def validate_plan_document(data: Any, source: str = "plan") -> PlanDocument:
+    """Check a plan document: keys, shapes, and flange poses rigid and within reach (m).
+
+    Raises:
+        SchemaError: naming ``source``, the station and key.
+    """
+    try:
+        doc = validate(PlanDocument, data, source)
+        reach = max_reach_m()
+        problems = []
+        for i, st in enumerate(data["stations"]):
+            why = pose_problem(st["T_base_flange"], reach, "flange translation")
+            if why:
+                problems.append((f"stations[{i}].T_base_flange", why))
+        if problems:
+            raise SchemaError(source, problems)
+    except SchemaError as e:
+        raise SchemaError(source, [(_station_label(data, p), m) for p, m in e.problems], total=e.total) from None
+    return doc
