@@ -7,7 +7,9 @@ robot servers and drivers must start fast.
 
 A pose is a (4, 4) homogeneous matrix ``T_a_b`` in metres (maps points from b to a). The algebra
 (``make_pose``, ``invert``, ``skew``, ``exp_so3``, ``rotvec``, ``rotation``, ``adjoint``, quaternions,
-``log_se3``) is batched over leading axes: ``(..., 4, 4)``, ``(..., 3, 3)``, ``(..., 3)``.
+``log_se3``) is batched over leading axes: ``(..., 4, 4)``, ``(..., 3, 3)``, ``(..., 3)``. Input checks:
+``check_pose`` (one pose), ``check_poses`` (a stack), ``as_pose_matrices`` (a stack of matrices or of
+``wxyz_xyz`` 7-vectors).
 Controllers speak millimetres and either KUKA ``A, B, C`` (intrinsic Z-Y'-X'' angles, degrees) or
 ABB ``q1..q4`` (a unit quaternion in ``wxyz`` order). Quaternions leave here sign-normalised (w >= 0).
 """
@@ -43,6 +45,75 @@ def check_pose(T: np.ndarray, name: str = "T_base_flange") -> np.ndarray:
             f"got {np.round(T, 6).tolist()}"
         )
     return T
+
+
+def check_poses(T, name: str, tol: float = 1e-6) -> np.ndarray:
+    """Validate a stack of 4x4 homogeneous poses (one pose counts as ``N = 1``); return ``(N, 4, 4)`` float64.
+
+    Raises :class:`BadInputError` naming ``name`` and the pose for a wrong shape, non-finite values, a
+    bad bottom row or a rotation block that is not orthonormal with ``det = +1`` (within ``tol``).
+    """
+    try:
+        arr = np.asarray(T, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise BadInputError(
+            f"{name}: expected an array of 4x4 poses, got {type(T).__name__} ({exc})"
+        ) from None
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
+        raise BadInputError(f"{name}: expected shape (N, 4, 4) (4x4 homogeneous poses), got {arr.shape}")
+    bad = ~np.isfinite(arr).all(axis=(1, 2))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise BadInputError(f"{name}: pose {k} has NaN/inf entries; expected finite 4x4 poses")
+    row_err = np.abs(arr[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
+    if (row_err > tol).any():
+        k = int(np.argmax(row_err))
+        raise BadInputError(f"{name}: pose {k} has bottom row {arr[k, 3].tolist()}; expected [0, 0, 0, 1]")
+    R = arr[:, :3, :3]
+    orth_err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = (orth_err > tol) | (det < 0.0)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise BadInputError(
+            f"{name}: pose {k} has a rotation block that is not a rotation (max |R R^T - I| = "
+            f"{orth_err[k]:.3g}, det = {det[k]:.6g}); expected orthonormal with det +1 (tolerance {tol})"
+        )
+    return arr
+
+
+def as_pose_matrices(T, name: str) -> np.ndarray:
+    """Validate poses and return them as ``(N, 4, 4)`` float64 homogeneous matrices.
+
+    Args:
+        T: ``(N, 4, 4)`` homogeneous transforms, or ``(N, 7)`` poses (``wxyz`` quaternion then
+            translation, as in :mod:`jcalib.geometry.lie`); a single pose is read as ``N = 1``.
+        name: argument name used in error messages.
+
+    Raises:
+        BadInputError: wrong shape, non-finite values, a rotation block that is not a rotation.
+    """
+    try:
+        arr = np.asarray(T, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise BadInputError(f"{name}: expected (N, 4, 4) or (N, 7) poses, got {type(T).__name__} ({exc})") from None
+    if arr.ndim >= 1 and arr.shape[-1] == 7 and arr.ndim in (1, 2):
+        arr = np.atleast_2d(arr)
+        if not np.isfinite(arr).all():
+            raise BadInputError(f"{name}: poses (N, 7) contain NaN/inf; expected finite values")
+        q = arr[:, :4]
+        norm = np.linalg.norm(q, axis=1)
+        if (np.abs(norm - 1.0) > 1e-6).any():
+            k = int(np.argmax(np.abs(norm - 1.0)))
+            raise BadInputError(
+                f"{name}: pose {k} has a quaternion of norm {norm[k]:.6g}; expected unit quaternions (wxyz)"
+            )
+        return make_pose(matrix_from_quat(q), arr[:, 4:])
+    if arr.ndim not in (2, 3) or arr.shape[-2:] != (4, 4):
+        raise BadInputError(f"{name}: expected shape (N, 4, 4) (homogeneous poses) or (N, 7), got {arr.shape}")
+    return check_poses(arr, name)
 
 
 def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -232,7 +303,7 @@ log_so3 = rotvec
 def rotation(axis: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
     """Rotations ``(..., 3, 3)`` by ``angle (...)`` rad about ``axis (..., 3)`` (any non-zero length), right-handed."""
     axis = np.asarray(axis, dtype=np.float64)
-    n = np.linalg.norm(axis, axis=-1, keepdims=True)
+    n = np.linalg.norm(axis) if axis.ndim == 1 else np.linalg.norm(axis, axis=-1, keepdims=True)
     if not np.all(np.isfinite(n)) or np.any(n == 0.0):
         raise BadInputError(f"axis: expected a finite non-zero rotation axis, got {axis.tolist()}")
     K = skew(axis / n)

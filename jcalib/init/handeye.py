@@ -42,13 +42,12 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.lie_kernels import quat_multiply
-from jcalib.geometry.se3 import invert, make_pose, matrix_from_quat, quat_from_matrix, rotvec, skew
+from jcalib.geometry.se3 import check_poses, invert, make_pose, matrix_from_quat, quat_from_matrix, rotvec, skew
 from jcalib.init.handeye_motion import (
     HandEyeDiagnostics,
     Mount,
     Pairs,
     check_mount,
-    check_poses,
     checked_stations,
     pair_indices,
     solution_diagnostics,

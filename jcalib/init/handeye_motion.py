@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
-from jcalib.geometry.se3 import rotvec
+from jcalib.geometry.se3 import check_poses, rotvec
 
 __all__ = [
     "HandEyeDiagnostics",
@@ -30,7 +30,6 @@ __all__ = [
     "analyse_motion",
     "check_mount",
     "check_observable",
-    "check_poses",
     "checked_stations",
     "fmt_axis",
     "pair_indices",
@@ -39,43 +38,6 @@ __all__ = [
 
 Mount = Literal["flange", "base"]
 Pairs = Literal["all", "consecutive"]
-
-
-def check_poses(T, name: str, tol: float = 1e-6) -> np.ndarray:
-    """Validate a stack of 4x4 homogeneous poses; return it as ``(N, 4, 4)`` float64.
-
-    Raises :class:`BadInputError` naming ``name`` for a wrong shape, non-finite values, a bad
-    bottom row or a rotation block that is not orthonormal with ``det = +1`` (within ``tol``).
-    """
-    try:
-        arr = np.asarray(T, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise BadInputError(
-            f"{name}: expected an array of 4x4 poses, got {type(T).__name__} ({exc})"
-        ) from None
-    if arr.ndim == 2:
-        arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
-        raise BadInputError(f"{name}: expected shape (N, 4, 4) (4x4 homogeneous poses), got {arr.shape}")
-    bad = ~np.isfinite(arr).all(axis=(1, 2))
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise BadInputError(f"{name}: pose {k} has NaN/inf entries; expected finite 4x4 poses")
-    row_err = np.abs(arr[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
-    if (row_err > tol).any():
-        k = int(np.argmax(row_err))
-        raise BadInputError(f"{name}: pose {k} has bottom row {arr[k, 3].tolist()}; expected [0, 0, 0, 1]")
-    R = arr[:, :3, :3]
-    orth_err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(1, 2))
-    det = np.linalg.det(R)
-    bad = (orth_err > tol) | (det < 0.0)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise BadInputError(
-            f"{name}: pose {k} has a rotation block that is not a rotation (max |R R^T - I| = "
-            f"{orth_err[k]:.3g}, det = {det[k]:.6g}); expected orthonormal with det +1 (tolerance {tol})"
-        )
-    return arr
 
 
 def check_mount(mount: str) -> None:

@@ -24,8 +24,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.geometry.lie import se3_exp, se3_to_matrix
-from jcalib.geometry.se3 import adjoint, invert
-from jcalib.init.pivot import as_pose_matrices
+from jcalib.geometry.se3 import adjoint, as_pose_matrices, invert
 from jcalib.init.triangulation import TriangulatedPoint
 
 __all__ = ["CHAIN_FRAMES", "PointInFrame", "compose_pose_chains", "point_in_frame"]

@@ -27,9 +27,9 @@ from collections.abc import Callable
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.geometry.se3 import invert, make_pose
+from jcalib.geometry.se3 import check_poses, invert, make_pose
 from jcalib.init.handeye import HandEyeInit, lstsq_min_norm, project_to_rotation
-from jcalib.init.handeye_motion import Mount, check_mount, check_poses, checked_stations, solution_diagnostics
+from jcalib.init.handeye_motion import Mount, check_mount, checked_stations, solution_diagnostics
 
 __all__ = [
     "ROBOT_WORLD_METHODS",

@@ -65,8 +65,8 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import lie_kernels
-from jcalib.geometry.se3 import rotvec, skew
-from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, as_pose_matrices
+from jcalib.geometry.se3 import as_pose_matrices, make_pose, rotvec, skew
+from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG
 
 __all__ = [
     "AnalyticTCPResult",
@@ -110,9 +110,7 @@ class AnalyticTCPResult:
     @property
     def T_flange_tcp(self) -> np.ndarray:
         """``(4, 4)`` TCP with the flange's orientation and the tip as origin."""
-        T = np.eye(4)
-        T[:3, 3] = self.p_flange_tip
-        return T
+        return make_pose(np.eye(3), self.p_flange_tip)
 
     def covariance(self, sigma_translation: float, sigma_rotation_rad: float = 0.0) -> np.ndarray:
         """``(3, 3)`` TCP covariance for iid flange-pose noise (linear propagation).

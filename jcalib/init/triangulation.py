@@ -52,8 +52,7 @@ import numpy as np
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import AbstractCameraModel
 from jcalib.geometry.lie import se3_apply, se3_exp
-from jcalib.geometry.se3 import adjoint, invert, make_pose, skew
-from jcalib.init.pivot import as_pose_matrices
+from jcalib.geometry.se3 import adjoint, as_pose_matrices, invert, make_pose, skew
 
 __all__ = [
     "DEFAULT_MIN_PARALLAX_DEG",

@@ -172,3 +172,30 @@ def test_rotation_z_to_takes_z_to_the_axis(a):
     np.testing.assert_allclose(R @ [0.0, 0.0, 1.0], a, atol=1e-14)
     np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-14)
     assert np.linalg.det(R) > 0.0
+
+
+@given(_batch(rvecs), _batch(vectors))
+def test_as_pose_matrices_reads_matrices_and_wxyz_xyz(w, t):
+    n = min(len(w), len(t))
+    T = _poses(w[:n], t[:n])
+    np.testing.assert_array_equal(se3.as_pose_matrices(T, "T"), T)
+    np.testing.assert_array_equal(se3.as_pose_matrices(T[0], "T"), T[:1])  # one pose is N = 1
+    seven = np.concatenate([se3.quat_from_matrix(T[:, :3, :3]), T[:, :3, 3]], axis=-1)
+    np.testing.assert_allclose(se3.as_pose_matrices(seven, "T"), T, atol=1e-14)
+    np.testing.assert_allclose(se3.as_pose_matrices(seven, "T"), np.asarray(jax.vmap(lie.se3_to_matrix)(seven)), atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    "poses, match",
+    [
+        (np.zeros((2, 3, 3)), r"T_x: expected shape \(N, 4, 4\)"),
+        (np.stack([np.eye(4), np.full((4, 4), np.nan)]), "T_x: pose 1 has NaN"),
+        (np.stack([np.eye(4), np.diag([1.0, 1.0, -1.0, 1.0])]), "T_x: pose 1 has a rotation block"),
+        (np.stack([np.eye(4), np.eye(4) + np.diag([0.0, 0.0, 0.0, 1e-3])]), r"T_x: pose 1 has bottom row"),
+        (np.array([[2.0, 0, 0, 0, 1, 2, 3]]), "T_x: pose 0 has a quaternion of norm 2"),
+        ("not poses", "T_x: expected"),
+    ],
+)
+def test_pose_checks_name_the_argument_and_the_pose(poses, match):
+    with pytest.raises(BadInputError, match=match):
+        se3.as_pose_matrices(poses, "T_x")
