@@ -10,6 +10,7 @@ A pose is a (4, 4) homogeneous matrix ``T_a_b`` in metres (maps points from b to
 ``log_se3``) is batched over leading axes: ``(..., 4, 4)``, ``(..., 3, 3)``, ``(..., 3)``. Input checks:
 ``check_pose`` (one pose), ``check_poses`` (a stack), ``as_pose_matrices`` (a stack of matrices or of
 ``wxyz_xyz`` 7-vectors).
+
 Controllers speak millimetres and either KUKA ``A, B, C`` (intrinsic Z-Y'-X'' angles, degrees) or
 ABB ``q1..q4`` (a unit quaternion in ``wxyz`` order). Quaternions leave here sign-normalised (w >= 0).
 """
