@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.geometry.lie import _se3_from_matrix, local, se3_to_matrix
+from jcalib.geometry.lie import local, se3_from_matrix, se3_to_matrix
 
 __all__ = [
     "DHRobot",
@@ -219,7 +219,7 @@ def forward_kinematics(robot: DHRobot, q) -> jax.Array:
 
 def forward_kinematics_pose(robot: DHRobot, q) -> jax.Array:
     """Flange poses ``T_base_flange (..., 7)`` (``wxyz`` with ``w >= 0``, then ``xyz`` m)."""
-    return _se3_from_matrix(forward_kinematics(robot, q), jnp)
+    return se3_from_matrix(forward_kinematics(robot, q))
 
 
 def flange_jacobian(robot: DHRobot, q) -> jax.Array:

@@ -41,6 +41,7 @@ import jax.numpy as jnp
 from jaxlie import SE3, SO3
 
 from jcalib.errors import BadInputError
+from jcalib.geometry import lie_kernels as _k
 
 __all__ = [
     "SE3",
@@ -79,212 +80,12 @@ SE3_TANGENT_ORDER = ("rx", "ry", "rz", "tx", "ty", "tz")
 """Order of the SE(3) tangent vector (and of every 6x6 pose covariance): rotation (rad) then
 translation (m), right perturbation ``T . Exp(delta)``."""
 
-# Below this squared angle (rad^2), i.e. angle < 1e-2 rad, the coefficient functions use Taylor
-# series. The series are kept to a degree whose first dropped term is < 1e-20 there, and the
-# closed forms above it lose at most ~1e-12 (relative) of a derivative to cancellation.
-_SMALL_ANGLE_SQ = 1e-4
-
-
-# ----------------------------------------------------------------------------------------------
-# Array-module generic kernels (xp = numpy or jax.numpy). conversions.py reuses them so numpy in
-# gives numpy out without going through JAX. They assume float64 inputs of the right shape.
-# ----------------------------------------------------------------------------------------------
-
-
-def _cross(a, b, xp):
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return xp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
-
-
-def _dot(a, b, xp):
-    return xp.sum(a * b, axis=-1)
-
-
-def _safe_sqrt_and_small(x_sq, xp):
-    """sqrt(x_sq) where x_sq >= threshold, 1.0 elsewhere (a safe value for the untaken branch)."""
-    small = x_sq < _SMALL_ANGLE_SQ
-    return xp.sqrt(xp.where(small, 1.0, x_sq)), small
-
-
-def _quat_normalize(q, xp):
-    return q / xp.sqrt(xp.sum(q * q, axis=-1))[..., None]
-
-
-def _quat_normalize_sign(q, xp):
-    return xp.where((q[..., 0] < 0.0)[..., None], -q, q)
-
-
-def _quat_multiply(p, q, xp):
-    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return xp.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
-def _quat_conjugate(q, xp):
-    return xp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
-
-
-def _quat_rotate(q, p, xp):
-    """R(q) p for a unit quaternion: p + 2w (u x p) + 2 u x (u x p)."""
-    w, u = q[..., :1], q[..., 1:]
-    uxp = _cross(u, p, xp)
-    return p + 2.0 * w * uxp + 2.0 * _cross(u, uxp, xp)
-
-
-def _quat_to_matrix(q, xp):
-    q = _quat_normalize(q, xp)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    rows = [
-        [1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
-        [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
-        [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)],
-    ]
-    return xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
-
-
-def _matrix_to_quat(m, xp):
-    """Shepperd's method: pick the best-conditioned of four formulas; unit, sign-normalised (w >= 0).
-
-    The selected pivot t is the largest of four numbers that sum to 4, so t >= 1 and the square
-    root never sees a small or negative number (finite gradients everywhere).
-    """
-    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    t = xp.stack(
-        [
-            1.0 + m00 + m11 + m22,
-            1.0 + m00 - m11 - m22,
-            1.0 - m00 + m11 - m22,
-            1.0 - m00 - m11 + m22,
-        ],
-        axis=-1,
-    )
-    cand = xp.stack(
-        [
-            xp.stack([t[..., 0], m21 - m12, m02 - m20, m10 - m01], axis=-1),
-            xp.stack([m21 - m12, t[..., 1], m10 + m01, m02 + m20], axis=-1),
-            xp.stack([m02 - m20, m10 + m01, t[..., 2], m21 + m12], axis=-1),
-            xp.stack([m10 - m01, m02 + m20, m21 + m12, t[..., 3]], axis=-1),
-        ],
-        axis=-2,
-    )  # (..., 4 candidates, 4)
-    k = xp.argmax(t, axis=-1)
-    onehot = xp.stack([k == i for i in range(4)], axis=-1).astype(t.dtype)
-    t_sel = xp.sum(onehot * t, axis=-1)
-    q_sel = xp.sum(onehot[..., None] * cand, axis=-2)
-    q = q_sel * (0.5 / xp.sqrt(t_sel))[..., None]
-    return _quat_normalize_sign(_quat_normalize(q, xp), xp)
-
-
-def _so3_exp(omega, xp):
-    theta_sq = _dot(omega, omega, xp)
-    theta, small = _safe_sqrt_and_small(theta_sq, xp)
-    t2, t4, t6 = theta_sq, theta_sq * theta_sq, theta_sq * theta_sq * theta_sq
-    real = xp.where(small, 1.0 - t2 / 8.0 + t4 / 384.0 - t6 / 46080.0, xp.cos(0.5 * theta))
-    imag = xp.where(
-        small, 0.5 - t2 / 48.0 + t4 / 3840.0 - t6 / 645120.0, xp.sin(0.5 * theta) / theta
-    )
-    return xp.concatenate([real[..., None], imag[..., None] * omega], axis=-1)
-
-
-def _so3_log_parts(q, xp):
-    """Return (omega, theta_sq, half_theta_cot, small) for a quaternion; |omega| <= pi.
-
-    ``half_theta_cot`` is (theta/2) cot(theta/2), needed by the SE(3) log; ``small`` flags
-    sin(theta/2) < 1e-2 (theta < 0.02 rad), where series replace the closed forms.
-    """
-    q = _quat_normalize_sign(_quat_normalize(q, xp), xp)
-    w, u = q[..., 0], q[..., 1:]
-    n_sq = _dot(u, u, xp)
-    n, small = _safe_sqrt_and_small(n_sq, xp)
-    # 2 atan(n / w) / n, by series in x^2 = n^2 / w^2 when n < 1e-2 (then w > 0.9999).
-    w_safe = xp.where(small, w, 1.0)
-    x2 = n_sq / (w_safe * w_safe)
-    series = (2.0 / w_safe) * (1.0 - x2 / 3.0 + x2 * x2 / 5.0 - x2 * x2 * x2 / 7.0 + x2**4 / 9.0)
-    half_theta = xp.arctan2(n, w)
-    factor = xp.where(small, series, 2.0 * half_theta / n)
-    omega = factor[..., None] * u
-    theta_sq = _dot(omega, omega, xp)
-    half_theta_cot = xp.where(small, 1.0, half_theta * w / n)  # only used where not small
-    return omega, theta_sq, half_theta_cot, small
-
-
-def _so3_log(q, xp):
-    return _so3_log_parts(q, xp)[0]
-
-
-def _se3_exp(delta, xp):
-    omega, v = delta[..., :3], delta[..., 3:]
-    q = _so3_exp(omega, xp)
-    theta_sq = _dot(omega, omega, xp)
-    theta, small = _safe_sqrt_and_small(theta_sq, xp)
-    t2, t4, t6 = theta_sq, theta_sq * theta_sq, theta_sq * theta_sq * theta_sq
-    s_half = xp.sin(0.5 * theta)
-    # B = (1 - cos)/theta^2 = 2 sin^2(theta/2)/theta^2 ; C = (theta - sin)/theta^3
-    b = xp.where(
-        small, 0.5 - t2 / 24.0 + t4 / 720.0 - t6 / 40320.0, 2.0 * s_half * s_half / (theta * theta)
-    )
-    c = xp.where(
-        small,
-        1.0 / 6.0 - t2 / 120.0 + t4 / 5040.0 - t6 / 362880.0,
-        (theta - xp.sin(theta)) / (theta * theta * theta),
-    )
-    wxv = _cross(omega, v, xp)
-    t = v + b[..., None] * wxv + c[..., None] * _cross(omega, wxv, xp)
-    return xp.concatenate([q, t], axis=-1)
-
-
-def _se3_log(pose, xp):
-    omega, theta_sq, htc, small = _so3_log_parts(pose[..., :4], xp)
-    t = pose[..., 4:]
-    theta_sq_safe = xp.where(small, 1.0, theta_sq)
-    t2, t4, t6 = theta_sq, theta_sq * theta_sq, theta_sq * theta_sq * theta_sq
-    # D = (1 - (theta/2) cot(theta/2)) / theta^2, so that V^-1 = I - 1/2 [w]x + D [w]x^2.
-    # The series runs to theta < 0.02 rad here; its first dropped term is < 1e-20.
-    d = xp.where(
-        small,
-        1.0 / 12.0 + t2 / 720.0 + t4 / 30240.0 + t6 / 1209600.0,
-        (1.0 - htc) / theta_sq_safe,
-    )
-    wxt = _cross(omega, t, xp)
-    v = t - 0.5 * wxt + d[..., None] * _cross(omega, wxt, xp)
-    return xp.concatenate([omega, v], axis=-1)
-
-
-def _se3_compose(a, b, xp):
-    q = _quat_multiply(a[..., :4], b[..., :4], xp)
-    t = a[..., 4:] + _quat_rotate(a[..., :4], b[..., 4:], xp)
-    return xp.concatenate([q, t], axis=-1)
-
-
-def _se3_inverse(a, xp):
-    qi = _quat_conjugate(a[..., :4], xp)
-    return xp.concatenate([qi, -_quat_rotate(qi, a[..., 4:], xp)], axis=-1)
-
-
-def _se3_to_matrix(pose, xp):
-    r = _quat_to_matrix(pose[..., :4], xp)
-    top = xp.concatenate([r, pose[..., 4:, None]], axis=-1)
-    bottom = xp.broadcast_to(xp.asarray([0.0, 0.0, 0.0, 1.0]), top.shape[:-2] + (1, 4))
-    return xp.concatenate([top, bottom], axis=-2)
-
-
-def _se3_from_matrix(mat, xp):
-    return xp.concatenate([_matrix_to_quat(mat[..., :3, :3], xp), mat[..., :3, 3]], axis=-1)
-
+# jcalib.study.estimators reaches these kernels as ``lie._se3_*``; the algebra itself lives in
+# jcalib.geometry.lie_kernels. Remove once it uses jcalib.geometry.se3 (tests/test_layout.py lists it).
+_se3_from_matrix = _k.se3_from_matrix
+_se3_log = _k.se3_log
+_se3_compose = _k.se3_compose
+_se3_inverse = _k.se3_inverse
 
 # ----------------------------------------------------------------------------------------------
 # Public JAX API
@@ -315,34 +116,34 @@ def _broadcast_leading(a: jax.Array, na: int, b: jax.Array, nb: int) -> tuple[ja
 
 def quat_normalize(q) -> jax.Array:
     """Scale quaternions ``(..., 4)`` to unit norm (the sign is kept)."""
-    return _quat_normalize(_f64(q, "q", (4,)), jnp)
+    return _k.quat_normalize(_f64(q, "q", (4,)), jnp)
 
 
 def quat_normalize_sign(q) -> jax.Array:
     """Flip quaternions ``(..., 4)`` (``wxyz``) so that ``w >= 0``; the rotation is unchanged."""
-    return _quat_normalize_sign(_f64(q, "q", (4,)), jnp)
+    return _k.quat_normalize_sign(_f64(q, "q", (4,)), jnp)
 
 
 def quat_multiply(p, q) -> jax.Array:
     """Hamilton product ``p * q`` of quaternions ``(..., 4)`` (``wxyz``): rotation ``R(p) R(q)``."""
     p, q = _broadcast_leading(_f64(p, "p", (4,)), 1, _f64(q, "q", (4,)), 1)
-    return _quat_multiply(p, q, jnp)
+    return _k.quat_multiply(p, q, jnp)
 
 
 def quat_inverse(q) -> jax.Array:
     """Inverse of unit quaternions ``(..., 4)`` (the conjugate)."""
-    return _quat_conjugate(_f64(q, "q", (4,)), jnp)
+    return _k.quat_conjugate(_f64(q, "q", (4,)), jnp)
 
 
 def quat_rotate(q, p) -> jax.Array:
     """Rotate points ``p (..., 3)`` by unit quaternions ``q (..., 4)``: ``R(q) p``."""
     q, p = _broadcast_leading(_f64(q, "q", (4,)), 1, _f64(p, "p", (3,)), 1)
-    return _quat_rotate(q, p, jnp)
+    return _k.quat_rotate(q, p, jnp)
 
 
 def so3_to_matrix(q) -> jax.Array:
     """Rotation matrices ``(..., 3, 3)`` of quaternions ``(..., 4)`` ``wxyz`` (normalised first)."""
-    return _quat_to_matrix(_f64(q, "q", (4,)), jnp)
+    return _k.quat_to_matrix(_f64(q, "q", (4,)), jnp)
 
 
 def so3_from_matrix(rotation) -> jax.Array:
@@ -352,7 +153,7 @@ def so3_from_matrix(rotation) -> jax.Array:
     orthonormal (see ``conversions.matrix_to_quat`` for a checked version); a slightly
     non-orthonormal matrix gives the nearby unit quaternion.
     """
-    return _matrix_to_quat(_f64(rotation, "rotation", (3, 3)), jnp)
+    return _k.matrix_to_quat(_f64(rotation, "rotation", (3, 3)), jnp)
 
 
 def so3_exp(omega) -> jax.Array:
@@ -361,7 +162,7 @@ def so3_exp(omega) -> jax.Array:
     ``w = cos(theta/2) >= 0`` for ``|omega| <= pi`` (larger vectors give ``w < 0``, the same rotation
     as the sign-normalised quaternion).
     """
-    return _so3_exp(_f64(omega, "omega", (3,)), jnp)
+    return _k.so3_exp(_f64(omega, "omega", (3,)), jnp)
 
 
 def so3_log(q) -> jax.Array:
@@ -370,30 +171,30 @@ def so3_log(q) -> jax.Array:
     Quaternions are normalised and sign-normalised first, so ``q`` and ``-q`` give the same vector.
     At exactly pi the sign of the returned axis follows the quaternion's vector part.
     """
-    return _so3_log(_f64(q, "q", (4,)), jnp)
+    return _k.so3_log(_f64(q, "q", (4,)), jnp)
 
 
 def so3_from_rvec(rvec) -> jax.Array:
     """Quaternions ``(..., 4)`` ``wxyz``, ``w >= 0``, of OpenCV rotation vectors ``(..., 3)`` (rad)."""
-    return _quat_normalize_sign(_so3_exp(_f64(rvec, "rvec", (3,)), jnp), jnp)
+    return _k.quat_normalize_sign(_k.so3_exp(_f64(rvec, "rvec", (3,)), jnp), jnp)
 
 
 def so3_to_rvec(q) -> jax.Array:
     """OpenCV rotation vectors ``(..., 3)`` (axis * angle, rad, angle in [0, pi]) of quaternions."""
-    return _so3_log(_f64(q, "q", (4,)), jnp)
+    return _k.so3_log(_f64(q, "q", (4,)), jnp)
 
 
 def so3_retract(q, omega) -> jax.Array:
     """Right retraction of SO(3): ``q * Exp(omega)`` (unit quaternion out), omega ``(..., 3)`` rad."""
     q, omega = _broadcast_leading(_f64(q, "q", (4,)), 1, _f64(omega, "omega", (3,)), 1)
-    return _quat_normalize(_quat_multiply(q, _so3_exp(omega, jnp), jnp), jnp)
+    return _k.quat_normalize(_k.quat_multiply(q, _k.so3_exp(omega, jnp), jnp), jnp)
 
 
 def so3_local(q_a, q_b) -> jax.Array:
     """Inverse of :func:`so3_retract`: ``Log(q_a^-1 * q_b)`` ``(..., 3)`` rad, so that
     ``so3_retract(q_a, so3_local(q_a, q_b)) == q_b`` (up to sign)."""
     q_a, q_b = _broadcast_leading(_f64(q_a, "q_a", (4,)), 1, _f64(q_b, "q_b", (4,)), 1)
-    return _so3_log(_quat_multiply(_quat_conjugate(q_a, jnp), q_b, jnp), jnp)
+    return _k.so3_log(_k.quat_multiply(_k.quat_conjugate(q_a, jnp), q_b, jnp), jnp)
 
 
 def se3_identity(batch_shape: tuple[int, ...] = ()) -> jax.Array:
@@ -404,7 +205,7 @@ def se3_identity(batch_shape: tuple[int, ...] = ()) -> jax.Array:
 
 def se3_to_matrix(pose) -> jax.Array:
     """4x4 homogeneous matrices ``(..., 4, 4)`` (m) of poses ``(..., 7)`` (``wxyz`` + ``xyz`` m)."""
-    return _se3_to_matrix(_f64(pose, "pose", (7,)), jnp)
+    return _k.se3_to_matrix(_f64(pose, "pose", (7,)), jnp)
 
 
 def se3_from_matrix(matrix) -> jax.Array:
@@ -413,7 +214,7 @@ def se3_from_matrix(matrix) -> jax.Array:
     The bottom row is not read; the rotation block is assumed orthonormal (use
     ``conversions.matrix_to_pose`` for checked input).
     """
-    return _se3_from_matrix(_f64(matrix, "matrix", (4, 4)), jnp)
+    return _k.se3_from_matrix(_f64(matrix, "matrix", (4, 4)), jnp)
 
 
 def se3_from_rvec_tvec(rvec, tvec) -> jax.Array:
@@ -422,25 +223,25 @@ def se3_from_rvec_tvec(rvec, tvec) -> jax.Array:
     ``T_cam_target = se3_from_rvec_tvec(*cv2.solvePnP(...)[1:])`` maps target points to the camera.
     """
     rvec, tvec = _broadcast_leading(_f64(rvec, "rvec", (3,)), 1, _f64(tvec, "tvec", (3,)), 1)
-    q = _quat_normalize_sign(_so3_exp(rvec, jnp), jnp)
+    q = _k.quat_normalize_sign(_k.so3_exp(rvec, jnp), jnp)
     return jnp.concatenate([q, tvec], axis=-1)
 
 
 def se3_to_rvec_tvec(pose) -> tuple[jax.Array, jax.Array]:
     """OpenCV ``(rvec (..., 3) rad, tvec (..., 3) m)`` of poses ``(..., 7)``; ``|rvec| <= pi``."""
     pose = _f64(pose, "pose", (7,))
-    return _so3_log(pose[..., :4], jnp), pose[..., 4:]
+    return _k.so3_log(pose[..., :4], jnp), pose[..., 4:]
 
 
 def se3_compose(T_a_b, T_b_c) -> jax.Array:
     """Composition ``T_a_c = T_a_b . T_b_c`` of poses ``(..., 7)`` (leading axes broadcast)."""
     a, b = _broadcast_leading(_f64(T_a_b, "T_a_b", (7,)), 1, _f64(T_b_c, "T_b_c", (7,)), 1)
-    return _se3_compose(a, b, jnp)
+    return _k.se3_compose(a, b, jnp)
 
 
 def se3_inverse(T_a_b) -> jax.Array:
     """Inverse ``T_b_a`` of unit-quaternion poses ``(..., 7)``."""
-    return _se3_inverse(_f64(T_a_b, "T_a_b", (7,)), jnp)
+    return _k.se3_inverse(_f64(T_a_b, "T_a_b", (7,)), jnp)
 
 
 def se3_apply(T_a_b, p_b) -> jax.Array:
@@ -450,17 +251,17 @@ def se3_apply(T_a_b, p_b) -> jax.Array:
     points ``(N, 3)`` for ``(V, N, 3)``.
     """
     pose, p = _broadcast_leading(_f64(T_a_b, "T_a_b", (7,)), 1, _f64(p_b, "p_b", (3,)), 1)
-    return _quat_rotate(pose[..., :4], p, jnp) + pose[..., 4:]
+    return _k.quat_rotate(pose[..., :4], p, jnp) + pose[..., 4:]
 
 
 def se3_exp(delta) -> jax.Array:
     """Exponential map of SE(3): tangent ``(omega, v) (..., 6)`` (rad, m) to poses ``(..., 7)``."""
-    return _se3_exp(_f64(delta, "delta", (6,)), jnp)
+    return _k.se3_exp(_f64(delta, "delta", (6,)), jnp)
 
 
 def se3_log(pose) -> jax.Array:
     """Logarithm of SE(3): poses ``(..., 7)`` to tangent ``(omega, v) (..., 6)``, ``|omega| <= pi``."""
-    return _se3_log(_f64(pose, "pose", (7,)), jnp)
+    return _k.se3_log(_f64(pose, "pose", (7,)), jnp)
 
 
 def retract(T, delta) -> jax.Array:
@@ -475,8 +276,8 @@ def retract(T, delta) -> jax.Array:
         poses ``(..., 7)`` with unit quaternions.
     """
     T, delta = _broadcast_leading(_f64(T, "T", (7,)), 1, _f64(delta, "delta", (6,)), 1)
-    out = _se3_compose(T, _se3_exp(delta, jnp), jnp)
-    return jnp.concatenate([_quat_normalize(out[..., :4], jnp), out[..., 4:]], axis=-1)
+    out = _k.se3_compose(T, _k.se3_exp(delta, jnp), jnp)
+    return jnp.concatenate([_k.quat_normalize(out[..., :4], jnp), out[..., 4:]], axis=-1)
 
 
 def local(T, U) -> jax.Array:
@@ -485,7 +286,7 @@ def local(T, U) -> jax.Array:
     ``retract(T, local(T, U)) == U`` whenever the relative rotation is below pi.
     """
     T, U = _broadcast_leading(_f64(T, "T", (7,)), 1, _f64(U, "U", (7,)), 1)
-    return _se3_log(_se3_compose(_se3_inverse(T, jnp), U, jnp), jnp)
+    return _k.se3_log(_k.se3_compose(_k.se3_inverse(T, jnp), U, jnp), jnp)
 
 
 def se3_adjoint(T_a_b) -> jax.Array:
@@ -495,17 +296,8 @@ def se3_adjoint(T_a_b) -> jax.Array:
     frame *b*) is ``Ad S Ad^T`` as a left perturbation (tangent in frame *a*).
     """
     pose = _f64(T_a_b, "T_a_b", (7,))
-    r = _quat_to_matrix(pose[..., :4], jnp)
-    t = pose[..., 4:]
-    zero = jnp.zeros_like(t[..., 0])
-    tx = jnp.stack(
-        [
-            jnp.stack([zero, -t[..., 2], t[..., 1]], axis=-1),
-            jnp.stack([t[..., 2], zero, -t[..., 0]], axis=-1),
-            jnp.stack([-t[..., 1], t[..., 0], zero], axis=-1),
-        ],
-        axis=-2,
-    )
+    r = _k.quat_to_matrix(pose[..., :4], jnp)
+    tx = _k.skew(pose[..., 4:], jnp)
     top = jnp.concatenate([r, jnp.zeros_like(r)], axis=-1)
     bottom = jnp.concatenate([jnp.einsum("...ij,...jk->...ik", tx, r), r], axis=-1)
     return jnp.concatenate([top, bottom], axis=-2)
@@ -518,9 +310,9 @@ def _rotation_quat(x: jax.Array, name: str) -> jax.Array:
     if shape[-1:] == (7,):
         return x[..., :4]
     if shape[-2:] == (3, 3):
-        return _matrix_to_quat(x, jnp)
+        return _k.matrix_to_quat(x, jnp)
     if shape[-2:] == (4, 4):
-        return _matrix_to_quat(x[..., :3, :3], jnp)
+        return _k.matrix_to_quat(x[..., :3, :3], jnp)
     raise BadInputError(
         f"{name}: expected quaternions (..., 4), poses (..., 7), rotations (..., 3, 3) or "
         f"transforms (..., 4, 4), got shape {shape}"
@@ -538,8 +330,8 @@ def rotation_angle_between(a, b) -> jax.Array:
     qa = _rotation_quat(jnp.asarray(a, dtype=jnp.float64), "a")
     qb = _rotation_quat(jnp.asarray(b, dtype=jnp.float64), "b")
     qa, qb = _broadcast_leading(qa, 1, qb, 1)
-    d = _quat_multiply(_quat_conjugate(_quat_normalize(qa, jnp), jnp), _quat_normalize(qb, jnp), jnp)
-    n_sq = _dot(d[..., 1:], d[..., 1:], jnp)
+    d = _k.quat_multiply(_k.quat_conjugate(_k.quat_normalize(qa, jnp), jnp), _k.quat_normalize(qb, jnp), jnp)
+    n_sq = _k.dot(d[..., 1:], d[..., 1:], jnp)
     positive = n_sq > 0.0
     n = jnp.where(positive, jnp.sqrt(jnp.where(positive, n_sq, 1.0)), 0.0)
     return 2.0 * jnp.arctan2(n, jnp.abs(d[..., 0]))

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry.se3 import make_pose
 
 __all__ = [
     "DEFAULT_MIN_ANGLE_DEG",
@@ -184,8 +185,7 @@ def _collinear_error(direction: np.ndarray, angle_deg: float, limit: float) -> N
 
 def _result(R, o, J, P: np.ndarray, cov: np.ndarray | None) -> FrameResult:
     R, o, J = np.asarray(R), np.asarray(o), np.asarray(J)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, o
+    T = make_pose(R, o)
     resid = (P - o) @ R[:, 2]
     out_cov = None
     if cov is not None:

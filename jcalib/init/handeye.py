@@ -24,11 +24,11 @@ translations fix only if the camera motions do not all keep one point fixed; sta
 look at the same target point from the same distance make its translation wrong (the
 ``motion_translation_rms`` diagnostic shows it). The other methods are not affected.
 
-Before solving, :func:`analyse_motion` looks at the relative rotations and
-:func:`check_observable` raises :class:`jcalib.errors.NotObservableError` naming what the data
-cannot determine (too few stations, pure translations, rotations small against the stated noise,
-one common rotation axis, planar SCARA-like motion). These closed forms only start the joint
-solve (``jcalib.problems``); they are not maximum-likelihood estimates.
+Before solving, :func:`solve_hand_eye` checks the motion (:mod:`jcalib.init.handeye_motion`:
+:func:`~jcalib.init.handeye_motion.analyse_motion` and
+:func:`~jcalib.init.handeye_motion.check_observable` raise :class:`jcalib.errors.NotObservableError`
+naming what the data cannot determine). These closed forms only start the joint solve
+(``jcalib.problems``); they are not maximum-likelihood estimates.
 
 Units: translations in the unit of the inputs (metres in jcalib), angles in the names' unit.
 """
@@ -37,169 +37,35 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry.lie_kernels import quat_multiply
+from jcalib.geometry.se3 import check_poses, invert, make_pose, matrix_from_quat, quat_from_matrix, rotvec, skew
+from jcalib.init.handeye_motion import (
+    HandEyeDiagnostics,
+    Mount,
+    Pairs,
+    check_mount,
+    checked_stations,
+    pair_indices,
+    solution_diagnostics,
+)
 
 __all__ = [
     "HAND_EYE_METHODS",
-    "HandEyeDiagnostics",
     "HandEyeInit",
-    "MotionDiagnostics",
-    "analyse_motion",
     "average_poses",
-    "check_observable",
+    "lstsq_min_norm",
+    "project_to_rotation",
     "relative_motions",
     "solve_ax_xb",
     "solve_hand_eye",
 ]
 
-Mount = Literal["flange", "base"]
-Pairs = Literal["all", "consecutive"]
 
-# ---------------------------------------------------------------------------------------------
-# small SO(3)/SE(3) helpers (numpy, batched over leading axes)
-# ---------------------------------------------------------------------------------------------
-
-
-def check_poses(T, name: str, tol: float = 1e-6) -> np.ndarray:
-    """Validate a stack of 4x4 homogeneous poses; return it as ``(N, 4, 4)`` float64.
-
-    Raises :class:`BadInputError` naming ``name`` for a wrong shape, non-finite values, a bad
-    bottom row or a rotation block that is not orthonormal with ``det = +1`` (within ``tol``).
-    """
-    try:
-        arr = np.asarray(T, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise BadInputError(
-            f"{name}: expected an array of 4x4 poses, got {type(T).__name__} ({exc})"
-        ) from None
-    if arr.ndim == 2:
-        arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
-        raise BadInputError(f"{name}: expected shape (N, 4, 4) (4x4 homogeneous poses), got {arr.shape}")
-    bad = ~np.isfinite(arr).all(axis=(1, 2))
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise BadInputError(f"{name}: pose {k} has NaN/inf entries; expected finite 4x4 poses")
-    row_err = np.abs(arr[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
-    if (row_err > tol).any():
-        k = int(np.argmax(row_err))
-        raise BadInputError(f"{name}: pose {k} has bottom row {arr[k, 3].tolist()}; expected [0, 0, 0, 1]")
-    R = arr[:, :3, :3]
-    orth_err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(1, 2))
-    det = np.linalg.det(R)
-    bad = (orth_err > tol) | (det < 0.0)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise BadInputError(
-            f"{name}: pose {k} has a rotation block that is not a rotation (max |R R^T - I| = "
-            f"{orth_err[k]:.3g}, det = {det[k]:.6g}); expected orthonormal with det +1 (tolerance {tol})"
-        )
-    return arr
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    """Inverse of homogeneous poses ``(..., 4, 4)``."""
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.zeros(R.shape[:-2] + (4, 4))
-    T[..., :3, :3] = R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``(..., 3) -> (..., 3, 3)`` cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
-    x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack(
-        [np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], axis=-2
-    )
-
-
-def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` -> unit quaternions ``(..., 4)`` ``wxyz`` with ``w >= 0``.
-
-    Shepperd's method (largest of trace and diagonal), so it is accurate at every angle.
-    """
-    m = R
-    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    cand = np.stack([tr, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], axis=-1)
-    k = np.argmax(cand, axis=-1)
-    q = np.empty(R.shape[:-2] + (4,))
-    # branch 0: w largest
-    s0 = 2.0 * np.sqrt(np.maximum(1.0 + tr, 1e-300))
-    q0 = np.stack(
-        [0.25 * s0, (m[..., 2, 1] - m[..., 1, 2]) / s0, (m[..., 0, 2] - m[..., 2, 0]) / s0,
-         (m[..., 1, 0] - m[..., 0, 1]) / s0], -1)
-    s1 = 2.0 * np.sqrt(np.maximum(1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], 1e-300))
-    q1 = np.stack(
-        [(m[..., 2, 1] - m[..., 1, 2]) / s1, 0.25 * s1, (m[..., 0, 1] + m[..., 1, 0]) / s1,
-         (m[..., 0, 2] + m[..., 2, 0]) / s1], -1)
-    s2 = 2.0 * np.sqrt(np.maximum(1.0 + m[..., 1, 1] - m[..., 0, 0] - m[..., 2, 2], 1e-300))
-    q2 = np.stack(
-        [(m[..., 0, 2] - m[..., 2, 0]) / s2, (m[..., 0, 1] + m[..., 1, 0]) / s2, 0.25 * s2,
-         (m[..., 1, 2] + m[..., 2, 1]) / s2], -1)
-    s3 = 2.0 * np.sqrt(np.maximum(1.0 + m[..., 2, 2] - m[..., 0, 0] - m[..., 1, 1], 1e-300))
-    q3 = np.stack(
-        [(m[..., 1, 0] - m[..., 0, 1]) / s3, (m[..., 0, 2] + m[..., 2, 0]) / s3,
-         (m[..., 1, 2] + m[..., 2, 1]) / s3, 0.25 * s3], -1)
-    k = k[..., None]
-    q = np.where(k == 0, q0, np.where(k == 1, q1, np.where(k == 2, q2, q3)))
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where((q[..., :1] < 0.0), -q, q)
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """``wxyz`` quaternions ``(..., 4)`` -> rotation matrices (the formula OpenCV uses; unit input)."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * y * y - 2 * z * z, 2 * x * y - 2 * z * w, 2 * x * z + 2 * y * w], -1),
-            np.stack([2 * x * y + 2 * z * w, 1 - 2 * x * x - 2 * z * z, 2 * y * z - 2 * x * w], -1),
-            np.stack([2 * x * z - 2 * y * w, 2 * y * z + 2 * x * w, 1 - 2 * x * x - 2 * y * y], -1),
-        ],
-        axis=-2,
-    )
-
-
-def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product of ``wxyz`` quaternions ``(..., 4)``."""
-    p0, p1, p2, p3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3,
-            p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
-            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1,
-            p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0,
-        ],
-        -1,
-    )
-
-
-def rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` -> rotation vectors (axis * angle, rad), angle in [0, pi]."""
-    q = _quat_wxyz(R)
-    s = np.linalg.norm(q[..., 1:], axis=-1)
-    angle = 2.0 * np.arctan2(s, q[..., 0])
-    # angle / sin(angle / 2), with its limit 2 at s -> 0
-    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0)
-    return q[..., 1:] * scale[..., None]
-
-
-def _project_to_rotation(M: np.ndarray) -> np.ndarray:
+def project_to_rotation(M: np.ndarray) -> np.ndarray:
     """Nearest rotation to a 3x3 matrix, as OpenCV's ``normalizeRotation`` (unit det, SVD, no reflection)."""
     det = np.linalg.det(M)
     if not np.isfinite(det) or abs(det) < np.finfo(np.float32).eps:
@@ -216,30 +82,14 @@ def _project_to_rotation(M: np.ndarray) -> np.ndarray:
     return R
 
 
-def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+def lstsq_min_norm(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Minimum-norm least squares via SVD (as OpenCV's ``solve(..., DECOMP_SVD)``)."""
     return np.linalg.lstsq(A, b, rcond=None)[0]
-
-
-def _rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Angle (deg) of ``Ra^T Rb`` (batched), accurate for small angles."""
-    return np.degrees(np.linalg.norm(rotvec(np.swapaxes(Ra, -1, -2) @ Rb), axis=-1))
 
 
 # ---------------------------------------------------------------------------------------------
 # relative motions
 # ---------------------------------------------------------------------------------------------
-
-
-def _pair_indices(n: int, pairs: str) -> tuple[np.ndarray, np.ndarray]:
-    if pairs == "all":
-        i, j = np.triu_indices(n, k=1)
-    elif pairs == "consecutive":
-        i = np.arange(n - 1)
-        j = i + 1
-    else:
-        raise BadInputError(f"pairs: expected 'all' or 'consecutive', got {pairs!r}")
-    return i.astype(np.int64), j.astype(np.int64)
 
 
 def relative_motions(
@@ -262,9 +112,9 @@ def relative_motions(
         raise BadInputError(
             f"T_cam_target: expected one pose per robot pose ({len(Hg)} stations), got {len(Hc)}"
         )
-    i, j = _pair_indices(len(Hg), pairs)
-    A = _inv(Hg[j]) @ Hg[i]
-    B = Hc[j] @ _inv(Hc[i])
+    i, j = pair_indices(len(Hg), pairs)
+    A = invert(Hg[j]) @ Hg[i]
+    B = Hc[j] @ invert(Hc[i])
     return A, B, np.stack([i, j], axis=-1)
 
 
@@ -277,7 +127,7 @@ def _translation_from_rotation(A: np.ndarray, B: np.ndarray, R: np.ndarray) -> n
     """Least squares ``(I - R_A) t = t_A - R t_B`` (Park-Martin, Horaud; Tsai's sign-flipped form)."""
     C = (np.eye(3) - A[:, :3, :3]).reshape(-1, 3)
     d = (A[:, :3, 3] - B[:, :3, 3] @ R.T).reshape(-1)
-    return _lstsq(C, d)
+    return lstsq_min_norm(C, d)
 
 
 TSAI_MIN_NORM = 0.3
@@ -293,8 +143,8 @@ def _tsai(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     Like OpenCV, only motions rotating between ``TSAI_MIN_ANGLE_DEG`` and ``TSAI_MAX_ANGLE_DEG``
     (on both sides) are used, for the rotation and the translation step.
     """
-    Pg = 2.0 * _quat_wxyz(A[:, :3, :3])[:, 1:]
-    Pc = 2.0 * _quat_wxyz(B[:, :3, :3])[:, 1:]
+    Pg = 2.0 * quat_from_matrix(A[:, :3, :3])[:, 1:]
+    Pc = 2.0 * quat_from_matrix(B[:, :3, :3])[:, 1:]
     # As OpenCV 4.14: keep only motions with 0.3 <= 2 sin(theta/2) <= 1.7 on both sides,
     # i.e. rotations between 17.3 and 116.4 degrees (small ones are noisy, large ones near pi unstable).
     ng = np.linalg.norm(Pg, axis=-1)
@@ -309,15 +159,15 @@ def _tsai(A: np.ndarray, B: np.ndarray) -> np.ndarray:
         )
     A, B, Pg, Pc = A[keep], B[keep], Pg[keep], Pc[keep]
     # skew(Pg + Pc) P' = Pc - Pg   (Tsai-Lenz eq. 12)
-    P_ = _lstsq(_skew(Pg + Pc).reshape(-1, 3), (Pc - Pg).reshape(-1))
+    P_ = lstsq_min_norm(skew(Pg + Pc).reshape(-1, 3), (Pc - Pg).reshape(-1))
     P = 2.0 * P_ / np.sqrt(1.0 + P_ @ P_)  # eq. 14
     q = P / 2.0
     w = np.sqrt(max(1.0 - q @ q, 0.0))
-    R = 2.0 * np.outer(q, q) + 2.0 * w * _skew(q) + (1.0 - 2.0 * (q @ q)) * np.eye(3)
+    R = 2.0 * np.outer(q, q) + 2.0 * w * skew(q) + (1.0 - 2.0 * (q @ q)) * np.eye(3)
     # (R_A - I) t = R t_B - t_A   (eq. 15)
     C = (A[:, :3, :3] - np.eye(3)).reshape(-1, 3)
     d = (B[:, :3, 3] @ R.T - A[:, :3, 3]).reshape(-1)
-    return _pose(R, _lstsq(C, d))
+    return make_pose(R, lstsq_min_norm(C, d))
 
 
 def _park_martin(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -332,13 +182,13 @@ def _park_martin(A: np.ndarray, B: np.ndarray) -> np.ndarray:
             unknowns=["rotation"],
         )
     R = evecs @ np.diag(1.0 / np.sqrt(evals)) @ evecs.T @ M.T
-    return _pose(R, _translation_from_rotation(A, B, R))
+    return make_pose(R, _translation_from_rotation(A, B, R))
 
 
 def _horaud(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Horaud & Dornaika 1995: the quaternion minimising ``sum |Q(q_A) q - W(q_B) q|^2`` (4x4 eigen)."""
-    qa = _quat_wxyz(A[:, :3, :3])
-    qb = _quat_wxyz(B[:, :3, :3])
+    qa = quat_from_matrix(A[:, :3, :3])
+    qb = quat_from_matrix(B[:, :3, :3])
     r0, rx, ry, rz = qa[:, 0], qa[:, 1], qa[:, 2], qa[:, 3]
     Q = np.stack(
         [np.stack([r0, -rx, -ry, -rz], -1), np.stack([rx, r0, -rz, ry], -1),
@@ -351,8 +201,8 @@ def _horaud(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     S = np.einsum("kji,kjl->il", D, D)
     _, evecs = np.linalg.eigh(S)
     q = evecs[:, 0]  # smallest eigenvalue
-    R = _quat_to_matrix(q / np.linalg.norm(q))
-    return _pose(R, _translation_from_rotation(A, B, R))
+    R = matrix_from_quat(q / np.linalg.norm(q))
+    return make_pose(R, _translation_from_rotation(A, B, R))
 
 
 def _andreff(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -365,14 +215,14 @@ def _andreff(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     M[:, 9:, 9:] = np.eye(3) - Ra
     rhs = np.zeros((K, 12))
     rhs[:, 9:] = ta
-    x = _lstsq(M.reshape(-1, 12), rhs.reshape(-1))
-    return _pose(_project_to_rotation(x[:9].reshape(3, 3)), x[9:])
+    x = lstsq_min_norm(M.reshape(-1, 12), rhs.reshape(-1))
+    return make_pose(project_to_rotation(x[:9].reshape(3, 3)), x[9:])
 
 
 def _dual_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    q = _quat_wxyz(T[..., :3, :3])
+    q = quat_from_matrix(T[..., :3, :3])
     tq = np.concatenate([np.zeros(T.shape[:-2] + (1,)), T[..., :3, 3]], axis=-1)
-    return q, 0.5 * _quat_mul(tq, q)
+    return q, 0.5 * quat_multiply(tq, q, np)
 
 
 def _daniilidis(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -383,11 +233,11 @@ def _daniilidis(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     K = len(A)
     S = np.zeros((K, 6, 8))
     S[:, :3, 0] = a - b
-    S[:, :3, 1:4] = _skew(a + b)
+    S[:, :3, 1:4] = skew(a + b)
     S[:, 3:, 0] = ap - bp
-    S[:, 3:, 1:4] = _skew(ap + bp)
+    S[:, 3:, 1:4] = skew(ap + bp)
     S[:, 3:, 4] = a - b
-    S[:, 3:, 5:8] = _skew(a + b)
+    S[:, 3:, 5:8] = skew(a + b)
     _, _, vt = np.linalg.svd(S.reshape(-1, 8), full_matrices=False)
     v = vt.T
     u1, v1, u2, v2 = v[:4, 6], v[4:, 6], v[:4, 7], v[4:, 7]
@@ -403,9 +253,9 @@ def _daniilidis(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     lam1 = s * lam2
     dq = lam1 * v[:, 6] + lam2 * v[:, 7]
     q, qd = dq[:4], dq[4:]
-    R = _quat_to_matrix(q)
-    t = 2.0 * _quat_mul(qd, q * np.array([1.0, -1.0, -1.0, -1.0]))[1:]
-    return _pose(R, t)
+    R = matrix_from_quat(q)
+    t = 2.0 * quat_multiply(qd, q * np.array([1.0, -1.0, -1.0, -1.0]), np)[1:]
+    return make_pose(R, t)
 
 
 _SOLVERS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
@@ -449,244 +299,6 @@ def solve_ax_xb(A, B, method: str = "park_martin") -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# degeneracy analysis
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class MotionDiagnostics:
-    """How well a set of robot stations determines a hand-eye transform.
-
-    Attributes:
-        axes: (K, 3) unit rotation axis of each relative motion, in ``frame`` (sign: largest
-            component positive; zero for motions without rotation).
-        axes_base: (K, 3) the same axes in the base frame.
-        angles_deg: (K,) rotation angle of each relative motion, degrees, in [0, 180].
-        pairs: (K, 2) station indices ``(i, j)`` of each motion.
-        singular_values_deg: (3,) singular values of the stacked rotation vectors (K, 3), degrees:
-            how strongly each direction of the rotation axes is excited.
-        axis_spread_deg: largest angle between the axis of a motion that rotates significantly
-            (above the noise threshold) and the dominant axis, degrees (0 for one-axis motion).
-        dominant_axis: (3,) the dominant rotation axis in ``frame`` (largest component positive).
-        rank: number of rotation-axis directions excited above the noise threshold (0..3); a
-            hand-eye rotation needs >= 2.
-        threshold_deg: the singular-value threshold used for ``rank``, degrees.
-        planar: True when every rotation is about the base z axis (SCARA-like motion).
-        num_stations: N.
-        frame: ``"flange"`` (eye-in-hand) or ``"base"`` (eye-to-hand): the frame of ``axes``.
-        warnings: human-readable remarks about weak (but not degenerate) motion.
-    """
-
-    axes: np.ndarray
-    axes_base: np.ndarray
-    angles_deg: np.ndarray
-    pairs: np.ndarray
-    singular_values_deg: np.ndarray
-    axis_spread_deg: float
-    dominant_axis: np.ndarray
-    rank: int
-    threshold_deg: float
-    planar: bool
-    num_stations: int
-    frame: str
-    warnings: tuple[str, ...]
-
-
-def _sign_normalise_axes(v: np.ndarray) -> np.ndarray:
-    idx = np.argmax(np.abs(v), axis=-1)
-    s = np.take_along_axis(v, idx[..., None], axis=-1)
-    return np.where(s < 0.0, -v, v)
-
-
-def fmt_axis(a: np.ndarray) -> str:
-    vals = []
-    for x in a:
-        r = round(float(x), 3)
-        r = 0.0 if r == 0.0 else r
-        vals.append(f"{r:g}")
-    return "[" + ", ".join(vals) + "]"
-
-
-def analyse_motion(
-    T_base_flange,
-    *,
-    frame: Mount = "flange",
-    pairs: Pairs = "all",
-    rotation_noise_deg: float = 0.02,
-) -> MotionDiagnostics:
-    """Analyse the relative rotations of a set of robot stations for hand-eye observability.
-
-    The rotation vectors ``r_k`` (axis * angle) of the relative motions are stacked into a (K, 3)
-    matrix; its singular values say how many axis directions the motion excites. A direction
-    counts when its singular value exceeds ``3 * sqrt(2) * sigma * sqrt(K)`` with ``sigma`` the
-    stated per-pose rotation noise (a relative motion combines two poses): below that, what looks
-    like a second axis can be noise. ``rank`` 0 means no usable rotation (pure translation, or
-    rotations small against the noise); 1 means all axes parallel (one-axis motion).
-
-    Args:
-        T_base_flange: (N, 4, 4) flange poses in the base frame, metres.
-        frame: ``"flange"`` for eye-in-hand (axes of ``T_base_flange_j^-1 T_base_flange_i``, in the
-            flange frame) or ``"base"`` for eye-to-hand (axes of ``T_base_flange_j T_base_flange_i^-1``,
-            in the base frame).
-        pairs: which station pairs make the motions: ``"all"`` (i < j, as OpenCV) or ``"consecutive"``.
-        rotation_noise_deg: 1-sigma rotation noise of one pose (robot and camera combined), degrees,
-            per axis. Zero leaves only a numerical floor (1e-9 rad).
-
-    Returns:
-        :class:`MotionDiagnostics`.
-    """
-    if not np.isfinite(rotation_noise_deg) or rotation_noise_deg < 0.0:
-        raise BadInputError(f"rotation_noise_deg: expected a finite value >= 0, got {rotation_noise_deg!r}")
-    if frame not in ("flange", "base"):
-        raise BadInputError(f"frame: expected 'flange' or 'base', got {frame!r}")
-    T = check_poses(T_base_flange, "T_base_flange")
-    n = len(T)
-    i, j = _pair_indices(n, pairs)
-    R = T[:, :3, :3]
-    R_flange = np.swapaxes(R[j], -1, -2) @ R[i]  # rotation of T_base_flange_j^-1 T_base_flange_i
-    r_flange = rotvec(R_flange)
-    r_base = np.einsum("kab,kb->ka", R[j], r_flange)  # same axis expressed in the base frame
-    r = r_flange if frame == "flange" else r_base
-    K = len(r)
-    angles = np.linalg.norm(r, axis=-1)
-
-    def unit(v: np.ndarray) -> np.ndarray:
-        nrm = np.linalg.norm(v, axis=-1, keepdims=True)
-        return _sign_normalise_axes(np.where(nrm > 0.0, v / np.where(nrm > 0.0, nrm, 1.0), 0.0))
-
-    sigma_rel = max(np.sqrt(2.0) * np.radians(rotation_noise_deg), 1e-9)
-    threshold = 3.0 * sigma_rel * np.sqrt(max(K, 1))
-    if K:
-        _, sv, vt = np.linalg.svd(r, full_matrices=False)
-        sv = np.concatenate([sv, np.zeros(3 - len(sv))])
-        dominant = _sign_normalise_axes(vt[0])
-    else:
-        sv = np.zeros(3)
-        dominant = np.zeros(3)
-    rank = int((sv > threshold).sum())
-    significant = angles > 3.0 * sigma_rel
-    if significant.any():
-        u = unit(r[significant])
-        spread = float(np.degrees(np.arccos(np.clip(np.abs(u @ dominant), 0.0, 1.0))).max())
-    else:
-        spread = 0.0
-
-    # planar (SCARA-like): rotations only about the base z axis
-    planar = False
-    if K and significant.any():
-        _, sv_b, vt_b = np.linalg.svd(r_base, full_matrices=False)
-        sv_b = np.concatenate([sv_b, np.zeros(3 - len(sv_b))])
-        planar = bool(sv_b[1] <= threshold and abs(vt_b[0][2]) > np.cos(np.radians(1.0)))
-
-    warnings: list[str] = []
-    if K and rank >= 2:
-        max_angle = float(np.degrees(angles.max()))
-        if max_angle < 10.0:
-            warnings.append(
-                f"the largest relative rotation is only {max_angle:.3g} deg: closed-form hand-eye "
-                "estimates amplify noise; rotate by 30 deg or more between stations"
-            )
-        if spread < 15.0:
-            warnings.append(
-                f"rotation axes are within {spread:.3g} deg of one direction: the rotation about and "
-                "the translation along that axis are weakly determined; vary the rotation axis"
-            )
-        if sv[1] < 10.0 * threshold:
-            warnings.append(
-                f"the second rotation direction is excited only {sv[1] / threshold:.3g}x above the "
-                "noise threshold: expect a poorly conditioned hand-eye rotation"
-            )
-    return MotionDiagnostics(
-        axes=unit(r),
-        axes_base=unit(r_base),
-        angles_deg=np.degrees(angles),
-        pairs=np.stack([i, j], axis=-1),
-        singular_values_deg=np.degrees(sv),
-        axis_spread_deg=spread,
-        dominant_axis=dominant,
-        rank=rank,
-        threshold_deg=float(np.degrees(threshold)),
-        planar=planar,
-        num_stations=n,
-        frame=frame,
-        warnings=tuple(warnings),
-    )
-
-
-def check_observable(motion: MotionDiagnostics, unknown: str = "T_flange_cam") -> None:
-    """Raise :class:`NotObservableError` when ``motion`` cannot determine the hand-eye transform.
-
-    Args:
-        motion: from :func:`analyse_motion`.
-        unknown: the name of the hand-eye transform in messages (``T_flange_cam``, ``T_base_cam``...).
-
-    Raises:
-        NotObservableError: with ``unknowns`` naming, in words, what is undetermined:
-            fewer than 3 stations; no rotation (pure translation); rotations too small against the
-            stated noise; all rotation axes parallel (one-axis or planar SCARA-like motion).
-    """
-    where = f"in the {motion.frame} frame"
-    n = motion.num_stations
-    if n < 3:
-        if n == 2 and motion.rank >= 1:
-            ax = fmt_axis(motion.dominant_axis)
-            unknowns = [
-                f"rotation of {unknown} about the rotation axis of the single motion (axis = {ax} {where})",
-                f"translation of {unknown} along the rotation axis of the single motion "
-                f"(axis = {ax} {where})",
-            ]
-        else:
-            unknowns = [f"rotation of {unknown}", f"translation of {unknown}"]
-        raise NotObservableError(
-            f"hand-eye needs at least 3 stations (2 motions with rotations about non-parallel axes); "
-            f"got {n} station(s). Undetermined: " + "; ".join(unknowns) + ".",
-            unknowns=unknowns,
-        )
-    max_angle = float(motion.angles_deg.max()) if len(motion.angles_deg) else 0.0
-    if motion.rank == 0:
-        unknowns = [
-            f"rotation of {unknown} (closed forms take it from the rotations, and there are none)",
-            f"translation of {unknown} (all 3 components: without rotation it cancels out)",
-        ]
-        if max_angle < 1e-6:
-            why = "the robot only translates (pure translations: no relative rotation between stations)"
-        else:
-            why = (
-                f"the relative rotations are too small relative to the stated noise (largest "
-                f"{max_angle:.3g} deg; excitation {motion.singular_values_deg[0]:.3g} deg below the "
-                f"noise threshold {motion.threshold_deg:.3g} deg)"
-            )
-        raise NotObservableError(
-            f"{unknown} is not observable: {why}. Undetermined: " + "; ".join(unknowns)
-            + ". Rotate the flange about at least two different axes between stations.",
-            unknowns=unknowns,
-        )
-    if motion.rank == 1:
-        ax = fmt_axis(motion.dominant_axis)
-        unknowns = [
-            f"rotation of {unknown} about the common rotation axis (axis = {ax} {where})",
-            f"translation of {unknown} along the common rotation axis (axis = {ax} {where})",
-        ]
-        if motion.planar:
-            why = (
-                "planar motion (SCARA-like): every rotation is about the base z axis, so all rotation "
-                "axes are parallel"
-            )
-        else:
-            why = (
-                f"all rotation axes are parallel (spread {motion.axis_spread_deg:.3g} deg, within the "
-                "stated noise): one-axis rotations"
-            )
-        raise NotObservableError(
-            f"{unknown} is not observable: {why}. Undetermined: " + "; ".join(unknowns)
-            + ". The translation along the axis cannot be determined by any method from these stations; "
-            "the rotation about it is not determined by the rotations alone. Add stations rotating about "
-            "another axis.",
-            unknowns=unknowns,
-        )
-
-
-# ---------------------------------------------------------------------------------------------
 # high-level entry point
 # ---------------------------------------------------------------------------------------------
 
@@ -696,28 +308,7 @@ def average_poses(T) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     u, _, vt = np.linalg.svd(T[:, :3, :3].mean(axis=0))
     R = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-    return _pose(R, T[:, :3, 3].mean(axis=0))
-
-
-@dataclass(frozen=True)
-class HandEyeDiagnostics:
-    """Consistency of a closed-form hand-eye solution with the data.
-
-    Attributes:
-        motion: the :class:`MotionDiagnostics` the solve was checked with.
-        other_rotation_rms_deg: RMS angle between the per-station estimates of ``T_other``
-            (``T_base_flange_i X T_cam_target_i`` or its eye-to-hand analogue) and their mean, degrees.
-        other_translation_rms: RMS distance of the per-station ``T_other`` translations from
-            their mean, input unit (m).
-        motion_rotation_rms_deg: RMS rotation angle of ``(A_k X)^-1 X B_k`` over the motions, degrees.
-        motion_translation_rms: RMS translation of ``A_k X - X B_k``, input unit (m).
-    """
-
-    motion: MotionDiagnostics
-    other_rotation_rms_deg: float
-    other_translation_rms: float
-    motion_rotation_rms_deg: float
-    motion_translation_rms: float
+    return make_pose(R, T[:, :3, 3].mean(axis=0))
 
 
 @dataclass(frozen=True)
@@ -731,7 +322,7 @@ class HandEyeInit:
             ``T_base_target`` (mount ``"flange"``) or ``T_flange_target`` (mount ``"base"``).
         method: the solver used.
         mount: ``"flange"`` (eye-in-hand) or ``"base"`` (eye-to-hand).
-        diagnostics: :class:`HandEyeDiagnostics`.
+        diagnostics: :class:`~jcalib.init.handeye_motion.HandEyeDiagnostics`.
     """
 
     T: np.ndarray
@@ -751,14 +342,6 @@ class HandEyeInit:
         return "T_base_target" if self.mount == "flange" else "T_flange_target"
 
 
-def _check_mount(mount: str) -> None:
-    if mount not in ("flange", "base"):
-        raise BadInputError(
-            f"mount: expected 'flange' (camera on the flange, eye-in-hand) or 'base' (camera fixed, "
-            f"eye-to-hand), got {mount!r}"
-        )
-
-
 def solve_hand_eye(
     T_base_flange,
     T_cam_target,
@@ -770,7 +353,7 @@ def solve_hand_eye(
 ) -> HandEyeInit:
     """Closed-form hand-eye calibration (AX = XB) from absolute station poses.
 
-    Checks observability first (:func:`analyse_motion`, :func:`check_observable`), then solves
+    Checks observability first (:func:`jcalib.init.handeye_motion.checked_stations`), then solves
     with the chosen method on the relative motions of the chosen station pairs.
 
     Args:
@@ -794,12 +377,12 @@ def solve_hand_eye(
         BadInputError: malformed poses, mismatched counts, unknown method / mount / pairs.
         NotObservableError: degenerate motion; ``unknowns`` names what is undetermined.
     """
-    _check_mount(mount)
+    check_mount(mount)
     if method not in _SOLVERS:
         raise BadInputError(f"method: expected one of {sorted(_SOLVERS)}, got {method!r}")
     T_bf, T_ct, motion = checked_stations(T_base_flange, T_cam_target, mount, pairs, rotation_noise_deg)
 
-    Hg = T_bf if mount == "flange" else _inv(T_bf)
+    Hg = T_bf if mount == "flange" else invert(T_bf)
     A, B, _ = relative_motions(Hg, T_ct, pairs)
     X = _SOLVERS[method](A, B)
 
@@ -807,56 +390,3 @@ def solve_hand_eye(
     T_other = average_poses(per_station)
     diagnostics = solution_diagnostics(motion, per_station, T_other, A @ X, X @ B)
     return HandEyeInit(T=X, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)
-
-
-
-def checked_stations(T_base_flange, T_cam_target, mount: str, pairs: str, rotation_noise_deg: float):
-    """Validated station poses and their motion analysis, raising on degenerate motion.
-
-    Returns:
-        ``(T_base_flange (N, 4, 4), T_cam_target (N, 4, 4), MotionDiagnostics)``.
-
-    Raises:
-        BadInputError: malformed poses or mismatched counts.
-        NotObservableError: degenerate motion, naming the undetermined part of the hand-eye unknown.
-    """
-    T_bf = check_poses(T_base_flange, "T_base_flange")
-    T_ct = check_poses(T_cam_target, "T_cam_target")
-    if len(T_bf) != len(T_ct):
-        raise BadInputError(
-            f"T_cam_target: expected one pose per robot pose ({len(T_bf)} stations), got {len(T_ct)}"
-        )
-    if len(T_bf) == 0:
-        raise BadInputError("T_base_flange: expected at least 3 stations, got none")
-    unknown = "T_flange_cam" if mount == "flange" else "T_base_cam"
-    motion = analyse_motion(T_bf, frame=mount, pairs=pairs, rotation_noise_deg=rotation_noise_deg)
-    check_observable(motion, unknown)
-    return T_bf, T_ct, motion
-
-def solution_diagnostics(
-    motion: MotionDiagnostics, per_station: np.ndarray, T_other: np.ndarray, lhs: np.ndarray, rhs: np.ndarray
-) -> HandEyeDiagnostics:
-    """How well a closed-form solution fits the stations.
-
-    Args:
-        motion: the motion analysis of the stations.
-        per_station: (N, 4, 4) the other transform implied by the solution at each station.
-        T_other: (4, 4) their average.
-        lhs, rhs: (M, 4, 4) the two sides of the solved equation (``AX`` and ``XB``, or ``AX`` and ``ZB``).
-    """
-    R_other = np.broadcast_to(T_other[:3, :3], per_station[:, :3, :3].shape)
-    rot_other = _rotation_angle_deg(R_other, per_station[:, :3, :3])
-    tr_other = np.linalg.norm(per_station[:, :3, 3] - T_other[:3, 3], axis=-1)
-    rot_m = _rotation_angle_deg(lhs[:, :3, :3], rhs[:, :3, :3])
-    tr_m = np.linalg.norm(lhs[:, :3, 3] - rhs[:, :3, 3], axis=-1)
-
-    def rms(v):
-        return float(np.sqrt(np.mean(np.square(v))))
-
-    return HandEyeDiagnostics(
-        motion=motion,
-        other_rotation_rms_deg=rms(rot_other),
-        other_translation_rms=rms(tr_other),
-        motion_rotation_rms_deg=rms(rot_m),
-        motion_translation_rms=rms(tr_m),
-    )

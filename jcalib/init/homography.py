@@ -25,10 +25,10 @@ __all__ = [
     "refine_homographies",
 ]
 
-# A configuration is degenerate when its second-smallest singular value (of the centred,
-# normalised point cloud, or of the DLT matrix) falls below this fraction of the largest one.
-# Exactly collinear points give ~1e-16; a 1 mm bow over a 0.2 m row of a board gives ~1e-2.
-_DEGENERATE_RTOL = 1e-9
+#: A configuration is degenerate when its second-smallest singular value (of the centred,
+#: normalised point cloud, or of the DLT matrix) falls below this fraction of the largest one.
+#: Exactly collinear points give ~1e-16; a 1 mm bow over a 0.2 m row of a board gives ~1e-2.
+DEGENERATE_RTOL = 1e-9
 _COLLINEAR_RTOL = 1e-6
 
 
@@ -80,7 +80,7 @@ def homography_residuals(H: np.ndarray, points_target: np.ndarray, pixels: np.nd
     )
 
 
-def _check_planar_points(points_target: np.ndarray, name: str) -> np.ndarray:
+def check_planar_points(points_target: np.ndarray, name: str) -> np.ndarray:
     """Accept (..., N, 2) or (..., N, 3) with z == 0; return (..., N, 2)."""
     if points_target.ndim < 2 or points_target.shape[-1] not in (2, 3):
         raise BadInputError(
@@ -188,7 +188,7 @@ def _gauss_newton(
     return h.reshape(V, 3, 3)
 
 
-def _estimate_stack(
+def estimate_homography_stack(
     points: np.ndarray, pixels: np.ndarray, refine: bool, num_iterations: int, normal_equations: bool = False
 ) -> np.ndarray:
     """Same-size views: (V, N, 2), (V, N, 2) -> (V, 3, 3); inputs already validated.
@@ -279,7 +279,7 @@ def estimate_homographies(
     V = len(pix_list)
     for i in range(V):
         label = _view_label(view_names, i)
-        pts_list[i] = _check_planar_points(pts_list[i], f"points_target ({label})")
+        pts_list[i] = check_planar_points(pts_list[i], f"points_target ({label})")
         if pix_list[i].ndim != 2 or pix_list[i].shape[-1] != 2:
             raise BadInputError(f"pixels ({label}): expected shape (N, 2), got {pix_list[i].shape}")
         if pts_list[i].shape[0] != pix_list[i].shape[0]:
@@ -297,10 +297,10 @@ def estimate_homographies(
     for idx in by_size.values():
         P = np.stack([pts_list[i] for i in idx])
         U = np.stack([pix_list[i] for i in idx])
-        Hs, s = _estimate_stack(P, U, refine, num_iterations)
+        Hs, s = estimate_homography_stack(P, U, refine, num_iterations)
         # A unique homography has a 1-D null space: the second-smallest singular value of the
         # normalised DLT matrix must be clearly nonzero (else e.g. 3 of 4 points are collinear).
-        degenerate = s[:, -2] <= _DEGENERATE_RTOL * s[:, 0]
+        degenerate = s[:, -2] <= DEGENERATE_RTOL * s[:, 0]
         if np.any(degenerate):
             i = idx[int(np.flatnonzero(degenerate)[0])]
             raise BadInputError(
@@ -353,7 +353,7 @@ def refine_homographies(H, points_target, pixels, *, num_iterations: int = 10) -
     """
     H = np.asarray(H, np.float64)
     pix = np.asarray(pixels, np.float64)
-    pts = _check_planar_points(np.asarray(points_target, np.float64), "points_target")
+    pts = check_planar_points(np.asarray(points_target, np.float64), "points_target")
     pts = np.broadcast_to(pts, pix.shape)
     Tx = normalizing_transform(pts)
     Tu = normalizing_transform(pix)

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry.se3 import as_pose_matrices, make_pose
 
 __all__ = [
     "MIN_PIVOT_POSES",
@@ -56,70 +57,6 @@ MIN_PIVOT_POSES = 3
 #: component along that direction is reported as not observable. 0.5 deg amplifies pose noise into
 #: the tip by ~115x along that direction; real 4-point procedures use 30-90 deg reorientations.
 DEFAULT_MIN_ROTATION_DEG = 0.5
-
-
-def as_pose_matrices(T, name: str) -> np.ndarray:
-    """Validate poses and return them as ``(N, 4, 4)`` float64 homogeneous matrices.
-
-    Args:
-        T: ``(N, 4, 4)`` homogeneous transforms, or ``(N, 7)`` poses (``wxyz`` quaternion then
-            translation, as in :mod:`jcalib.geometry.lie`); a single pose is read as ``N = 1``.
-        name: argument name used in error messages.
-
-    Raises:
-        BadInputError: wrong shape, non-finite values, a rotation block that is not a rotation.
-    """
-    try:
-        arr = np.asarray(T, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise BadInputError(f"{name}: expected (N, 4, 4) or (N, 7) poses, got {type(T).__name__} ({exc})") from None
-    if arr.ndim >= 1 and arr.shape[-1] == 7 and arr.ndim in (1, 2):
-        arr = np.atleast_2d(arr)
-        if not np.isfinite(arr).all():
-            raise BadInputError(f"{name}: poses (N, 7) contain NaN/inf; expected finite values")
-        q = arr[:, :4]
-        norm = np.linalg.norm(q, axis=1)
-        if (np.abs(norm - 1.0) > 1e-6).any():
-            k = int(np.argmax(np.abs(norm - 1.0)))
-            raise BadInputError(
-                f"{name}: pose {k} has a quaternion of norm {norm[k]:.6g}; expected unit quaternions (wxyz)"
-            )
-        w, x, y, z = q.T
-        R = np.stack(
-            [
-                np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-            ],
-            axis=-2,
-        )
-        out = np.zeros((arr.shape[0], 4, 4))
-        out[:, :3, :3] = R
-        out[:, :3, 3] = arr[:, 4:]
-        out[:, 3, 3] = 1.0
-        return out
-    if arr.ndim == 2:
-        arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
-        raise BadInputError(f"{name}: expected shape (N, 4, 4) (homogeneous poses) or (N, 7), got {arr.shape}")
-    bad = ~np.isfinite(arr).all(axis=(1, 2))
-    if bad.any():
-        raise BadInputError(f"{name}: pose {int(np.argmax(bad))} has NaN/inf entries; expected finite poses")
-    row_err = np.abs(arr[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
-    if (row_err > 1e-6).any():
-        k = int(np.argmax(row_err))
-        raise BadInputError(f"{name}: pose {k} has bottom row {arr[k, 3].tolist()}; expected [0, 0, 0, 1]")
-    R = arr[:, :3, :3]
-    orth_err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(1, 2))
-    bad = (orth_err > 1e-6) | (np.linalg.det(R) < 0.0)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise BadInputError(
-            f"{name}: pose {k} has a rotation block that is not a rotation (max |R R^T - I| = "
-            f"{orth_err[k]:.3g}, det = {np.linalg.det(R[k]):.6g}); expected orthonormal with det +1 "
-            f"(tolerance 1e-6)"
-        )
-    return arr
 
 
 def rotation_spread(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -204,9 +141,7 @@ class PivotAccessors:
     @property
     def T_flange_tcp(self) -> np.ndarray:
         """``(4, 4)`` TCP with the flange's orientation and the tip as origin (a 3-DoF TCP)."""
-        T = np.eye(4)
-        T[:3, 3] = self.p_flange_tip
-        return T
+        return make_pose(np.eye(3), self.p_flange_tip)
 
 
 @dataclass(frozen=True)

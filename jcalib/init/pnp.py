@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.init.homography import _check_planar_points, estimate_homography
+from jcalib.geometry.se3 import exp_so3, make_pose, rotation_z_to, skew
+from jcalib.init.homography import check_planar_points, estimate_homography
 
 __all__ = [
     "PlanarPnPResult",
@@ -34,14 +35,6 @@ __all__ = [
     "planar_pnp_views",
     "solve_pnp",
 ]
-
-
-def _pose_matrix(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.zeros(R.shape[:-2] + (4, 4))
-    T[..., :3, :3] = R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
 
 
 @dataclass(frozen=True)
@@ -61,7 +54,7 @@ class PlanarPnPResult:
     @property
     def T_cam_target(self) -> np.ndarray:
         """(..., 2, 4, 4) candidate poses of the target in the camera frame."""
-        return _pose_matrix(self.R, self.t)
+        return make_pose(self.R, self.t)
 
     @property
     def ambiguity_ratio(self) -> np.ndarray:
@@ -86,7 +79,7 @@ class PnPResult:
     @property
     def T_cam_target(self) -> np.ndarray:
         """(4, 4) pose of the target in the camera frame."""
-        return _pose_matrix(self.R, self.t)
+        return make_pose(self.R, self.t)
 
 
 def _check_camera(K, dist) -> tuple[np.ndarray, np.ndarray]:
@@ -119,23 +112,10 @@ def _project_px(points, R, t, K, dist) -> np.ndarray:
     return uv.reshape(-1, 2)
 
 
-def _rotation_z_to(v: np.ndarray) -> np.ndarray:
-    """Rotation taking the z axis onto the unit vector v (about z x v)."""
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(z, v)
-    s = np.linalg.norm(axis)
-    c = float(v[2])
-    if s < 1e-15:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + s * Kx + (1.0 - c) * (Kx @ Kx)
-
-
 def _ippe_rotations(J: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IPPE: the two rotations from the homography's Jacobian J (2, 2) at the image point v (2,)."""
     vh = np.array([v[0], v[1], 1.0])
-    Rv = _rotation_z_to(vh / np.linalg.norm(vh))
+    Rv = rotation_z_to(vh / np.linalg.norm(vh))
     B = (np.column_stack([np.eye(2), -v]) @ Rv)[:, :2]
     A = np.linalg.solve(B, J)
     gamma = np.linalg.svd(A, compute_uv=False)[0]
@@ -164,14 +144,6 @@ def _translation(R: np.ndarray, u: np.ndarray, q: np.ndarray) -> np.ndarray:
     return t
 
 
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    theta = np.linalg.norm(w)
-    Wx = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if theta < 1e-12:
-        return np.eye(3) + Wx
-    return np.eye(3) + np.sin(theta) / theta * Wx + (1.0 - np.cos(theta)) / theta**2 * (Wx @ Wx)
-
-
 def _refine_pose(R, t, P, q, num_iterations: int):
     """Levenberg–Marquardt on the normalised reprojection error of one pose. P (N, 3), q (N, 2)."""
 
@@ -191,16 +163,11 @@ def _refine_pose(R, t, P, q, num_iterations: int):
         dpi[:, 1, 1] = 1.0 / z
         dpi[:, 0, 2] = -X[:, 0] / z**2
         dpi[:, 1, 2] = -X[:, 1] / z**2
-        RP = P @ R.T
-        skew = np.zeros((P.shape[0], 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2] = RP[:, 2], -RP[:, 1]
-        skew[:, 1, 0], skew[:, 1, 2] = -RP[:, 2], RP[:, 0]
-        skew[:, 2, 0], skew[:, 2, 1] = RP[:, 1], -RP[:, 0]
-        Jw = dpi @ skew  # d pi / d omega (left perturbation): dpi @ (-[RP]x)
+        Jw = dpi @ -skew(P @ R.T)  # d pi / d omega (left perturbation): dpi @ (-[RP]x)
         J = np.concatenate([Jw, dpi], axis=-1).reshape(-1, 6)
         JtJ = J.T @ J
         step = -np.linalg.solve(JtJ + lam * np.diag(np.diag(JtJ)), J.T @ r)
-        R_new = _exp_so3(step[:3]) @ R
+        R_new = exp_so3(step[:3]) @ R
         t_new = t + step[3:]
         r_new, X_new = residual(R_new, t_new)
         c_new = float(r_new @ r_new)
@@ -243,7 +210,7 @@ def planar_pnp(
     """
     K, dist = _check_camera(K, dist)
     label = "view" if view_name is None else f"view {view_name!r}"
-    pts = _check_planar_points(np.asarray(points_target, np.float64), f"points_target ({label})")
+    pts = check_planar_points(np.asarray(points_target, np.float64), f"points_target ({label})")
     pix = np.asarray(pixels, np.float64)
     if pix.ndim != 2 or pix.shape[-1] != 2 or pix.shape[0] != pts.shape[0]:
         raise BadInputError(

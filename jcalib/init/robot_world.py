@@ -17,7 +17,7 @@ In jcalib's frames:
 Both solvers are our numpy implementations written to agree with OpenCV 4.14's
 ``CALIB_ROBOT_WORLD_HAND_EYE_SHAH`` / ``_LI`` (same equations, same SVD / least-squares steps, same
 nearest-rotation projection). Observability is checked first with the hand-eye motion analysis
-(:func:`jcalib.init.handeye.analyse_motion`): AX = ZB has the same degeneracies as AX = XB.
+(:func:`jcalib.init.handeye_motion.analyse_motion`): AX = ZB has the same degeneracies as AX = XB.
 """
 
 from __future__ import annotations
@@ -27,18 +27,9 @@ from collections.abc import Callable
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.init.handeye import (
-    HandEyeInit,
-    Mount,
-    _check_mount,
-    _inv,
-    _lstsq,
-    _pose,
-    _project_to_rotation,
-    check_poses,
-    checked_stations,
-    solution_diagnostics,
-)
+from jcalib.geometry.se3 import check_poses, invert, make_pose
+from jcalib.init.handeye import HandEyeInit, lstsq_min_norm, project_to_rotation
+from jcalib.init.handeye_motion import Mount, check_mount, checked_stations, solution_diagnostics
 
 __all__ = [
     "ROBOT_WORLD_METHODS",
@@ -55,15 +46,15 @@ def _shah(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     T = np.einsum("kij,kab->iajb", Rb, Ra).reshape(9, 9)  # sum_k kron(R_B_k, R_A_k)
     u, _, vt = np.linalg.svd(T)
     # kron(R_B, R_A) vec(R_X) = vec(R_A^T ... ): column-major vec, as OpenCV reads them
-    RX = _project_to_rotation(vt[0].reshape(3, 3).T)
-    RZ = _project_to_rotation(u[:, 0].reshape(3, 3).T)
+    RX = project_to_rotation(vt[0].reshape(3, 3).T)
+    RZ = project_to_rotation(u[:, 0].reshape(3, 3).T)
     # -R_A t_X + t_Z = t_A - R_Z t_B
     M = np.zeros((n, 3, 6))
     M[:, :, :3] = -Ra
     M[:, :, 3:] = np.eye(3)
     rhs = ta - tb @ RZ.T
-    t = _lstsq(M.reshape(-1, 6), rhs.reshape(-1))
-    return _pose(RX, t[:3]), _pose(RZ, t[3:])
+    t = lstsq_min_norm(M.reshape(-1, 6), rhs.reshape(-1))
+    return make_pose(RX, t[:3]), make_pose(RZ, t[3:])
 
 
 def _li(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -79,10 +70,10 @@ def _li(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     M[:, 9:, 21:24] = I3
     rhs = np.zeros((n, 12))
     rhs[:, 9:] = ta
-    x = _lstsq(M.reshape(-1, 24), rhs.reshape(-1))
-    RX = _project_to_rotation(x[:9].reshape(3, 3))
-    RZ = _project_to_rotation(x[9:18].reshape(3, 3))
-    return _pose(RX, x[18:21]), _pose(RZ, x[21:24])
+    x = lstsq_min_norm(M.reshape(-1, 24), rhs.reshape(-1))
+    RX = project_to_rotation(x[:9].reshape(3, 3))
+    RZ = project_to_rotation(x[9:18].reshape(3, 3))
+    return make_pose(RX, x[18:21]), make_pose(RZ, x[21:24])
 
 
 _SOLVERS: dict[str, Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
@@ -151,7 +142,7 @@ def solve_robot_world_hand_eye(
         mount: ``"flange"`` (eye-in-hand: returns ``T_flange_cam`` and ``T_base_target``) or
             ``"base"`` (eye-to-hand: returns ``T_base_cam`` and ``T_flange_target``).
         rotation_noise_deg: stated 1-sigma rotation noise of one pose, degrees (see
-            :func:`jcalib.init.handeye.analyse_motion`).
+            :func:`jcalib.init.handeye_motion.analyse_motion`).
 
     Returns:
         :class:`RobotWorldInit`.
@@ -160,19 +151,19 @@ def solve_robot_world_hand_eye(
         BadInputError: malformed poses, mismatched counts, unknown method / mount.
         NotObservableError: degenerate motion (fewer than 3 stations, no rotation, one rotation axis).
     """
-    _check_mount(mount)
+    check_mount(mount)
     if method not in _SOLVERS:
         raise BadInputError(f"method: expected one of {sorted(_SOLVERS)}, got {method!r}")
     T_bf, T_ct, motion = checked_stations(T_base_flange, T_cam_target, mount, "all", rotation_noise_deg)
 
-    B = _inv(T_bf) if mount == "flange" else T_bf
+    B = invert(T_bf) if mount == "flange" else T_bf
     X, Z = _SOLVERS[method](T_ct, B)
-    T = _inv(Z)  # T_flange_cam or T_base_cam
-    T_other = _inv(X)  # T_base_target or T_flange_target
+    T = invert(Z)  # T_flange_cam or T_base_cam
+    T_other = invert(X)  # T_base_target or T_flange_target
 
     # per-station estimate of T_other implied by T: eye-in-hand T_base_flange_i T T_cam_target_i,
     # eye-to-hand T_base_flange_i^-1 T T_cam_target_i
-    Hg = T_bf if mount == "flange" else _inv(T_bf)
+    Hg = T_bf if mount == "flange" else invert(T_bf)
     per_station = Hg @ T @ T_ct
     diagnostics = solution_diagnostics(motion, per_station, T_other, T_ct @ X, Z @ B)
     return RobotWorldInit(T=T, T_other=T_other, method=method, mount=mount, diagnostics=diagnostics)

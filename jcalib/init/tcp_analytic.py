@@ -64,7 +64,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
-from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, as_pose_matrices
+from jcalib.geometry import lie_kernels
+from jcalib.geometry.se3 import as_pose_matrices, make_pose, rotvec, skew
+from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG
 
 __all__ = [
     "AnalyticTCPResult",
@@ -108,9 +110,7 @@ class AnalyticTCPResult:
     @property
     def T_flange_tcp(self) -> np.ndarray:
         """``(4, 4)`` TCP with the flange's orientation and the tip as origin."""
-        T = np.eye(4)
-        T[:3, 3] = self.p_flange_tip
-        return T
+        return make_pose(np.eye(3), self.p_flange_tip)
 
     def covariance(self, sigma_translation: float, sigma_rotation_rad: float = 0.0) -> np.ndarray:
         """``(3, 3)`` TCP covariance for iid flange-pose noise (linear propagation).
@@ -130,18 +130,6 @@ class AnalyticTCPResult:
 # --------------------------------------------------------------------------------------------- cores
 
 
-def _skew(w: jax.Array) -> jax.Array:
-    z = jnp.zeros_like(w[..., 0])
-    return jnp.stack(
-        [
-            jnp.stack([z, -w[..., 2], w[..., 1]], -1),
-            jnp.stack([w[..., 2], z, -w[..., 0]], -1),
-            jnp.stack([-w[..., 1], w[..., 0], z], -1),
-        ],
-        axis=-2,
-    )
-
-
 def _lsq_solve(R: np.ndarray, t: np.ndarray, P: np.ndarray):
     """``argmin_x sum_i |P((R_i - Rbar) x + t_i - tbar)|^2`` (ray offset / point eliminated), with
     its Jacobians w.r.t. the translations and the right rotation perturbations (analytic).
@@ -159,18 +147,9 @@ def _lsq_solve(R: np.ndarray, t: np.ndarray, P: np.ndarray):
     Minv = np.linalg.inv(M)
     n = R.shape[0]
     Jt = -np.einsum("ij,nkj,kl->inl", Minv, D, P).reshape(3, 3 * n)
-    A = _skew_np(np.einsum("nji,nj->ni", R, r)) - np.einsum("nji,jk,nkl,lm->nim", D, P, R, _skew_np(x))
+    A = skew(np.einsum("nji,nj->ni", R, r)) - np.einsum("nji,jk,nkl,lm->nim", D, P, R, skew(x))
     Jr = -np.einsum("ij,njk->ink", Minv, A).reshape(3, 3 * n)
     return x, Jt, Jr
-
-
-def _skew_np(w: np.ndarray) -> np.ndarray:
-    z = np.zeros(w.shape[:-1])
-    return np.stack(
-        [np.stack([z, -w[..., 2], w[..., 1]], -1), np.stack([w[..., 2], z, -w[..., 0]], -1),
-         np.stack([-w[..., 1], w[..., 0], z], -1)],
-        axis=-2,
-    )
 
 
 def _three_pose_core(R: jax.Array, t: jax.Array, R_base_cam: jax.Array) -> jax.Array:
@@ -201,7 +180,7 @@ def _solve_and_jacobians(core, R, t, extra):
 
     def of_w(wf):
         w = wf.reshape(n, 3)
-        return core(R @ (jnp.eye(3)[None] + _skew(w)), t, extra)  # first order of R Exp(w)
+        return core(R @ (jnp.eye(3)[None] + lie_kernels.skew(w, jnp)), t, extra)  # first order of R Exp(w)
 
     x = core(R, t, extra)
     Jt = jax.jacfwd(of_t)(t.reshape(-1))
@@ -232,15 +211,6 @@ def _rotation(Rm, name: str) -> np.ndarray:
     if np.abs(arr @ arr.T - np.eye(3)).max() > 1e-6 or np.linalg.det(arr) < 0:
         raise BadInputError(f"{name}: not a rotation (orthonormal, det +1): {arr.tolist()}")
     return arr
-
-
-def _rotvec(Rm: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis * angle, rad) of a rotation matrix (angles below pi)."""
-    c = np.clip((np.trace(Rm) - 1.0) / 2.0, -1.0, 1.0)
-    v = 0.5 * np.array([Rm[2, 1] - Rm[1, 2], Rm[0, 2] - Rm[2, 0], Rm[1, 0] - Rm[0, 1]])
-    s = np.linalg.norm(v)
-    ang = np.arctan2(s, c)
-    return v / s * ang if s > 1e-15 else v
 
 
 @eqx.filter_jit
@@ -374,8 +344,8 @@ def tcp_three_pose(
         )
     Rc = _rotation(R_base_cam, "R_base_cam")
     R, t = T[:, :3, :3], T[:, :3, 3]
-    w1 = _rotvec(Rc.T @ R[1] @ R[0].T @ Rc)  # relative rotations in camera coordinates
-    w2 = _rotvec(Rc.T @ R[2] @ R[0].T @ Rc)
+    w1 = rotvec(Rc.T @ R[1] @ R[0].T @ Rc)  # relative rotations in camera coordinates
+    w2 = rotvec(Rc.T @ R[2] @ R[0].T @ Rc)
     a1, a2 = np.linalg.norm(w1), np.linalg.norm(w2)
     lim = np.deg2rad(min_rotation_deg)
     y_dir_flange = R[0].T @ Rc

@@ -22,17 +22,14 @@ so ``Cov(X) = (J^T J)^-1`` (pixel noise, whitened) ``+ G Sigma_cam G^T`` with
 ``G = -(J^T J)^-1 J^T [dr/dtheta, dr/ddelta]`` and ``Sigma_cam`` the given intrinsics and pose
 covariances. Views that share one camera model object share its intrinsic errors; a joint pose
 covariance ``(6N, 6N)`` carries correlations between views (a hand-eye transform common to all views
-of a robot-held camera: :func:`compose_pose_chains` builds it). Several points triangulated with the
-same uncertain cameras are correlated: :func:`triangulate_points` returns their joint covariance and
+of a robot-held camera: :func:`jcalib.init.pose_chains.compose_pose_chains` builds it; that module
+also moves a triangulated point along RoboCalib's camera -> target / flange / base chain). Several
+points triangulated with the same uncertain cameras are correlated: :func:`triangulate_points`
+returns their joint covariance and
 :meth:`TriangulatedPoints.distance` uses it. What it does not include: model error (a lens model too
 simple for the lens), wrong correspondences, intrinsics/pose cross-correlations (a result file keeps
 none), and second-order effects (it is a linearisation: fine while the errors are small against the
 geometry).
-
-**RoboCalib's chain** (:func:`point_in_frame`): a point triangulated in a camera frame, moved into
-the target frame (RoboCalib's *Phys3D*, via ``T_cam_target``), the flange frame (*Hand3D*, via
-``T_flange_cam``) or the robot base (via ``T_base_flange @ T_flange_cam``), each transform with an
-optional covariance, propagated with JAX Jacobians.
 
 Degeneracy: when the viewing rays are nearly parallel (largest angle between two rays below
 ``min_parallax_deg``) the depth of the point along the viewing ray is not determined and
@@ -44,7 +41,7 @@ whatever frame the poses are given in (a camera frame, a target, the robot base)
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -54,18 +51,14 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import AbstractCameraModel
-from jcalib.geometry.lie import se3_apply, se3_exp, se3_to_matrix
-from jcalib.init.pivot import as_pose_matrices
+from jcalib.geometry.lie import se3_apply, se3_exp
+from jcalib.geometry.se3 import adjoint, as_pose_matrices, invert, make_pose, skew
 
 __all__ = [
-    "CHAIN_FRAMES",
     "DEFAULT_MIN_PARALLAX_DEG",
-    "PointInFrame",
     "TriangulatedPoint",
     "TriangulatedPoints",
-    "compose_pose_chains",
     "point_distance",
-    "point_in_frame",
     "triangulate_dlt",
     "triangulate_point",
     "triangulate_points",
@@ -79,9 +72,6 @@ DEFAULT_MIN_PARALLAX_DEG = 0.1
 #: precision in practice, the tests check against an independent optimiser).
 DEFAULT_ITERATIONS = 5
 
-#: Frames :func:`point_in_frame` can express a camera-frame point in (RoboCalib: Phys3D = target,
-#: Hand3D = flange).
-CHAIN_FRAMES = ("cam", "target", "flange", "base")
 
 
 @dataclass(frozen=True)
@@ -388,15 +378,7 @@ def _dlt(R: np.ndarray, t: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float
     s = 1.0 / dist if dist > 0 else 1.0
     # X = c + X' / s  =>  s (R X + t) = R X' + s (R c + t) w'
     P = np.concatenate([R, (s * (np.einsum("nij,j->ni", R, c) + t))[..., None]], axis=2)
-    bx = np.stack(
-        [
-            np.stack([np.zeros(len(b)), -b[:, 2], b[:, 1]], -1),
-            np.stack([b[:, 2], np.zeros(len(b)), -b[:, 0]], -1),
-            np.stack([-b[:, 1], b[:, 0], np.zeros(len(b))], -1),
-        ],
-        axis=-2,
-    )
-    A = np.einsum("nij,njk->nik", bx, P).reshape(-1, 4)
+    A = np.einsum("nij,njk->nik", skew(b), P).reshape(-1, 4)
     _, _, vt = np.linalg.svd(A)
     h = vt[-1]
     w = h[3]
@@ -530,10 +512,9 @@ def _triangulate(
     if T_base_cam is not None and pose_covariance is not None:
         # (T_base_cam Exp(d))^-1 = T_cam_base Exp(-Ad(T_base_cam) d): move to T_cam_base tangents
         A = np.zeros((6 * n, 6 * n))
+        Ad = adjoint(invert(make_pose(R, t)))  # of T_base_cam
         for i in range(n):
-            T_bc = np.eye(4)
-            T_bc[:3, :3], T_bc[:3, 3] = R[i].T, -R[i].T @ t[i]
-            A[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = -_adjoint(T_bc)
+            A[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = -Ad[i]
         cov_delta = A @ cov_delta @ A.T
     if single_point:
         b = _bearings(cams, px[0])[None]
@@ -724,220 +705,3 @@ def point_distance(a, b, cross_covariance=None) -> tuple[float, float]:
     u = diff / dist
     var = float(u @ (ca + cb - cab - cab.T) @ u)
     return dist, float(np.sqrt(max(var, 0.0)))
-
-
-# --------------------------------------------------------------------------------------------- frames / chains
-
-
-def _adjoint(T: np.ndarray) -> np.ndarray:
-    """``(6, 6)`` adjoint in the ``(omega, v)`` order: ``T Exp(d) = Exp(Ad d) T`` (numpy)."""
-    R, t = T[:3, :3], T[:3, 3]
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    out = np.zeros((6, 6))
-    out[:3, :3] = R
-    out[3:, :3] = tx @ R
-    out[3:, 3:] = R
-    return out
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
-
-
-def compose_pose_chains(
-    sources: Mapping[str, tuple[np.ndarray, np.ndarray | None]],
-    chains: Sequence[Sequence[str]],
-) -> tuple[np.ndarray, np.ndarray]:
-    """Products of uncertain poses and the joint covariance of the products.
-
-    Each chain is a list of source names multiplied left to right; a leading ``~`` takes the
-    inverse, e.g. ``["T_base_flange@s0", "T_flange_cam0"]`` gives ``T_base_cam0`` at station s0
-    and ``["~T_base_board", "T_base_cam1"]`` gives ``T_board_cam1``. Every source has a
-    right-perturbation covariance (``T_true = T . Exp(d)``, ``d = (rx, ry, rz, tx, ty, tz)``, rad
-    and m; None = exact); sources are independent of each other. A source used in several chains
-    makes them correlated, which the joint covariance keeps (what :func:`triangulate_point` needs as
-    ``pose_covariance`` when views share a hand-eye transform or a robot pose).
-
-    Linear propagation through adjoints: perturbing factor ``F_j`` of ``F_1 ... F_n`` on the right
-    by ``e`` perturbs the product on the right by ``Ad((F_{j+1} ... F_n)^-1) e``; an inverted source
-    ``A^-1`` is perturbed by ``-Ad(A) d``.
-
-    Args:
-        sources: name -> ``((4, 4) pose, (6, 6) covariance or None)``, metres.
-        chains: K chains of names (``~name`` for an inverse). An empty chain is the identity.
-
-    Returns:
-        ``(T (K, 4, 4), covariance (6K, 6K))`` over the products' right-perturbation tangents.
-
-    Raises:
-        BadInputError: an unknown source name, a malformed pose or covariance.
-    """
-    mats: dict[str, np.ndarray] = {}
-    covs: dict[str, np.ndarray | None] = {}
-    for name, value in sources.items():
-        try:
-            T, C = value
-        except (TypeError, ValueError):
-            raise BadInputError(f"sources[{name!r}]: expected (pose (4, 4), covariance (6, 6) or None)") from None
-        mats[name] = as_pose_matrices(np.asarray(T, np.float64)[None], f"sources[{name!r}]")[0]
-        if C is not None:
-            C = np.asarray(C, np.float64)
-            if C.shape != (6, 6) or not np.isfinite(C).all():
-                raise BadInputError(f"sources[{name!r}]: expected a finite (6, 6) covariance, got shape {C.shape}")
-        covs[name] = C
-    uncertain = [s for s in mats if covs[s] is not None]
-    col = {s: 6 * i for i, s in enumerate(uncertain)}
-    K = len(chains)
-    Ts = np.zeros((K, 4, 4))
-    J = np.zeros((6 * K, 6 * len(uncertain)))
-    for k, chain in enumerate(chains):
-        factors = []
-        for item in chain:
-            inv = item.startswith("~")
-            name = item[1:] if inv else item
-            if name not in mats:
-                raise BadInputError(f"chains[{k}]: unknown pose {name!r}; have {', '.join(mats) or 'none'}")
-            factors.append((name, inv, _inv(mats[name]) if inv else mats[name]))
-        T = np.eye(4)
-        for *_, F in factors:
-            T = T @ F
-        Ts[k] = T
-        suffix = np.eye(4)
-        for name, inv, F in reversed(factors):
-            if covs[name] is not None:
-                A = _adjoint(_inv(suffix))
-                if inv:
-                    A = -A @ _adjoint(mats[name])
-                J[6 * k : 6 * k + 6, col[name] : col[name] + 6] += A
-            suffix = F @ suffix
-    C_src = np.zeros((6 * len(uncertain),) * 2)
-    for s in uncertain:
-        C_src[col[s] : col[s] + 6, col[s] : col[s] + 6] = covs[s]
-    cov = J @ C_src @ J.T
-    return Ts, 0.5 * (cov + cov.T)
-
-
-@dataclass(frozen=True)
-class PointInFrame:
-    """A point moved along RoboCalib's chain, with its covariance.
-
-    Attributes:
-        position: ``(3,)`` metres, in ``frame``.
-        covariance: ``(3, 3)`` m^2: the point's own covariance and those of the transforms used,
-            propagated linearly (taken as independent of each other).
-        frame: ``"cam"``, ``"target"`` (Phys3D), ``"flange"`` (Hand3D) or ``"base"``.
-    """
-
-    position: np.ndarray
-    covariance: np.ndarray
-    frame: str
-
-    @property
-    def std(self) -> np.ndarray:
-        """``(3,)`` standard deviations along the frame's axes, m."""
-        return np.sqrt(np.diag(self.covariance))
-
-
-def _perturbed(T, d):
-    """``T . Exp(d)`` as a 4x4 matrix (T (4, 4), d (6,) rad and m)."""
-    return T @ se3_to_matrix(se3_exp(d))
-
-
-@jax.jit
-def _chain_point(p, T_cam_target, T_flange_cam, T_base_flange):
-    """All four frames at once (one compilation): ``(4, 3)`` points and their Jacobians."""
-
-    def f(p, d_ct, d_fc, d_bf):
-        ph = jnp.concatenate([p, jnp.ones(1)])
-        T = _perturbed(T_cam_target, d_ct)
-        target = T[:3, :3].T @ (p - T[:3, 3])
-        T_fc = _perturbed(T_flange_cam, d_fc)
-        flange = (T_fc @ ph)[:3]
-        base = (_perturbed(T_base_flange, d_bf) @ T_fc @ ph)[:3]
-        return jnp.stack([p, target, flange, base])
-
-    z = jnp.zeros(6)
-    return f(p, z, z, z), jax.jacfwd(f, argnums=(0, 1, 2, 3))(p, z, z, z)
-
-
-def point_in_frame(
-    point,
-    frame: str,
-    *,
-    T_cam_target=None,
-    T_flange_cam=None,
-    T_base_flange=None,
-    T_cam_target_covariance=None,
-    T_flange_cam_covariance=None,
-    T_base_flange_covariance=None,
-) -> PointInFrame:
-    """Move a camera-frame point along RoboCalib's chain: camera, target (Phys3D), flange (Hand3D), base.
-
-    ``p_target = T_cam_target^-1 p_cam``, ``p_flange = T_flange_cam p_cam``,
-    ``p_base = T_base_flange T_flange_cam p_cam``. The covariance adds the point's own covariance
-    and each used transform's right-perturbation covariance (``(rx, ry, rz, tx, ty, tz)``, rad and
-    m), through JAX Jacobians; all are taken as independent. Do not give a transform's covariance
-    here if it was already part of the point's covariance (e.g. the hand-eye transform was in the
-    triangulation's ``pose_covariance``): that would count it twice.
-
-    Args:
-        point: a :class:`TriangulatedPoint` triangulated in the camera frame (its ``p_base``), or
-            ``(p_cam (3,), covariance (3, 3) or None)``, metres.
-        frame: one of :data:`CHAIN_FRAMES`.
-        T_cam_target: ``(4, 4)`` the target (e.g. a calibration plate) in the camera; for "target".
-        T_flange_cam: ``(4, 4)`` hand-eye transform; for "flange" and "base".
-        T_base_flange: ``(4, 4)`` robot pose at the time of the images; for "base".
-        T_cam_target_covariance, T_flange_cam_covariance, T_base_flange_covariance: ``(6, 6)`` or None.
-
-    Returns:
-        :class:`PointInFrame`.
-
-    Raises:
-        BadInputError: unknown frame, a transform the frame needs is missing, malformed input.
-    """
-    if frame not in CHAIN_FRAMES:
-        raise BadInputError(f"frame: expected one of {', '.join(CHAIN_FRAMES)}, got {frame!r}")
-    if isinstance(point, TriangulatedPoint):
-        p, C = point.p_base, point.covariance
-    else:
-        try:
-            p, C = point
-        except (TypeError, ValueError):
-            raise BadInputError(
-                f"point: expected a TriangulatedPoint or (p_cam, covariance), got {type(point).__name__}"
-            ) from None
-    p = np.asarray(p, np.float64)
-    C = np.zeros((3, 3)) if C is None else np.asarray(C, np.float64)
-    if p.shape != (3,) or C.shape != (3, 3) or not (np.isfinite(p).all() and np.isfinite(C).all()):
-        raise BadInputError(f"point: expected a finite p_cam (3,) and covariance (3, 3), got {p.shape}, {C.shape}")
-    needed = {"cam": (), "target": ("T_cam_target",), "flange": ("T_flange_cam",),
-              "base": ("T_flange_cam", "T_base_flange")}[frame]  # fmt: skip
-    given = {"T_cam_target": T_cam_target, "T_flange_cam": T_flange_cam, "T_base_flange": T_base_flange}
-    covs = {"T_cam_target": T_cam_target_covariance, "T_flange_cam": T_flange_cam_covariance,
-            "T_base_flange": T_base_flange_covariance}  # fmt: skip
-    mats = {}
-    for name, T in given.items():
-        if T is None:
-            if name in needed:
-                raise BadInputError(f"{name}: frame {frame!r} needs it (the chain is camera -> {frame}), got None")
-            mats[name] = np.eye(4)
-        else:
-            mats[name] = as_pose_matrices(np.asarray(T, np.float64)[None], name)[0]
-        c = covs[name]
-        if c is not None:
-            c = np.asarray(c, np.float64)
-            if c.shape != (6, 6) or not np.isfinite(c).all():
-                raise BadInputError(f"{name}_covariance: expected a finite (6, 6) covariance, got shape {c.shape}")
-        covs[name] = c
-    k = CHAIN_FRAMES.index(frame)
-    out, (Jp, *Jd) = _chain_point(jnp.asarray(p), *(jnp.asarray(mats[n]) for n in given))
-    Jp = np.asarray(Jp)[k]
-    cov = Jp @ C @ Jp.T
-    for name, J in zip(given, Jd, strict=True):
-        if covs[name] is not None and name in needed:
-            J = np.asarray(J)[k]
-            cov = cov + J @ covs[name] @ J.T
-    return PointInFrame(np.asarray(out)[k], 0.5 * (cov + cov.T), frame)

@@ -23,10 +23,10 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.init.homography import (
-    _DEGENERATE_RTOL,
-    _check_planar_points,
-    _estimate_stack,
+    DEGENERATE_RTOL,
+    check_planar_points,
     estimate_homographies,
+    estimate_homography_stack,
     homography_residuals,
 )
 
@@ -38,10 +38,10 @@ __all__ = [
     "zhang_init",
 ]
 
-# The constraint system's null space must be one-dimensional: its second-smallest singular value
-# must exceed this fraction of the largest. Exactly degenerate sets give ~1e-16; a 5-degree tilt
-# with 0.1 px noise gives ~1e-4.
-_RANK_RTOL = 1e-9
+#: The constraint system's null space must be one-dimensional: its second-smallest singular value
+#: must exceed this fraction of the largest. Exactly degenerate sets give ~1e-16; a 5-degree tilt
+#: with 0.1 px noise gives ~1e-4.
+RANK_RTOL = 1e-9
 
 _FRONTO_MESSAGE = (
     "all views are fronto-parallel (or parallel to each other): focal length is not observable; "
@@ -193,7 +193,7 @@ def intrinsics_from_homographies(
         if pp.shape != (2,) or not np.all(np.isfinite(pp)):
             raise BadInputError(f"principal_point: expected (cx, cy) in pixels, got {principal_point!r}")
 
-    basis = _constraint_basis(skew, aspect_ratio, principal_point)
+    basis = constraint_basis(skew, aspect_ratio, principal_point)
     m = basis.shape[1]
     V = H.shape[0]
     free = _free_intrinsics(skew, aspect_ratio, principal_point)
@@ -212,7 +212,7 @@ def intrinsics_from_homographies(
     if M.shape[0] < m:  # pad so the SVD returns the full right singular basis
         M = np.concatenate([M, np.zeros((m - M.shape[0], m))], axis=0)
     _, s, Vt = np.linalg.svd(M, full_matrices=False)
-    if s[0] == 0.0 or s[m - 2] <= _RANK_RTOL * s[0]:
+    if s[0] == 0.0 or s[m - 2] <= RANK_RTOL * s[0]:
         raise NotObservableError(_FRONTO_MESSAGE, unknowns=free)
     b = basis @ Vt[-1]
     B = np.array([[b[0], b[1], b[3]], [b[1], b[2], b[4]], [b[3], b[4], b[5]]])
@@ -239,7 +239,7 @@ def intrinsics_from_homographies(
     return K
 
 
-def _constraint_basis(skew: bool, aspect_ratio, principal_point) -> np.ndarray:
+def constraint_basis(skew: bool, aspect_ratio, principal_point) -> np.ndarray:
     """Constraint subspace ``b = basis @ c`` of ``b = (B11, B12, B22, B13, B23, B33)`` (normalised B)."""
     basis = np.eye(6)
     keep = [0, 1, 2, 3, 4, 5]
@@ -287,14 +287,14 @@ def _focal_lengths_batch(H: np.ndarray, kw: dict) -> np.ndarray | None:
     """
     if kw.get("image_size") is None:
         return None
-    basis = _constraint_basis(kw["skew"], kw["aspect_ratio"], kw["principal_point"])
+    basis = constraint_basis(kw["skew"], kw["aspect_ratio"], kw["principal_point"])
     m = basis.shape[1]
     N = _normalization(kw["image_size"], kw["principal_point"], H[0])
     M = _constraint_rows(N, H) @ basis
     if M.shape[-2] < m:
         return None
     _, s, Vt = np.linalg.svd(M, full_matrices=False)
-    if np.any(s[:, 0] == 0.0) or np.any(s[:, m - 2] <= _RANK_RTOL * s[:, 0]):
+    if np.any(s[:, 0] == 0.0) or np.any(s[:, m - 2] <= RANK_RTOL * s[:, 0]):
         return None
     b = Vt[:, -1, :] @ basis.T
     B = np.stack([b[:, [0, 1, 3]], b[:, [1, 2, 4]], b[:, [3, 4, 5]]], axis=-2)
@@ -359,7 +359,7 @@ def _as_views(points_target, pixels) -> tuple[list[np.ndarray], list[np.ndarray]
         raise BadInputError(
             f"points_target: {len(pts)} views of target points for {len(pix)} views of pixels"
         )
-    pts = [_check_planar_points(p, f"points_target (view {i})") for i, p in enumerate(pts)]
+    pts = [check_planar_points(p, f"points_target (view {i})") for i, p in enumerate(pts)]
     return pts, pix
 
 
@@ -513,8 +513,8 @@ def _fx_of_draws(closed: _Closed, draws) -> tuple[list[float], int]:
         D, V = draws.shape[:2]
         pts = np.stack([np.asarray(p, np.float64)[:, :2] for p in closed.pts] * D)
         try:
-            H_all, sv = _estimate_stack(pts, draws.reshape((-1,) + draws.shape[2:]), False, 0, True)
-            if np.all(sv[:, -2] > _DEGENERATE_RTOL * sv[:, 0]) and np.all(np.isfinite(H_all)):
+            H_all, sv = estimate_homography_stack(pts, draws.reshape((-1,) + draws.shape[2:]), False, 0, True)
+            if np.all(sv[:, -2] > DEGENERATE_RTOL * sv[:, 0]) and np.all(np.isfinite(H_all)):
                 fx_all = _focal_lengths_batch(H_all.reshape(D, V, 3, 3), closed.kw)
                 if fx_all is not None and np.all(np.isfinite(fx_all)):
                     return list(fx_all), 0

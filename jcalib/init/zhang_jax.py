@@ -8,7 +8,7 @@ solves in one call). No exception can be raised inside a trace, so every check o
 becomes part of one boolean ``ok``:
 
 - every homography is non-degenerate (second-smallest singular value of its DLT system above
-  ``_DEGENERATE_RTOL`` of the largest) and finite;
+  ``DEGENERATE_RTOL`` of the largest) and finite;
 - the constraint system on ``B = K⁻ᵀK⁻¹`` has a one-dimensional null space and ``B`` is positive
   definite;
 - the focal length is determined by the views: its spread under pixel noise of the homographies'
@@ -30,9 +30,9 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 
-from jcalib.geometry.lie import _matrix_to_quat
-from jcalib.init.homography import _DEGENERATE_RTOL
-from jcalib.init.zhang import _RANK_RTOL, _constraint_basis
+from jcalib.geometry.lie import so3_from_matrix
+from jcalib.init.homography import DEGENERATE_RTOL
+from jcalib.init.zhang import RANK_RTOL, constraint_basis
 
 #: ``ok`` needs a first-order focal-length spread below this fraction of the numpy check's threshold
 #: (``max_focal_rel_std``, a Monte-Carlo spread); near the threshold the numpy check decides.
@@ -73,7 +73,7 @@ def _homography(xy, uv, w):
     c, lower = jsl.cho_factor(M[:8, :8], lower=True)
     h = jnp.concatenate([jsl.cho_solve((c, lower), -M[:8, 8]), jnp.ones((1,), M.dtype)])
     pivots = jnp.diagonal(c) ** 2
-    ok = (jnp.min(pivots) > _DEGENERATE_RTOL**2 * jnp.max(jnp.diagonal(M))) & jnp.all(jnp.isfinite(h))
+    ok = (jnp.min(pivots) > DEGENERATE_RTOL**2 * jnp.max(jnp.diagonal(M))) & jnp.all(jnp.isfinite(h))
     H = jnp.linalg.solve(Tu, h.reshape(3, 3) @ Tx)
     return H / jnp.linalg.norm(H), ok
 
@@ -99,7 +99,7 @@ def _camera_matrix(H, view_w, N, basis, skew: bool, aspect_ratio, principal_poin
     m = basis.shape[1]
     e, vec = jnp.linalg.eigh(M.T @ M)
     sv = jnp.sqrt(jnp.maximum(e, 0.0))
-    ok = (sv[-1] > 0.0) & (sv[1] > _RANK_RTOL * sv[-1]) if m > 1 else sv[-1] > 0.0
+    ok = (sv[-1] > 0.0) & (sv[1] > RANK_RTOL * sv[-1]) if m > 1 else sv[-1] > 0.0
     b = basis @ vec[:, 0]
     B = jnp.stack([b[jnp.array([0, 1, 3])], b[jnp.array([1, 2, 4])], b[jnp.array([3, 4, 5])]])
     B = jnp.where(B[0, 0] < 0.0, -B, B)
@@ -155,7 +155,7 @@ def zhang_start(points_xy, pixels, weight, *, image_size: tuple[int, int], skew:
     uv = jnp.where(view_w[:, None, None] > 0.0, pixels, pixels[first][None])
     w = jnp.where(view_w[:, None] > 0.0, w, w[first][None])
 
-    basis = jnp.asarray(_constraint_basis(skew, aspect_ratio, principal_point))
+    basis = jnp.asarray(constraint_basis(skew, aspect_ratio, principal_point))
     centre = np.asarray(principal_point if principal_point is not None else (np.asarray(image_size) - 1.0) / 2.0,
                         np.float64)
     scale = float(np.mean(np.asarray(image_size, np.float64)))
@@ -170,7 +170,7 @@ def zhang_start(points_xy, pixels, weight, *, image_size: tuple[int, int], skew:
     # (numpy: a Monte-Carlo _focal_spread), to first order: std(1/fx²) = σ ‖∂(1/fx²)/∂pixels‖
     grad, (H, K, ok_h, ok_k) = jax.grad(closed_form, has_aux=True)(uv)
     R, t = _poses(K, H)
-    pose = jnp.concatenate([_matrix_to_quat(R, jnp), t], axis=-1)
+    pose = jnp.concatenate([so3_from_matrix(R), t], axis=-1)
     res = (jax.vmap(_transfer)(H, xy) - uv) * w[..., None] * view_w[:, None, None]
     dof = jnp.maximum(2.0 * jnp.sum(w * view_w[:, None]) - 8.0 * jnp.sum(view_w), 1.0)
     sigma = jnp.sqrt(jnp.sum(res * res) / dof)

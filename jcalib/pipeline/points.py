@@ -248,7 +248,8 @@ def triangulate_file(
             intrinsics, a point seen in fewer than two images.
         NotObservableError: nearly parallel rays or rays meeting behind a camera (naming the point).
     """
-    from jcalib.init.triangulation import compose_pose_chains, triangulate_points
+    from jcalib.init.pose_chains import compose_pose_chains
+    from jcalib.init.triangulation import triangulate_points
     from jcalib.io.atomic import write_json_atomic
     from jcalib.io.cell import load_cell
     from jcalib.io.result import Provenance, hash_inputs, load_result

@@ -28,15 +28,8 @@ from scipy.stats import chi2 as _chi2
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.se3 import log_se3
-from jcalib.init.handeye import (
-    HAND_EYE_METHODS,
-    HandEyeInit,
-    MotionDiagnostics,
-    analyse_motion,
-    check_observable,
-    checked_stations,
-    solve_hand_eye,
-)
+from jcalib.init.handeye import HAND_EYE_METHODS, HandEyeInit, solve_hand_eye
+from jcalib.init.handeye_motion import MotionDiagnostics, analyse_motion, check_observable, checked_stations
 from jcalib.init.robot_world import ROBOT_WORLD_METHODS, solve_robot_world_hand_eye
 from jcalib.io.cell import CameraSpec, CellSpec, RobotSpec, TargetSpec
 from jcalib.io.observations import Observations, PoseMeasurement, Station

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
-from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, PivotAccessors, PivotResult, as_pose_matrices, pivot_calibration
+from jcalib.geometry.se3 import as_pose_matrices
+from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, PivotAccessors, PivotResult, pivot_calibration
 from jcalib.io.cell import CellSpec, PointSpec, RobotSpec, ToolSpec
 from jcalib.io.observations import Contact, Observations, Station
 from jcalib.problems.calibrate import calibrate_cell

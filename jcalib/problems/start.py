@@ -24,19 +24,15 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
-from jcalib.geometry.se3 import invert, make_pose
+from jcalib.geometry.se3 import invert, make_pose, rotvec
 from jcalib.init import planar_pnp, zhang_init
-from jcalib.init.handeye import (
-    HandEyeInit,
+from jcalib.init.handeye import HandEyeInit, average_poses, relative_motions, solve_hand_eye
+from jcalib.init.handeye_motion import (
     MotionDiagnostics,
     analyse_motion,
-    average_poses,
     check_observable,
     fmt_axis,
-    relative_motions,
-    rotvec,
     solution_diagnostics,
-    solve_hand_eye,
 )
 from jcalib.init.robot_world import solve_robot_world_hand_eye
 from jcalib.problems.graph import FREE, Graph

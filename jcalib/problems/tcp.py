@@ -22,7 +22,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import AbstractCameraModel
-from jcalib.init.pivot import as_pose_matrices
+from jcalib.geometry.se3 import as_pose_matrices
 from jcalib.io.cell import CameraSpec, CellSpec, RobotSpec, ToolSpec
 from jcalib.io.observations import Detection, Observations, Station
 from jcalib.problems.build import se3_params

@@ -13,7 +13,7 @@ import numpy as np
 from jcalib.geometry import lie
 from jcalib.geometry.cameras import camera_model_from_name
 from jcalib.geometry.conversions import pose_to_matrix
-from jcalib.geometry.se3 import invert
+from jcalib.geometry.se3 import invert, make_pose, rotation
 
 #: Fewest corners of a view the problems accept (as jcalib.problems.graph.MIN_POINTS_PER_VIEW).
 MIN_POINTS_PER_VIEW = 6
@@ -26,12 +26,6 @@ SYNTH_FLANGE_PARAMS = np.array([1400.0, 1398.0, 801.5, 598.0, -0.12, 0.08, 0.000
 SYNTH_FIXED_PARAMS = np.array([1800.0, 1801.0, 795.0, 603.0, -0.08, 0.05, 0.0, 0.0, 0.0])
 
 
-def _rot(axis, angle):
-    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
-
-
 def _look_at(eye, target, up=(0.0, 0.0, 1.0)):
     """``T_base_cam`` of a camera at ``eye`` whose optical axis (+z) points at ``target``."""
     z = np.asarray(target, np.float64) - eye
@@ -40,10 +34,7 @@ def _look_at(eye, target, up=(0.0, 0.0, 1.0)):
     if np.linalg.norm(x) < 1e-6:
         x = np.cross(z, (1.0, 0.0, 0.0))
     x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
+    return make_pose(np.stack([x, np.cross(z, x), z], axis=1), eye)
 
 
 def _perturb(T, rng, sigma_m, sigma_deg):
@@ -99,16 +90,11 @@ def synthetic_cell(
     board = Checkerboard(cols=9, rows=6, square=0.03)
     pts = np.asarray(board.points, np.float64)
     centre_t = pts.mean(axis=0)
-    T_base_board = np.eye(4)
-    T_base_board[:3, :3] = _rot((1, 0, 0), np.pi)  # printed face (-z) up
-    T_base_board[:3, 3] = [0.7, -0.1, 0.0]
+    T_base_board = make_pose(rotation((1, 0, 0), np.pi), [0.7, -0.1, 0.0])  # printed face (-z) up
     centre = T_base_board[:3, :3] @ centre_t + T_base_board[:3, 3]
-    T_flange_cam0 = np.eye(4)
-    T_flange_cam0[:3, :3] = _rot((0.2, 0.1, 1.0), 0.3)
-    T_flange_cam0[:3, 3] = [0.06, -0.03, 0.08]
+    T_flange_cam0 = make_pose(rotation((0.2, 0.1, 1.0), 0.3), [0.06, -0.03, 0.08])
     T_base_cam1 = _look_at(np.array([1.2, 0.5, 0.6]), centre + np.array([0.05, 0.1, 0.1]))
-    T_flange_tool = np.eye(4)
-    T_flange_tool[:3, 3] = [0.01, -0.02, 0.18]
+    T_flange_tool = make_pose(np.eye(3), [0.01, -0.02, 0.18])
     true = {"T_flange_cam0": T_flange_cam0, "T_base_cam1": T_base_cam1, "T_base_board": T_base_board,
             "T_flange_needle": T_flange_tool, "cam0": SYNTH_FLANGE_PARAMS.copy(), "cam1": SYNTH_FIXED_PARAMS.copy()}
     true.update({k: np.asarray(v, np.float64) for k, v in (truth or {}).items()})
@@ -126,7 +112,7 @@ def synthetic_cell(
         dirn = np.array([geo.uniform(-0.5, 0.5), geo.uniform(-0.5, 0.5), 1.0])
         eye = centre + geo.uniform(0.35, 0.6) * dirn / np.linalg.norm(dirn)
         T_base_c = _look_at(eye, centre + geo.normal(scale=0.03, size=3), up=(1.0, 0.0, 0.0))
-        T_base_c[:3, :3] = T_base_c[:3, :3] @ _rot((0, 0, 1), geo.uniform(-0.6, 0.6))
+        T_base_c[:3, :3] = T_base_c[:3, :3] @ rotation((0, 0, 1), geo.uniform(-0.6, 0.6))
         T_bf = T_base_c @ invert(true["T_flange_cam0"])
         u, ok = project("cam0", invert(T_bf @ true["T_flange_cam0"]) @ true["T_base_board"], pts)
         if ok.sum() == len(pts):
@@ -136,11 +122,8 @@ def synthetic_cell(
     while len(T_bf_true) < num_board_stations + num_tool_stations:
         p_cam = np.array([geo.uniform(-0.08, 0.08), geo.uniform(-0.06, 0.06), geo.uniform(0.5, 0.7)])
         p_base = look[:3, :3] @ p_cam + look[:3, 3]
-        R = _rot((1, 0, 0), np.pi) @ _rot(geo.normal(size=3), geo.uniform(0.1, 0.7))
-        T_bf = np.eye(4)
-        T_bf[:3, :3] = R
-        T_bf[:3, 3] = p_base - R @ true["T_flange_needle"][:3, 3]
-        T_bf_true.append(T_bf)
+        R = rotation((1, 0, 0), np.pi) @ rotation(geo.normal(size=3), geo.uniform(0.1, 0.7))
+        T_bf_true.append(make_pose(R, p_base - R @ true["T_flange_needle"][:3, 3]))
     for i, T_bf in enumerate(T_bf_true):
         dets = []
         if i < num_board_stations:
@@ -212,21 +195,12 @@ def synthetic_two_robot_cell(
     geo = np.random.default_rng(54321)  # the layout is the same for every seed
     boards = {"board": Checkerboard(cols=9, rows=6, square=0.03), "board2": Checkerboard(cols=7, rows=5, square=0.03)}
     pts = {n: np.asarray(b.points, np.float64) for n, b in boards.items()}
-    T_world_board = np.eye(4)
-    T_world_board[:3, :3] = _rot((1, 0, 0), np.pi)
-    T_world_board[:3, 3] = [0.7, -0.1, 0.0]
+    T_world_board = make_pose(rotation((1, 0, 0), np.pi), [0.7, -0.1, 0.0])
     centre = T_world_board[:3, :3] @ pts["board"].mean(axis=0) + T_world_board[:3, 3]
-    T_world_r2 = np.eye(4)
-    T_world_r2[:3, :3] = _rot((0.05, -0.03, 1.0), 2.4)
-    T_world_r2[:3, 3] = [1.7, 0.9, 0.05]
-    T_flange_cam0 = np.eye(4)
-    T_flange_cam0[:3, :3] = _rot((0.2, 0.1, 1.0), 0.3)
-    T_flange_cam0[:3, 3] = [0.06, -0.03, 0.08]
-    T_flange_board2 = np.eye(4)
-    T_flange_board2[:3, :3] = _rot((0.1, -0.2, 1.0), 0.5)
-    T_flange_board2[:3, 3] = [-0.09, -0.06, 0.04]
-    T_flange_torch = np.eye(4)
-    T_flange_torch[:3, 3] = [0.015, 0.01, 0.21]
+    T_world_r2 = make_pose(rotation((0.05, -0.03, 1.0), 2.4), [1.7, 0.9, 0.05])
+    T_flange_cam0 = make_pose(rotation((0.2, 0.1, 1.0), 0.3), [0.06, -0.03, 0.08])
+    T_flange_board2 = make_pose(rotation((0.1, -0.2, 1.0), 0.5), [-0.09, -0.06, 0.04])
+    T_flange_torch = make_pose(np.eye(3), [0.015, 0.01, 0.21])
     T_world_cam1 = _look_at(np.array([1.2, 0.5, 0.6]), centre + np.array([0.05, 0.1, 0.1]))
     true = {"T_world_r1": np.eye(4), "T_world_r2": T_world_r2, "T_flange_cam0": T_flange_cam0,
             "T_world_cam1": T_world_cam1, "T_world_board": T_world_board, "T_flange_board2": T_flange_board2,
@@ -238,13 +212,13 @@ def synthetic_two_robot_cell(
 
     def look(eye, at):  # a camera pose at eye looking at `at`, rolled at random
         T = _look_at(eye, at + geo.normal(scale=0.03, size=3), up=(1.0, 0.0, 0.0))
-        T[:3, :3] = T[:3, :3] @ _rot((0, 0, 1), geo.uniform(-0.6, 0.6))
+        T[:3, :3] = T[:3, :3] @ rotation((0, 0, 1), geo.uniform(-0.6, 0.6))
         return T
 
     def facing(T_world_cam, dist):  # a board2 pose in front of a camera, tilted, printed face to it
         c = np.array([geo.uniform(-0.06, 0.06), geo.uniform(-0.05, 0.05), dist])
         T = T_world_cam.copy()
-        T[:3, :3] = T_world_cam[:3, :3] @ _rot(geo.normal(size=3), geo.uniform(0.1, 0.6))
+        T[:3, :3] = T_world_cam[:3, :3] @ rotation(geo.normal(size=3), geo.uniform(0.1, 0.6))
         T[:3, 3] = T_world_cam[:3, :3] @ c + T_world_cam[:3, 3] - T[:3, :3] @ pts["board2"].mean(axis=0)
         return T
 
@@ -268,10 +242,8 @@ def synthetic_two_robot_cell(
     while len(stations) < num_board_stations + num_r2_stations + num_cross_stations + num_tool_stations:
         p_cam = np.array([geo.uniform(-0.08, 0.08), geo.uniform(-0.06, 0.06), geo.uniform(0.5, 0.7)])
         p_world = T_world_cam1[:3, :3] @ p_cam + T_world_cam1[:3, 3]
-        T_wf = np.eye(4)
-        T_wf[:3, :3] = _rot((1, 0, 0), np.pi) @ _rot(geo.normal(size=3), geo.uniform(0.1, 0.7))
-        T_wf[:3, 3] = p_world - T_wf[:3, :3] @ T_flange_torch[:3, 3]
-        stations.append((None, invert(T_world_r2) @ T_wf))
+        R = rotation((1, 0, 0), np.pi) @ rotation(geo.normal(size=3), geo.uniform(0.1, 0.7))
+        stations.append((None, invert(T_world_r2) @ make_pose(R, p_world - R @ T_flange_torch[:3, 3])))
 
     out = []
     for i, (F1, F2) in enumerate(stations):

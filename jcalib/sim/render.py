@@ -178,7 +178,7 @@ class RenderOptions:
 # Input checks
 
 
-def _pose_matrix(T: Any, name: str) -> np.ndarray:
+def check_transform(T: Any, name: str) -> np.ndarray:
     """A validated (4, 4) float64 rigid transform from an array or an object with ``as_matrix()``."""
     if hasattr(T, "as_matrix"):
         T = T.as_matrix()
@@ -201,7 +201,8 @@ def _pose_matrix(T: Any, name: str) -> np.ndarray:
     return M
 
 
-def _check_texture(texture: Any, name: str = "texture") -> TargetTexture:
+def check_texture(texture: Any, name: str = "texture") -> TargetTexture:
+    """``texture`` if it is a usable :class:`~jcalib.sim.textures.TargetTexture`, else a BadInputError naming ``name``."""
     if not all(hasattr(texture, a) for a in ("image", "metres_per_pixel", "origin_m")):
         raise BadInputError(f"{name}: got {type(texture).__name__}, expected a jcalib.sim.textures.TargetTexture")
     image = np.asarray(texture.image)
@@ -272,7 +273,7 @@ def _camera_key(camera: Any, width: int, height: int) -> Any:
     return key
 
 
-def _ray_grid(camera: Any, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ray_grid(camera: Any, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rays of the padded pixel grid, cached per camera parameters and image size.
 
     Returns:
@@ -413,8 +414,8 @@ def render_reflectance(
     checked = []
     for k, (T, texture) in enumerate(targets):
         name = "T_cam_target" if len(targets) == 1 else f"targets[{k}].T_cam_target"
-        checked.append((_pose_matrix(T, name), _check_texture(texture)))
-    rays, valid, cos_theta = _ray_grid(camera, width, height)
+        checked.append((check_transform(T, name), check_texture(texture)))
+    rays, valid, cos_theta = ray_grid(camera, width, height)
     all_valid = bool(valid.all())
     lens_valid = valid[1:-1, 1:-1]
 

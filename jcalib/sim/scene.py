@@ -27,13 +27,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.geometry.se3 import invert, rotation
 from jcalib.io.atomic import write_bytes_atomic, write_json_atomic
 from jcalib.sim.noise import default_gain_dn_per_e
 from jcalib.sim.render import (
     RenderOptions,
-    _check_texture,
-    _pose_matrix,
     camera_image_size,
+    check_texture,
+    check_transform,
     render_targets_image,
 )
 from jcalib.sim.textures import TargetTexture
@@ -104,7 +105,7 @@ def _check_mount(kind: str, name: str, mount: str, pose: Any) -> np.ndarray | No
     if pose is None:
         frame = "base" if mount == "base" else "flange"
         raise BadInputError(f"{kind} {name!r}: mount {mount!r} needs pose = T_{frame}_{kind} (4x4, m)")
-    return _pose_matrix(pose, f"{kind} {name!r} pose")
+    return check_transform(pose, f"{kind} {name!r} pose")
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,7 @@ class Scene:
             camera_image_size(cam.model)
         for name, tgt in self.targets.items():
             _check_mount("target", name, tgt.mount, tgt.pose)
-            _check_texture(tgt.texture, f"target {name!r} texture")
+            check_texture(tgt.texture, f"target {name!r} texture")
             points = np.asarray(tgt.target.points, dtype=np.float64)
             if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
                 raise BadInputError(f"target {name!r}: points have shape {points.shape}, expected finite (N, 3)")
@@ -142,13 +143,13 @@ class Scene:
                     f"Scene.views[{k}] ({view.id!r}): T_base_flange is missing, needed for the base/flange mounts"
                 )
             if view.T_base_flange is not None:
-                _pose_matrix(view.T_base_flange, f"view {view.id!r} T_base_flange")
+                check_transform(view.T_base_flange, f"view {view.id!r} T_base_flange")
             for (cam, tgt), T in view.T_cam_target.items():
                 if cam not in self.cameras or tgt not in self.targets:
                     raise BadInputError(
                         f"view {view.id!r}: T_cam_target for ({cam!r}, {tgt!r}) names an unknown camera or target"
                     )
-                _pose_matrix(T, f"view {view.id!r} T_cam_target[{cam!r}, {tgt!r}]")
+                check_transform(T, f"view {view.id!r} T_cam_target[{cam!r}, {tgt!r}]")
 
     def T_cam_target(self, view: int | View, camera: str, target: str) -> np.ndarray | None:
         """(4, 4) pose of ``target`` in ``camera`` at ``view`` (index or View), m; None if not seen."""
@@ -157,21 +158,13 @@ class Scene:
         tgt = self.targets[target]
         if cam.mount == "free" or tgt.mount == "free":
             T = v.T_cam_target.get((camera, target))
-            return None if T is None else _pose_matrix(T, f"view {v.id!r} T_cam_target")
-        T_base_flange = _pose_matrix(v.T_base_flange, f"view {v.id!r} T_base_flange")
+            return None if T is None else check_transform(T, f"view {v.id!r} T_cam_target")
+        T_base_flange = check_transform(v.T_base_flange, f"view {v.id!r} T_base_flange")
         T_cam_pose = np.asarray(cam.pose, dtype=np.float64)
         T_base_cam = T_base_flange @ T_cam_pose if cam.mount == "flange" else T_cam_pose
         T_tgt_pose = np.asarray(tgt.pose, dtype=np.float64)
         T_base_target = T_base_flange @ T_tgt_pose if tgt.mount == "flange" else T_tgt_pose
-        return _inverse(T_base_cam) @ T_base_target
-
-
-def _inverse(T: np.ndarray) -> np.ndarray:
-    R = T[:3, :3]
-    out = np.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
-    return out
+        return invert(T_base_cam) @ T_base_target
 
 
 # --------------------------------------------------------------------------------------------------
@@ -202,7 +195,7 @@ def project_target(camera: Any, T_cam_target: Any, points: Any) -> tuple[np.ndar
             inside the image (``-0.5 <= u <= W - 0.5``, same for v). Occlusion by other boards is not
             checked.
     """
-    T = _pose_matrix(T_cam_target, "T_cam_target")
+    T = check_transform(T_cam_target, "T_cam_target")
     P = np.asarray(points, dtype=np.float64)
     p_cam = P @ T[:3, :3].T + T[:3, 3]
     pixels, valid = _project_valid(camera, jnp.asarray(p_cam))
@@ -231,11 +224,6 @@ def _opencv_params(camera: Any) -> tuple[np.ndarray, np.ndarray]:
     else:
         K, dist = out[0], out[1]
     return np.asarray(K, dtype=np.float64), np.asarray(dist, dtype=np.float64).ravel()
-
-
-def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    R, _ = cv2.Rodrigues(np.asarray(axis, dtype=np.float64) * angle)
-    return R
 
 
 def random_calibration_views(
@@ -323,7 +311,7 @@ def random_calibration_views(
             tilt = math.radians(max_tilt_deg) * stilt
             alpha = gen.uniform(0.0, 2.0 * math.pi)
             roll = math.radians(gen.uniform(-max_roll_deg, max_roll_deg))
-            R = _rotation(np.array([math.cos(alpha), math.sin(alpha), 0.0]), tilt) @ _rotation(
+            R = rotation(np.array([math.cos(alpha), math.sin(alpha), 0.0]), tilt) @ rotation(
                 np.array([0.0, 0.0, 1.0]), roll
             )
             p_centre = ray / ray[2] * distance

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.sim.render import RenderOptions, _pose_matrix, _ray_grid, camera_image_size, form_image
+from jcalib.sim.render import RenderOptions, camera_image_size, check_transform, form_image, ray_grid
 
 __all__ = ["SymmetricTool", "ToolImage", "render_tool_image", "tool_rays_hit"]
 
@@ -280,7 +280,7 @@ def _coverage(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel covered area fraction (H, W) float32, cos(field angle) (H, W), lens validity (H, W)."""
     width, height = camera_image_size(camera)
-    rays, valid, cos_theta = _ray_grid(camera, width, height)
+    rays, valid, cos_theta = ray_grid(camera, width, height)
     lens_valid = valid[1:-1, 1:-1]
     R_tcp_cam = T_cam_tcp[:3, :3].T
     origin = -R_tcp_cam @ T_cam_tcp[:3, 3]  # camera centre in the tcp frame
@@ -363,7 +363,7 @@ def render_tool_image(
             raise BadInputError(f"{name}: got {value!r}, expected a relative radiance in [0, 1]")
     if not isinstance(edge_supersample, int | np.integer) or not 1 <= edge_supersample <= 64:
         raise BadInputError(f"edge_supersample: got {edge_supersample!r}, expected an int in 1..64")
-    T = _pose_matrix(T_cam_tcp, "T_cam_tcp")
+    T = check_transform(T_cam_tcp, "T_cam_tcp")
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     coverage, cos_theta, lens_valid = _coverage(camera, T, tool, options.supersample, edge_supersample)
     radiance = (backlight + (tool_reflectance - backlight) * coverage).astype(np.float32)

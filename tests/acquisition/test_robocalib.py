@@ -12,7 +12,8 @@ from jcalib.acquisition.robocalib import handeye_stations, viewset_stations
 from jcalib.errors import BadInputError
 from jcalib.geometry.kinematics import forward_kinematics
 from jcalib.geometry.robots import robot_preset
-from jcalib.init.handeye import analyse_motion, check_observable, solve_hand_eye
+from jcalib.init.handeye import solve_hand_eye
+from jcalib.init.handeye_motion import analyse_motion, check_observable
 
 ROBOT = "kuka_kr10_r1100_sixx"
 EYE_IN_HAND = {

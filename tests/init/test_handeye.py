@@ -14,11 +14,11 @@ from jcalib.init.handeye import (
     HAND_EYE_METHODS,
     TSAI_MAX_ANGLE_DEG,
     TSAI_MIN_ANGLE_DEG,
-    analyse_motion,
     relative_motions,
     solve_ax_xb,
     solve_hand_eye,
 )
+from jcalib.init.handeye_motion import analyse_motion
 
 METHODS = list(HAND_EYE_METHODS)
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"

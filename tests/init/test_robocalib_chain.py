@@ -12,11 +12,8 @@ from jcalib.errors import BadInputError
 from jcalib.geometry.cameras import camera_from_opencv
 from jcalib.geometry.lie import local, se3_exp, se3_from_matrix, se3_to_matrix
 from jcalib.init.frames import frame_from_points, frame_from_three_points
-from jcalib.init.triangulation import (
-    compose_pose_chains,
-    point_in_frame,
-    triangulate_points,
-)
+from jcalib.init.pose_chains import compose_pose_chains, point_in_frame
+from jcalib.init.triangulation import triangulate_points
 
 SIZE = (1280, 1024)
 K = np.array([[1400.0, 0.0, 640.0], [0.0, 1400.0, 512.0], [0.0, 0.0, 1.0]])

@@ -10,11 +10,8 @@ from scipy.stats import chi2
 from jcalib.errors import BadInputError
 from jcalib.geometry.cameras import camera_from_opencv
 from jcalib.geometry.lie import local, se3_exp, se3_from_matrix, se3_to_matrix
-from jcalib.init.triangulation import (
-    compose_pose_chains,
-    triangulate_point,
-    triangulate_points,
-)
+from jcalib.init.pose_chains import compose_pose_chains
+from jcalib.init.triangulation import triangulate_point, triangulate_points
 
 SIZE = (1280, 1024)
 K = np.array([[1200.0, 0.0, 640.0], [0.0, 1200.0, 512.0], [0.0, 0.0, 1.0]])
