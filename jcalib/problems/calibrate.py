@@ -102,11 +102,14 @@ def _priors(prior, names, graph: Graph, start: Start) -> dict:
 
 def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | None = None, *, prior=None,
             prior_names=None, start=None, given: set[str] | None = None, priors: dict | None = None,
-            known: dict | None = None, points: dict | None = None) -> tuple[Graph, Start, object]:
+            known: dict | None = None, points: dict | None = None, unobservable_fixed: dict | None = None
+            ) -> tuple[Graph, Start, object]:
     """The graph, closed-form start and problem of a cell (everything before the solve).
 
     Arguments as :func:`calibrate_cell`; ``points``: cell point -> ``(3,)`` start value (m, cell frame)
-    instead of the one the contacts give. Returns ``(graph, start, built)``.
+    instead of the one the contacts give; ``unobservable_fixed``: the prior of a hand-eye translation
+    along a common rotation axis that an earlier start decided (``Calibration.unobservable_fixed``).
+    Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
     g = Graph(cell, obs, options.reference_camera)
@@ -153,6 +156,8 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
         if n in cell.points and cell.points[n].position is None:
             s.points[n] = np.asarray(p, np.float64).reshape(3)
     start_tools(g, s)
+    if unobservable_fixed is not None and s.unobservable_fixed is None:
+        s.unobservable_fixed = dict(unobservable_fixed)
     built = build(g, s, options, pose_model, {**_priors(prior, prior_names, g, s), **(priors or {})})
     return g, s, built
 
@@ -203,8 +208,11 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
     once (no rounds: the file records what they decided).
 
     The solve starts at the file's optimum, so it stays there: the estimate and covariances agree with
-    the file's to the solver's convergence tolerance. Priors from an earlier result (re-optimisation,
-    ``stats.priors``) are not in a result file and are left out.
+    the file's to the solver's convergence tolerance. A hand-eye translation held at a prior along a
+    common rotation axis (``stats.unobservable_fixed``) is held again.
+
+    Priors from an earlier result (re-optimisation, ``stats.priors``) are not in a result file: such a
+    result is refused.
 
     Args:
         cell, obs: the parsed cell spec and observations the result was computed from.
@@ -218,9 +226,14 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
     from jcalib.problems.refine import Refined, uses_components
     from jcalib.solve import SolveOptions, solve
 
+    if file.stats.get("priors"):
+        raise BadInputError(
+            f"result: it was re-optimised with priors from an earlier result ({', '.join(map(str, file.stats['priors']))}), "
+            "which the result file does not hold; its solve can be used only in the process that computed it")
     options = options or options_of(file)
     points = {n: p.position for n, p in file.points.items()}
-    g, s, built = prepare(cell, obs, options, start=file, points=points)
+    g, s, built = prepare(cell, obs, options, start=file, points=points,
+                          unobservable_fixed=file.stats.get("unobservable_fixed"))
     x0 = {}
     for c, model in s.models.items():
         saved = file.cameras.get(c)
