@@ -78,3 +78,32 @@ def with_station(obs: dict, station) -> dict:
     extra = json.loads(json.dumps(station.to_dict()))
     extra["id"] = f"extra{len(obs['stations'])}"
     return {**obs, "stations": [*obs["stations"], extra]}
+
+
+def scara_handeye(seed: int = 7, n: int = 10) -> tuple[dict, dict]:
+    """SCARA-like eye-in-hand data: flange z down, every rotation about the base z, so the hand-eye
+    translation along that axis is not observable (``fix_unobservable`` holds it at a prior); 0.2 px."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    X = H.pose(Rotation.from_euler("xz", [20.0, 35.0], degrees=True).as_matrix(), [0.04, -0.03, 0.08])
+    target = H.pose(Rotation.from_euler("zx", [25.0, 180.0], degrees=True).as_matrix(), [0.6, 0.1, 0.0])
+    down = Rotation.from_euler("x", 180.0, degrees=True).as_matrix()
+    stations = []
+    for i, ang in enumerate(np.linspace(-80.0, 80.0, n) + rng.uniform(-5.0, 5.0, n)):
+        R = Rotation.from_euler("z", ang, degrees=True).as_matrix() @ down
+        h = 0.45 + rng.uniform(-0.05, 0.05)
+        T_bc = H.pose(R, [0.0, 0.0, h]) @ X
+        c, dz = T_bc[:3, 3], T_bc[:3, 2]
+        look = c - c[2] / dz[2] * dz  # where the optical axis meets the table
+        T_bf = H.pose(R, np.array([*(target[:2, 3] + rng.uniform(-0.06, 0.06, 2) - look[:2]), h]))
+        pix, vis = project_target(HE_CAMERA, H.inv(T_bf @ X) @ target, H.BOARD)
+        idx = np.flatnonzero(vis)
+        stations.append({"id": f"s{i:03d}", "T_base_flange": T_bf.tolist(), "detections": [{
+            "camera": "cam0", "target": "board", "point_index": idx.tolist(),
+            "pixels": (pix[idx] + 0.2 * rng.normal(size=(idx.size, 2))).tolist()}]})
+    cell, _ = weak_handeye(n=2)
+    del cell["robot"]
+    obs = {"schema": "jcalib.observations/1", "cameras": {"cam0": {"image_size": list(HE_SIZE)}},
+           "targets": {"board": {"points": H.BOARD.tolist()}}, "stations": stations}
+    return cell, obs

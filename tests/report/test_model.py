@@ -139,3 +139,24 @@ def test_held_aspect_ratio_ties_fy_to_fx(camera_case, cases):
     from_file = model_from_file(result.file)  # the file's joint covariance: fy dropped as tied, not inverted
     assert "cam0 fy" not in from_file.labels
     np.testing.assert_allclose(from_file.sigma(), model.sigma(), rtol=1e-9)
+
+
+def test_restored_scara_keeps_the_prior_on_the_unobservable_translation(tmp_path, cases):
+    """One-axis (SCARA) motion with ``fix_unobservable``: the result file records the prior along the axis
+    and the restored problem holds it again (else it would not be observable); a re-optimised result,
+    whose priors the file does not hold, is refused."""
+    from jcalib.errors import BadInputError
+    from jcalib.io.result import ResultFile
+
+    cell, obs = cases.scara_handeye()
+    options = {**cases.STATED, "fix_unobservable": True, "unobservable_prior_m": 0.08}
+    result = jcalib.calibrate(cell, obs, options)
+    assert result.file.stats["unobservable_fixed"]["transform"] == "T_flange_cam0"
+    path = result.to_json(tmp_path / "result.json")
+    model = linear_model(calibration_of(path, obs, cell), options_of(result.file))
+    np.testing.assert_allclose(model.sigma(), linear_model(result.details).sigma(), rtol=1e-6)
+    f = result.file
+    refit = ResultFile(cameras=f.cameras, transforms=f.transforms, stats={**f.stats, "priors": ["T_flange_cam0"]},
+                       provenance=f.provenance)
+    with pytest.raises(BadInputError, match="re-optimised"):
+        calibration_of(refit, obs, cell)
