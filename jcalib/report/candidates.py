@@ -28,7 +28,7 @@ from jcalib.errors import JcalibError
 from jcalib.io.observations import Contact, Detection, Station
 from jcalib.io.result import CameraResult, ResultFile, TransformResult
 from jcalib.report.model import LinearModel
-from jcalib.report.taskspace import project, projection_sigma_at, unproject
+from jcalib.report.taskspace import image_grid, project, projection_sigma_at, unproject
 
 __all__ = ["STATION_KINDS", "Candidate", "Suggestion", "candidates", "station_information", "what_would_help"]
 
@@ -115,10 +115,10 @@ class _Cell:
     """Where things are at the estimate, per station (cell frame)."""
 
     def __init__(self, cal):
-        from jcalib.problems.build import se3_matrix
+        from jcalib.problems.build import se3_matrix, se3_params
 
         self.cal, self.g = cal, cal.graph
-        self.se3 = se3_matrix
+        self.se3, self.params = se3_matrix, se3_params
         self.flange = {}
         for r, fp in cal.flange_poses.items():
             self.flange[r] = dict(zip(fp["station_ids"], fp["estimated"]))
@@ -229,8 +229,6 @@ def _pair_candidates(model: LinearModel, where: _Cell, c: str, t: str) -> list[C
     worst = None
     cov = model.camera_covariance(c)
     if cov is not None:
-        from jcalib.report.taskspace import image_grid
-
         u, v = image_grid(cam.image_size, (9, 7))
         grid = np.stack([u.ravel(), v.ravel()], -1)
         s = projection_sigma_at(cam, grid, cov)
@@ -251,8 +249,7 @@ def _pair_candidates(model: LinearModel, where: _Cell, c: str, t: str) -> list[C
         moved, values = {}, {}
         W_c, W_t = where.world(cs, c, k), where.world(ts, t, k)
         if ht == FREE:
-            entry = np.asarray(_se3_params(W_c @ T_new))[None]
-            values[g.free_name(t)] = entry
+            values[g.free_name(t)] = where.params(W_c @ T_new)[None]
         elif hc not in (None, FREE):
             moved[hc] = np.linalg.inv(where.base(hc)) @ W_t @ np.linalg.inv(T_new) @ np.linalg.inv(where.mount(cs))
         else:
@@ -262,12 +259,6 @@ def _pair_candidates(model: LinearModel, where: _Cell, c: str, t: str) -> list[C
         out.append(Candidate(f"{c}/{t} {kind}", kind, (c, t), STATION_KINDS[kind].format(camera=c, target=t),
                              station, values))
     return out
-
-
-def _se3_params(T: np.ndarray) -> np.ndarray:
-    from jcalib.problems.build import se3_params
-
-    return se3_params(T)
 
 
 def _tip_candidates(where: _Cell, c: str, tool: str) -> list[Candidate]:
