@@ -1,14 +1,18 @@
-"""Do the report's σ match the Monte-Carlo spread? Intrinsics (camera cell), hand-eye and TCP.
+"""Do the report's σ match the Monte-Carlo spread? Intrinsics (camera cell), hand-eye, the whole cell and TCP.
 
-Fixed geometry, fresh Gaussian corner noise (and robot pose noise for hand-eye / TCP) per trial,
-fixed seeds. Each trial is calibrated and the report's analysis gives the σ of every unknown:
-:func:`jcalib.report.analysis.linear_models` (intrinsics, hand-eye: the σ the report's tables and
-warnings use) and :mod:`jcalib.report.tcp` on the result file of a TCP calibration (σ of the TCP
-per flange axis, and of the tool tip in the base frame at the file's reference flange pose).
-Printed per unknown: empirical σ (RMS error against the truth), reported σ (RMS over trials),
-their ratio (target 0.85-1.15), the solver's own σ over the report's (the report rebuilds the
-information itself: 1.000 means the same linear model) and the RMS over the mean of the reported σ
-(1.00: the per-trial σ hardly vary, so their RMS is a fair summary).
+Fixed geometry, fresh Gaussian noise (corners, tips, robot poses) per trial, fixed seeds. Each trial is
+calibrated and the report's linear model (:func:`jcalib.report.model.linear_model`: the covariance of
+the solve's Solution, what the report's tables, weak directions and warnings use) gives the σ of every
+unknown; the TCP rows use :mod:`jcalib.report.tcp` on the result file of a TCP calibration (σ of the
+TCP per flange axis, and of the tool tip in the base frame at the file's reference flange pose).
+Printed per unknown: empirical σ (RMS error against the truth), reported σ (RMS over trials), their
+ratio (target 0.85-1.15), the result file's σ over the report's (1.0000: the report shows the solve's
+numbers, it has no model of its own) and the RMS over the mean of the reported σ (1.00: the per-trial σ
+hardly vary, so their RMS is a fair summary).
+
+A last table checks "what would help" (``--predict``): for the whole cell, the σ the report predicts
+after adding one candidate station (built by the one builder, linearised by the solve) against the
+Monte-Carlo spread of calibrations that have that station (noisy like the others).
 
 The sampling 99.9 % band of a ratio printed with each table is what a *perfect* σ would show with
 that many trials: at 200 trials it is about [0.86, 1.19], as wide as the ±15 % target, so single
@@ -16,7 +20,7 @@ ratios near 0.85 at 200 trials are not evidence of a bug; use ``--trials 1000`` 
 ±7 %) to judge an outlier.
 
 Run: ``.venv/bin/python benchmarks/bench_report_consistency.py [--trials 200] [--views 10 20 40]
-[--skip-handeye] [--skip-tcp]``
+[--skip-camera] [--skip-handeye] [--skip-cell] [--skip-tcp] [--predict]``
 """
 
 from __future__ import annotations
@@ -30,8 +34,11 @@ import numpy as np
 from scipy import stats
 
 import jcalib
-from jcalib.geometry import Checkerboard, camera_from_opencv, lie
-from jcalib.report import analysis as A
+from jcalib.geometry import Checkerboard, camera_from_opencv
+from jcalib.geometry import lie
+from jcalib.geometry.conversions import pose_to_matrix
+from jcalib.geometry.se3 import log_se3
+from jcalib.report.model import linear_model, options_of
 from jcalib.sim.scene import project_target, random_calibration_views
 
 BOARD = Checkerboard(cols=9, rows=6, square=0.03)
@@ -56,30 +63,75 @@ def camera_trials(trials: int, num_views: int = 10):
                              "pixels": (p + 0.3 * rng.standard_normal(p.shape)).tolist()}]}
                             for i, p in enumerate(clean)]}
         result = jcalib.calibrate(cell, obs)
-        model = A.linear_models(result, obs)["cam"]
+        model = linear_model(result.details, options_of(result.file))
         err.append(np.asarray(result.file.cameras["cam"].params) - truth)
         sig.append(model.sigma())
-        solver.append([result.file.cameras["cam"].std[u.coord] for u in model.unknowns])
+        solver.append(file_sigma(result.file, model))
     return [u.label for u in model.unknowns], np.array(err), np.array(sig), np.array(solver)
 
 
+def se3_exp(delta: np.ndarray) -> np.ndarray:
+    """``T = Exp(δ)`` (4, 4) of a tangent ``(rx, ry, rz, tx, ty, tz)`` (rad, m)."""
+    import jax.numpy as jnp
+
+    return np.asarray(pose_to_matrix(np.asarray(lie.se3_exp(jnp.asarray(delta)))))
+
+
+def _handeye_helpers():
+    path = Path(__file__).resolve().parents[1] / "tests" / "init" / "test_handeye.py"
+    spec = importlib.util.spec_from_file_location("_handeye_scene_helpers_bench", path)
+    H = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(H)
+    return H
+
+
+def file_sigma(file, model) -> np.ndarray:
+    """The result file's σ of every unknown of the model (display units)."""
+    out = []
+    for u in model.unknowns:
+        if u.block in file.cameras:
+            out.append(file.cameras[u.block].std[u.coord])
+        elif u.block.startswith("point "):
+            p = file.points[u.block[6:]]
+            out.append(1e3 * float(np.sqrt(p.covariance["xyz".index(u.coord)]["xyz".index(u.coord)])))
+        else:
+            k = ("rx", "ry", "rz", "tx", "ty", "tz").index(u.coord)
+            out.append(u.scale * float(np.sqrt(np.asarray(file.transforms[u.block].covariance)[k, k])))
+    return np.array(out)
+
+
+def model_errors(result, model, truth: dict) -> np.ndarray:
+    """Estimate − truth of every unknown of the model, display units (transforms: δ with truth = est·Exp(δ))."""
+    out = []
+    deltas = {n: log_se3(np.linalg.inv(T) @ truth[n]) for n, T in result.details.transforms.items() if n in truth}
+    for u in model.unknowns:
+        if u.block in result.details.cameras:
+            j = model.param_names[u.block].index(u.coord)
+            out.append(float(np.asarray(result.details.cameras[u.block].params)[j] - truth[u.block][j]))
+        else:
+            out.append(u.scale * float(deltas[u.block][("rx", "ry", "rz", "tx", "ty", "tz").index(u.coord)]))
+    return np.array(out)
+
+
 def handeye_trials(trials: int):
-    path = Path(__file__).resolve().parents[1] / "tests" / "problems" / "test_handeye_joint.py"
-    spec = importlib.util.spec_from_file_location("_handeye_joint_helpers_bench", path)
-    T = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(T)
-    H = T.H
+    H = _handeye_helpers()
+    size = (1600, 1200)
+    params = np.array([1400.0, 1395.0, 801.5, 598.0, -0.12, 0.08, 0.0005, -0.0003, -0.02])
+    from jcalib.geometry.cameras import camera_model_from_name
+
+    camera = camera_model_from_name("opencv5", size, params)
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])  # the helper's boards face +z; jcalib's are printed on -z
     scene = np.random.default_rng(7)
     n = 15
     X, Y, T_bf, T_ct = H.make_scene(scene, n=n, mount="flange")
-    T_ct, Y = T_ct @ T.FLIP, Y @ T.FLIP
-    clean = [project_target(T.CAMERA, Tc, H.BOARD) for Tc in T_ct]
+    T_ct, Y = T_ct @ flip, Y @ flip
+    clean = [project_target(camera, Tc, H.BOARD) for Tc in T_ct]
     cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "opencv5", "mount": "flange"}},
             "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025, "mount": "base"}},
             "robot": {"pose_noise": {"translation_m": 1e-4, "rotation_deg": 0.01}}}
+    truth = {"cam0": params, "T_flange_cam0": X, "T_base_board": Y}
     rng = np.random.default_rng(2024)
     err, sig, solver = [], [], []
-    X7 = lie.se3_from_matrix(X)
     for _ in range(trials):
         T_meas = H.perturb_robot(T_bf, rng, sigma_m=1e-4, sigma_deg=0.01)
         stations = []
@@ -88,24 +140,69 @@ def handeye_trials(trials: int):
             noisy = pix[idx] + 0.2 * rng.standard_normal((len(idx), 2))
             stations.append({"id": f"s{i:03d}", "T_base_flange": T_meas[i].tolist(), "detections": [{
                 "camera": "cam0", "target": "board", "point_index": idx.tolist(), "pixels": noisy.tolist()}]})
-        obs = {"schema": "jcalib.observations/1", "cameras": {"cam0": {"image_size": list(T.IMAGE_SIZE)}},
+        obs = {"schema": "jcalib.observations/1", "cameras": {"cam0": {"image_size": list(size)}},
                "targets": {"board": {"points": H.BOARD.tolist()}}, "stations": stations}
         result = jcalib.calibrate(cell, obs)
-        model = A.linear_models(result, obs)["T_flange_cam0"]
-        he = [i for i, u in enumerate(model.unknowns) if u.block == "T_flange_cam0"]
-        intr = [i for i, u in enumerate(model.unknowns) if u.block == "cam0"]
-        est = result.file.transforms["T_flange_cam0"].matrix
-        delta = np.asarray(lie.local(lie.se3_from_matrix(est), X7))  # truth = est · Exp(δ)
-        e_he = np.concatenate([np.degrees(delta[:3]), 1e3 * delta[3:]])
-        e_in = np.asarray(result.file.cameras["cam0"].params) - T.TRUE_PARAMS
-        err.append(np.concatenate([e_in, e_he]))
-        s = model.sigma()
-        sig.append(np.concatenate([s[intr], s[he]]))
-        C = result.file.transforms["T_flange_cam0"].covariance
-        solver.append(np.concatenate([[result.file.cameras["cam0"].std[model.unknowns[i].coord] for i in intr],
-                                      np.degrees(np.sqrt(np.diag(C)[:3])), 1e3 * np.sqrt(np.diag(C)[3:])]))
-    labels = [model.unknowns[i].label for i in intr + he]
-    return labels, np.array(err), np.array(sig), np.array(solver)
+        model = linear_model(result.details, options_of(result.file))
+        err.append(model_errors(result, model, truth))
+        sig.append(model.sigma())
+        solver.append(file_sigma(result.file, model))
+    return [u.label for u in model.unknowns], np.array(err), np.array(sig), np.array(solver)
+
+
+def cell_trials(trials: int):
+    """The synthetic whole cell of :func:`jcalib.sim.cells.synthetic_cell` (flange camera, fixed camera with
+    known intrinsics, fixed board, needle tool; 0.2 px corners and tips, robot 0.1 mm / 0.01°, pose model):
+    same layout every trial, fresh noise; every shared unknown of the solve."""
+    from jcalib.sim.cells import synthetic_cell
+
+    err, sig, solver = [], [], []
+    for k in range(trials):
+        cell, obs, truth = synthetic_cell(1000 + k, num_board_stations=12, num_tool_stations=14)
+        result = jcalib.calibrate(cell, obs)
+        model = linear_model(result.details, options_of(result.file))
+        err.append(model_errors(result, model, truth))
+        sig.append(model.sigma())
+        solver.append(file_sigma(result.file, model))
+    return [u.label for u in model.unknowns], np.array(err), np.array(sig), np.array(solver)
+
+
+def predict_trials(trials: int, key: str = "cam1/needle tip_x"):
+    """What would help, checked: the report's predicted σ after one more candidate station (from the first
+    trial's calibration) against the spread of calibrations that have that station (its tip pixel with
+    fresh noise and a noisy robot pose, like every other station)."""
+    from jcalib.report.candidates import candidates, station_information
+    from jcalib.sim.cells import synthetic_cell
+
+    cell, obs, truth = synthetic_cell(2000, num_board_stations=12, num_tool_stations=14)
+    result = jcalib.calibrate(cell, obs)
+    model = linear_model(result.details, options_of(result.file))
+    cand = {c.key: c for c in candidates(model)}[key]
+    predicted = model.sigma(station_information(model, cand))
+    # the candidate's flange pose, re-simulated with the truth (pixel from the true cell, fresh noise)
+    F = np.asarray(cand.station.T_base_flange)
+    from jcalib.geometry.cameras import camera_model_from_name
+    from jcalib.sim.cells import SYNTH_IMAGE_SIZE
+
+    cam1 = camera_model_from_name("opencv5", SYNTH_IMAGE_SIZE, truth["cam1"])
+    tip = (F @ truth["T_flange_needle"])[:3, 3]
+    p_cam = np.linalg.inv(truth["T_base_cam1"]) @ np.append(tip, 1.0)
+    clean = np.asarray(cam1.project(p_cam[:3]))
+    err, sig = [], []
+    rng = np.random.default_rng(77)
+    for k in range(trials):
+        cell, obs, _ = synthetic_cell(3000 + k, num_board_stations=12, num_tool_stations=14)
+        # the robot's pose noise as the cell states it (right perturbation, 0.01° and 0.1 mm per axis)
+        F_meas = F @ se3_exp(np.concatenate([np.radians(0.01) * rng.normal(size=3), 1e-4 * rng.normal(size=3)]))
+        extra = {"id": "extra", "T_base_flange": F_meas.tolist(), "detections": [
+            {"camera": "cam1", "tool": "needle", "pixel": (clean + 0.2 * rng.normal(size=2)).tolist()}]}
+        obs = {**obs, "stations": [*obs["stations"], extra]}
+        result = jcalib.calibrate(cell, obs)
+        m = linear_model(result.details, options_of(result.file))
+        err.append(model_errors(result, m, truth))
+        sig.append(m.sigma())
+    labels = [u.label for u in model.unknowns]
+    return labels, np.array(err), np.array(sig), predicted
 
 
 def tcp_trials(trials: int):
@@ -159,7 +256,7 @@ def report(title: str, labels, err, sig, solver=None) -> None:
     n = len(err)
     band = np.sqrt(stats.chi2(n).ppf([0.0005, 0.9995]) / n)
     print(f"\n## {title}  ({n} trials; 99.9 % sampling band of the ratio [{1 / band[1]:.3f}, {1 / band[0]:.3f}])")
-    print("| unknown                        | empirical σ | report σ   | ratio | within ±15 % | solver/report | RMS/mean σ |")
+    print("| unknown                        | empirical σ | report σ   | ratio | within ±15 % |   file/report | RMS/mean σ |")
     print("|--------------------------------|-------------|------------|-------|--------------|---------------|------------|")
     for k, lab in enumerate(labels):
         emp = float(np.sqrt(np.mean(err[:, k] ** 2)))
@@ -171,6 +268,19 @@ def report(title: str, labels, err, sig, solver=None) -> None:
               f"| {sol:>13} | {spread:10.4f} |")
 
 
+def report_prediction(labels, err, sig, predicted) -> None:
+    n = len(err)
+    band = np.sqrt(stats.chi2(n).ppf([0.0005, 0.9995]) / n)
+    print(f"\n## what would help: one more tool-tip station (cam1/needle tip_x) predicted from one calibration vs "
+          f"{n} calibrations with it (99.9 % band of empirical/predicted [{1 / band[1]:.3f}, {1 / band[0]:.3f}])")
+    print("| unknown                        | predicted σ | empirical σ | report σ with it | empirical / predicted |")
+    print("|--------------------------------|-------------|-------------|------------------|-----------------------|")
+    for k, lab in enumerate(labels):
+        emp = float(np.sqrt(np.mean(err[:, k] ** 2)))
+        rep = float(np.sqrt(np.mean(sig[:, k] ** 2)))
+        print(f"| {lab:<30} | {predicted[k]:11.4g} | {emp:11.4g} | {rep:16.4g} | {emp / predicted[k]:21.3f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=200)
@@ -178,7 +288,9 @@ def main() -> None:
                         help="numbers of views of the intrinsics study (e.g. 10 20 40)")
     parser.add_argument("--skip-camera", action="store_true")
     parser.add_argument("--skip-handeye", action="store_true")
+    parser.add_argument("--skip-cell", action="store_true")
     parser.add_argument("--skip-tcp", action="store_true")
+    parser.add_argument("--predict", action="store_true", help="also check the what-would-help prediction")
     args = parser.parse_args()
     if not args.skip_camera:
         for views in args.views:
@@ -189,6 +301,16 @@ def main() -> None:
         t0 = time.perf_counter()
         report("hand-eye (eye-in-hand, free intrinsics, robot pose model): 15 stations, 0.2 px, 0.1 mm / 0.01°",
                *handeye_trials(args.trials))
+        print(f"({time.perf_counter() - t0:.0f} s)")
+    if not args.skip_cell:
+        t0 = time.perf_counter()
+        report("whole cell (synthetic_cell: flange camera, fixed camera, board, needle; 12 + 14 stations, 0.2 px, "
+               "robot 0.1 mm / 0.01°, pose model, variance components)", *cell_trials(args.trials))
+        print(f"({time.perf_counter() - t0:.0f} s)")
+    if args.predict:
+        t0 = time.perf_counter()
+        labels, err, sig, predicted = predict_trials(args.trials)
+        report_prediction(labels, err, sig, predicted)
         print(f"({time.perf_counter() - t0:.0f} s)")
     if not args.skip_tcp:
         t0 = time.perf_counter()

@@ -53,6 +53,8 @@ class Calibration:
         joint_covariance: ``{"names", "dims", "matrix"}`` of every shared unknown (intrinsics, transforms).
         status, iterations, sigma2, num_residuals, pose_model: solver facts.
         solution, graph, built: the :class:`jcalib.solve.Solution` and how it was built (for the report).
+        covariance_noise: how the covariances read the solution: ``"a_posteriori"`` (scaled by its
+            ``sigma2``) or ``"stated"`` (its factor groups' σ, which carry the variance components).
     """
 
     cameras: dict[str, AbstractCameraModel]
@@ -92,6 +94,7 @@ class Calibration:
     solution: object = field(default=None, repr=False)
     graph: object = field(default=None, repr=False)
     built: object = field(default=None, repr=False)
+    covariance_noise: str = "a_posteriori"
 
     @property
     def rms_px(self) -> float:
@@ -268,4 +271,5 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         start_method={n: start.how.get(n, "known") for n in built.transforms}, inits=dict(start.inits),
         motions=dict(start.motions), unobservable_fixed=start.unobservable_fixed, priors=list(built.priors),
         joint_covariance=joint, status=sol.status.name.lower(), iterations=sol.iterations, sigma2=float(sol.sigma2),
-        num_residuals=num_res, pose_model=any(built.pose_model.values()), solution=sol, graph=g, built=built)
+        num_residuals=num_res, pose_model=any(built.pose_model.values()), solution=sol, graph=g, built=built,
+        covariance_noise=noise)

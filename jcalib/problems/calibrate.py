@@ -123,10 +123,14 @@ def _priors(prior, names, graph: Graph, start: Start) -> dict:
 
 def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | None = None, *, prior=None,
             prior_names=None, start=None, given: set[str] | None = None, priors: dict | None = None,
-            known: dict | None = None) -> tuple[Graph, Start, object]:
+            known: dict | None = None, points: dict | None = None, unobservable_fixed: dict | None = None
+            ) -> tuple[Graph, Start, object]:
     """The graph, closed-form start and problem of a cell (everything before the solve).
 
-    Arguments as :func:`calibrate_cell`. Returns ``(graph, start, built)``.
+    Arguments as :func:`calibrate_cell`; ``points``: cell point -> ``(3,)`` start value (m, cell frame)
+    instead of the one the contacts give; ``unobservable_fixed``: the prior of a hand-eye translation
+    along a common rotation axis that an earlier start decided (``Calibration.unobservable_fixed``).
+    Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
     g = Graph(cell, obs, options.reference_camera)
@@ -169,7 +173,12 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     start_poses(g, s, method=options.method, rot_noise=rot_noise, fix_unobservable=options.fix_unobservable,
                 prior_m=options.unobservable_prior_m, prior_sigma_m=options.unobservable_prior_sigma_m,
                 tool_robots=tool_robots)
+    for n, p in (points or {}).items():
+        if n in cell.points and cell.points[n].position is None:
+            s.points[n] = np.asarray(p, np.float64).reshape(3)
     start_tools(g, s)
+    if unobservable_fixed is not None and s.unobservable_fixed is None:
+        s.unobservable_fixed = dict(unobservable_fixed)
     built = build(g, s, options, pose_model, {**_priors(prior, prior_names, g, s), **(priors or {})})
     return g, s, built
 
@@ -202,6 +211,69 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
     g, s, built = prepare(cell, obs, options, prior=prior, prior_names=prior_names, start=start, given=given,
                           priors=priors, known=known)
     return assemble(g, s, built, refine(g, s, built, options))
+
+
+def options_of(file: ResultFile) -> CalibrationOptions:
+    """The :class:`CalibrationOptions` a result file was computed with (its provenance; defaults
+    for what it does not record)."""
+    recorded = {} if file.provenance is None else dict(file.provenance.options)
+    known = set(asdict(CalibrationOptions()))
+    return CalibrationOptions().replace(**{k: v for k, v in recorded.items() if k in known})
+
+
+def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: CalibrationOptions | None = None
+            ) -> Calibration:
+    """The :class:`Calibration` behind a result file, with its solution: the problem of ``cell`` and
+    ``obs`` built by the one builder, started at the file's intrinsics, transforms and points, with the
+    measurements the file rejected as outliers left out and its variance components applied, solved
+    once (no rounds: the file records what they decided).
+
+    The solve starts at the file's optimum, so it stays there: the estimate and covariances agree with
+    the file's to the solver's convergence tolerance. A hand-eye translation held at a prior along a
+    common rotation axis (``stats.unobservable_fixed``) is held again.
+
+    Priors from an earlier result (re-optimisation, ``stats.priors``) are not in a result file: such a
+    result is refused.
+
+    Args:
+        cell, obs: the parsed cell spec and observations the result was computed from.
+        file: the result.
+        options: the options of the calibration (default: :func:`options_of` the file).
+
+    Raises:
+        BadInputError: the cell, observations and result do not belong together.
+        NotObservableError: as :func:`calibrate_cell`.
+    """
+    from jcalib.problems.refine import Refined, uses_components
+    from jcalib.solve import SolveOptions, solve
+
+    if file.stats.get("priors"):
+        raise BadInputError(
+            f"result: it was re-optimised with priors from an earlier result ({', '.join(map(str, file.stats['priors']))}), "
+            "which the result file does not hold; its solve can be used only in the process that computed it")
+    options = options or options_of(file)
+    points = {n: p.position for n, p in file.points.items()}
+    g, s, built = prepare(cell, obs, options, start=file, points=points,
+                          unobservable_fixed=file.stats.get("unobservable_fixed"))
+    x0 = {}
+    for c, model in s.models.items():
+        saved = file.cameras.get(c)
+        if saved is not None and tuple(saved.param_names) == tuple(model.param_names):
+            x0[f"intrinsics:{c}"] = np.asarray(saved.params, np.float64)[None, :]
+    rejected = {(o["of"], str(o["station"]), int(o["point_index"])) for o in file.stats.get("outliers") or []}
+    weights = built.unit_weights()
+    for gr in built.groups:
+        who = "/".join(gr.key) if gr.kind != "corner" else gr.key[0]
+        hit = [(who, g.station_ids[int(k)], int(i)) in rejected for k, i in zip(gr.stations, gr.index)]
+        weights[gr.name] = np.where(hit, 0.0, 1.0)
+    components = {k: float(v) for k, v in (file.stats.get("variance_components") or {}).items()}
+    traced = uses_components(built, options)
+    scale = {**dict.fromkeys({gr.kind for gr in built.groups}, 1.0), **components} if traced else None
+    sol = solve(built.with_weights(weights, scale), x0=x0 or None,
+                options=SolveOptions(max_iterations=options.max_iterations), traces=traced)
+    outliers = [(who, sid, idx) for (who, sid, idx) in sorted(rejected)]
+    noise = "stated" if traced and components else options.noise
+    return assemble(g, s, built, Refined(sol, weights, outliers, [], components, noise))
 
 
 def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra_stats: dict | None = None) -> ResultFile:

@@ -1,7 +1,7 @@
 """Figures of the HTML report, each returned as PNG bytes (matplotlib, Agg backend, no display).
 
-The numbers come from :mod:`jcalib.report.analysis` (e.g. :func:`projection_sigma_map`, re-exported
-here); this module only draws.
+The numbers come from :mod:`jcalib.report.analysis` (e.g. :func:`projection_sigma_map` of
+:mod:`jcalib.report.taskspace`, re-exported here); this module only draws.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from jcalib.io.result import CameraResult
+from jcalib.report.taskspace import projection_sigma_map
 
 __all__ = [
     "correlation_png",
@@ -81,15 +82,15 @@ def view_rms_png(view_rms_px: Mapping[str, float], sigma_px: float | None = None
 
 # ------------------------------------------------------------------------------ uncertainty map
 
-# The computation lives in :mod:`jcalib.report.analysis`; these names stay importable from here.
-from jcalib.report.analysis import _camera_model, _sigma_fn, projection_sigma_map  # noqa: F401
 
 
-def projection_sigma_png(name: str, cam: CameraResult) -> tuple[bytes, dict[str, float]]:
-    """Map of :func:`projection_sigma_map` over the image; returns PNG bytes and summary numbers
-    (``centre_px``, ``max_px``: σ at the image centre and its maximum over the image, pixels)."""
+def projection_sigma_png(name: str, cam: CameraResult, covariance: np.ndarray | None = None
+                         ) -> tuple[bytes, dict[str, float]]:
+    """Map of :func:`projection_sigma_map` over the image (the camera's covariance, or ``covariance``);
+    returns PNG bytes and summary numbers (``centre_px``, ``max_px``: σ at the image centre and its
+    maximum over the image, pixels)."""
     plt = _pyplot()
-    u, v, sigma = projection_sigma_map(cam)
+    u, v, sigma = projection_sigma_map(cam, covariance=covariance)
     width, height = cam.image_size
     fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN * 0.62, FIG_WIDTH_IN * 0.62 * height / width + 0.6))
     # geometric levels: σ grows by orders of magnitude towards unobserved image corners

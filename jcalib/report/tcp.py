@@ -57,9 +57,10 @@ def is_tcp(name: str, file: ResultFile) -> bool:
     """Whether transform ``name`` of ``file`` is a TCP.
 
     A TCP is ``T_flange_<x>`` with ``x`` not a camera. An eye-to-hand cell's flange-mounted target is
-    ``T_flange_<target>`` too, next to ``T_base_<camera>``; so a transform is taken for a TCP when its
-    extra key ``"kind"`` says ``"tcp"`` (:func:`tcp_result_file` writes it), or, without that key,
-    when the file has no ``T_base_<camera>`` (then it cannot be an eye-to-hand target).
+    ``T_flange_<target>`` too, next to ``T_base_<camera>``; so a transform is taken for a TCP when it
+    says so: the extra key ``"orientation"`` (every tool of a calibration result has it) or ``"kind":
+    "tcp"`` (:func:`tcp_result_file` writes it), or, without either, when the file has no
+    ``T_base_<camera>`` (then it cannot be an eye-to-hand target).
     """
     if not name.startswith("T_flange_"):
         return False
@@ -67,7 +68,7 @@ def is_tcp(name: str, file: ResultFile) -> bool:
     if child in file.cameras:
         return False
     tr = file.transforms[name]
-    if tr.extra.get("kind") == "tcp":
+    if tr.extra.get("kind") == "tcp" or tr.extra.get("orientation") is not None:
         return True
     if tr.extra.get("kind") is not None:
         return False
@@ -142,10 +143,15 @@ def gripped_point_covariance(
     return 0.5 * (C + C.T)
 
 
-def robot_covariance(file: ResultFile) -> np.ndarray | None:
-    """``(6, 6)`` flange-pose covariance from the file's robot prior (``stats.robot.prior_sigma_*``),
-    or None when the file states none."""
+def robot_covariance(file: ResultFile, name: str | None = None) -> np.ndarray | None:
+    """``(6, 6)`` flange-pose covariance from the file's robot prior (``stats.robot.prior_sigma_*``; with
+    several robots ``stats.robot.<name>``, the only one when ``name`` is None), or None when the file
+    states none."""
     robot = file.stats.get("robot") or {}
+    if "prior_sigma_translation_m" not in robot and robot:  # several robots: robot name -> statistics
+        if name is None and len(robot) == 1:
+            name = next(iter(robot))
+        robot = robot.get(name) or {}
     t = robot.get("prior_sigma_translation_m")
     if t is None:
         return None

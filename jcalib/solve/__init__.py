@@ -11,7 +11,8 @@ Public API::
           traces=False) -> Solution                         # one compiled function per shape bucket
     solve_many(problems, options, traces=False) -> list[Solution]   # vmapped
     Solution.covariance(name, index=None, noise="a_posteriori"), .joint_covariance(names),
-            .propagate(fn), .shared_information(), .residuals / .chi2 / .count / .hat per group
+            .propagate(fn), .shared_information(), .information(names), .residuals / .chi2 / .count / .hat per group
+    information(problem, names, x0=None) -> (n, n)           # linearised at x0, no iteration
     lm_solve(problem, options) -> RawSolution                # the pure loop; jit / vmap it yourself
     solve_differentiable(problem, options) -> values         # implicit-function-theorem VJP
     enable_compilation_cache()                               # JAX's persistent cache
@@ -19,7 +20,7 @@ Public API::
 
 from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
 from jcalib.solve.cache import enable_compilation_cache
-from jcalib.solve.core import solve, solve_many
+from jcalib.solve.core import information, solve, solve_many
 from jcalib.solve.implicit import solve_differentiable
 from jcalib.solve.lm import RawSolution, SolveOptions, Status, lm_solve
 from jcalib.solve.manifolds import SE3, SO3, Euclidean
@@ -40,6 +41,7 @@ __all__ = [
     "batch_width",
     "bucket_size",
     "enable_compilation_cache",
+    "information",
     "lm_solve",
     "pad_problem",
     "solve",

@@ -29,7 +29,7 @@ from jcalib.solve import linear, traced
 from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
 from jcalib.solve.lm import Observability, RawSolution, SolveOptions, Status, lm_solve
 from jcalib.solve.problem import Problem
-from jcalib.solve.solution import Solution, unobservable_names
+from jcalib.solve.solution import Solution, marginal_information, unobservable_names
 
 
 class Outcome(eqx.Module):
@@ -200,3 +200,43 @@ def solve_many(problems: Sequence[Problem], options: SolveOptions = SolveOptions
             member = jax.tree.map(lambda a, i=i: a[i], batch)
             out.append(Solution(problems[start + i], pp, member, options))
     return out
+
+
+def _information_core(problem: Problem) -> jax.Array:
+    layout = linear.make_layout(problem)
+    free = linear.free_masks(problem)
+    _, system, _, _ = linear.linearize(problem, layout, problem.initial_values(), free)
+    S, _ = linear.reduced_system(system, None, None)
+    return S
+
+
+_information_jit = eqx.filter_jit(_information_core)
+
+
+def information(problem: Problem, names: Sequence[str], x0: dict | None = None, *, pad: bool = True) -> np.ndarray:
+    """The Gauss–Newton information of the shared variables ``names`` at ``x0`` (no iteration).
+
+    The problem is linearised once at its start values (overridden by ``x0``) with the solve's own
+    linearisation (:func:`jcalib.solve.linear.linearize`: every factor group's residuals and Jacobians,
+    robust weights, priors), the eliminated kinds are removed by the Schur complement, and every other
+    shared unknown is marginalised (:func:`jcalib.solve.solution.marginal_information`). E.g. the
+    information one more hypothetical station would add to a calibration, at its estimate.
+
+    Args:
+        problem: the problem graph (the factor groups' σ as stated: no variance factor is applied).
+        names: shared (not eliminated) variables to keep, in this order.
+        x0: optional ``{name: (num, param_dim)}`` values to linearise at.
+        pad: round counts up to buckets (:func:`jcalib.solve.batch.pad_problem`) so that problems of
+            similar size share one compiled linearisation.
+    Returns:
+        ``(n, n)`` information over the names' coordinates (entry-major, tangent order), in the inverse
+        units of the tangent squared; fixed coordinates have zero rows and columns.
+    Raises:
+        BadInputError: non-finite values, or a name that is not a shared variable.
+    """
+    if x0 is not None:
+        problem = problem.with_values(x0)
+    check_finite_start(problem)
+    padded = pad_problem(problem) if pad else problem
+    S = np.asarray(jax.device_get(_information_jit(padded)))
+    return marginal_information(S, linear.make_layout(padded), padded, names)

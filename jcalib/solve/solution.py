@@ -162,6 +162,13 @@ class Solution:
         S, _ = linear.reduced_system(self.raw.system, None, None)
         return np.asarray(S) / self.variance_factor(noise)
 
+    def information(self, names: Sequence[str], noise: str = "a_posteriori") -> np.ndarray:
+        """Information of the shared variables ``names`` with every other unknown marginalised
+        (:func:`marginal_information` of the solve's system), divided by the variance factor: the
+        inverse of :meth:`joint_covariance` of ``names`` on their free coordinates."""
+        S, _ = linear.reduced_system(self.raw.system, None, None)
+        return marginal_information(np.asarray(S), self.layout, self.padded_problem, names) / self.variance_factor(noise)
+
     def propagate(self, fn: Callable[[dict], Any], noise: str = "a_posteriori") -> np.ndarray:
         """Covariance of a derived quantity ``y = fn(values)`` by linear propagation.
 
@@ -182,6 +189,41 @@ class Solution:
     def __repr__(self) -> str:
         return (f"Solution(status={self.status.name}, cost={self.cost:.6g}, iterations={self.iterations}, "
                 f"sigma2={self.sigma2:.4g})")
+
+
+def marginal_information(S: np.ndarray, layout: linear.Layout, problem: Problem, names: Sequence[str]) -> np.ndarray:
+    """The information of the shared variables ``names`` from a Schur complement ``S`` over every
+    shared unknown, with the other shared unknowns marginalised (``S_kk − S_ko S_oo⁻¹ S_ok``).
+
+    Args:
+        S: ``(n_s, n_s)`` reduced information of ``problem`` (fixed coordinates: 1 on the diagonal).
+        layout: the problem's :class:`jcalib.solve.linear.Layout`; problem: the problem ``S`` is of.
+        names: shared (not eliminated) variables, in this order.
+    Returns:
+        ``(n, n)`` over the names' coordinates (entry-major, tangent order within an entry); rows and
+        columns of fixed coordinates are zero.
+    Raises:
+        BadInputError: a name that is eliminated or not in the problem.
+    """
+    keep, free = [], []
+    for name in names:
+        k = layout.kind(name) if name in layout.names else None
+        if k is None or layout.eliminate[k]:
+            raise BadInputError(f"information: {name!r} is not a shared variable of the problem; ask for shared "
+                                "variables only")
+        v = problem.variable(name)
+        rows = layout.offsets[k] + np.arange(layout.nums[k] * layout.dims[k])
+        keep.append(rows)
+        free.append(~np.asarray(v.fixed).reshape(-1))
+    keep = np.concatenate(keep) if keep else np.zeros(0, int)
+    free = np.concatenate(free) if free else np.zeros(0, bool)
+    other = np.setdiff1d(np.arange(S.shape[0]), keep)
+    M = S[np.ix_(keep, keep)]
+    if other.size:
+        B = S[np.ix_(keep, other)]
+        M = M - B @ np.linalg.solve(S[np.ix_(other, other)], B.T)
+    M = 0.5 * (M + M.T)
+    return M * free[:, None] * free[None, :]
 
 
 @eqx.filter_jit

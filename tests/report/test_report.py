@@ -1,4 +1,5 @@
-"""The one-page HTML report: contents checked against independent references, rendered by Chromium."""
+"""The one-page HTML report: the same sections for every cell, contents checked against independent
+references, the command line on result files, rendered by Chromium."""
 
 import base64
 import json
@@ -14,47 +15,12 @@ import numpy as np
 import pytest
 
 import jcalib
-from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.io.result import ResultFile, TransformResult
-from jcalib.report import render_report, write_report
-from jcalib.report.html import POSES_KEY
-from jcalib.report.plots import projection_sigma_map
-from jcalib.sim.scene import project_target, random_calibration_views
+from jcalib.report import render_report
+from jcalib.report.html import SECTIONS
 
-BOARD = Checkerboard(cols=9, rows=6, square=0.025)
-CELL = {
-    "schema": "jcalib.cell/1",
-    "cameras": {"cam0": {"model": "opencv5"}},
-    "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025}},
-}
 CHROMIUM = "/usr/bin/chromium"
 JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
-
-
-@pytest.fixture(scope="module")
-def observations():
-    rng = np.random.default_rng(11)
-    cam = camera_from_opencv(np.array([[1000.0, 0, 640], [0, 1000, 480], [0, 0, 1]]),
-                             np.array([-0.2, 0.05, 0, 0, 0]), (1280, 960))
-    stations = []
-    for i, T in enumerate(random_calibration_views(cam, BOARD.points, 8, rng=rng)):
-        pix, _ = project_target(cam, T, BOARD.points)
-        pix = pix + 0.2 * rng.standard_normal(pix.shape)
-        stations.append({"id": f"s{i:02d}", "detections": [{
-            "camera": "cam0", "target": "board", "point_index": list(range(54)), "pixels": pix.tolist()}]})
-    return {"schema": "jcalib.observations/1", "cameras": {"cam0": {"image_size": [1280, 960]}},
-            "targets": {"board": {"points": BOARD.points.tolist()}}, "stations": stations}
-
-
-@pytest.fixture(scope="module")
-def result(observations):
-    return jcalib.calibrate(CELL, observations)
-
-
-@pytest.fixture(scope="module")
-def page(result, observations):
-    """The report of an in-memory Result (its details carry the per-view poses)."""
-    return render_report(result, observations)
 
 
 def _images(html: str) -> list[np.ndarray]:
@@ -66,135 +32,130 @@ def _self_contained(html: str) -> None:
     low = html.lower()
     assert "http://" not in low and "https://" not in low and "file:" not in low
     assert "<script" not in low and "<link" not in low and "@import" not in low and "url(" not in low
-    # every src is an inline data URI, never a file
     srcs = re.findall(r'src\s*=\s*"([^"]*)"', html)
     assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
 
 
-# ------------------------------------------------------------------------------ contents
+def _sections(html: str) -> list[str]:
+    return re.findall(r"<h2>(.*?)</h2>", html)
 
 
-def test_page_is_self_contained_with_tables_and_plots(page, result):
-    _self_contained(page)
-    cam = result.file.cameras["cam0"]
-    for name, value in zip(cam.param_names, cam.params):
-        # a table row per intrinsic with its value and σ (from the result, 8 and 3 significant digits)
-        row = f'<td>{name}</td><td class="num">{value:.8g}</td><td class="num">{cam.std[name]:.3g}</td>'
-        assert row in page, name
+@pytest.fixture(scope="module")
+def pages(camera_case, handeye_case, cell_case):
+    """The reports of a camera, a hand-eye cell and a whole cell (in-memory results, with observations)."""
+    return {name: render_report(case[2], case[1], cross_validation=False)
+            for name, case in (("camera", camera_case), ("hand-eye", handeye_case), ("cell", cell_case))}
+
+
+def test_every_cell_has_the_same_sections(pages, camera_case):
+    """Camera, hand-eye and whole-cell reports: the same sections in the same order, each with content
+    from the solve (no 'needs the calibration's solve' note); a result file alone still has every section."""
+    for name, html in pages.items():
+        assert _sections(html) == list(SECTIONS), name
+        assert "needs the calibration&#x27;s solve" not in html and "needs the calibration's solve" not in html, name
+        assert html.count("<th>one more station</th>") == 1, name  # the what-would-help table
+        assert "σ / tolerance" in html and "Every measurement group of the solve" in html, name
+        _self_contained(html)
+    alone = render_report(camera_case[2].file)
+    assert _sections(alone) == list(SECTIONS)
+    assert "needs the calibration" in alone
+
+
+def test_whole_cell_page_has_the_camera_and_handeye_analyses(pages, cell_case):
+    """The whole cell gets what the camera and hand-eye pages have (correlations over every shared unknown,
+    projection maps, residual plots per camera) plus its TCP and tool-tip stations in what would help."""
+    html, file = pages["cell"], cell_case[2].file
+    assert 'alt="correlation matrix every shared unknown of the solve"' in html
+    assert 'alt="projection uncertainty of cam0"' in html and 'alt="residual vectors of cam0"' in html
+    assert "<h3>TCP</h3>" in html and "T_flange_needle" in html
+    assert "with needle turned 30° about" in html  # a tool-tip station is a candidate
+    assert "<code>tips:cam1/needle</code>" in html and "<code>corners:cam0/board</code>" in html
+    for name, cam in file.cameras.items():  # every intrinsic with its value and σ from the file
+        for pname, value in zip(cam.param_names, cam.params):
+            std = cam.std[pname]
+            s = "fixed" if std == 0.0 else f"{std:.3g}"
+            assert f'<td>{pname}</td><td class="num">{value:.8g}</td><td class="num">{s}</td>' in html, (name, pname)
+
+
+def test_camera_page_tables_and_plots(pages, camera_case):
+    html, result = pages["camera"], camera_case[2]
     for label in ("reprojection RMS", "a-posteriori σ", "residuals", "outliers rejected"):
-        assert f"<td>{label}</td>" in page
-    assert result.file.provenance.input_hash in page
-    assert f"jcalib {jcalib.__version__}" in page
-    images = _images(page)
+        assert f"<td>{label}</td>" in html
+    assert result.file.provenance.input_hash in html and f"jcalib {jcalib.__version__}" in html
+    images = _images(html)
     # per-view RMS, uncertainty map, correlation heat map, residual vectors, radial residuals
-    assert len(images) == 5 and page.count("<img") == 5
-    for section in ("Task-space uncertainty", "Correlations", "Weakest directions", "What would help"):
-        assert f"<h2>{section}</h2>" in page
-    # no figure wider than the page's 1100 px column (less its 2 x 24 px padding): no sideways scroll
+    assert len(images) == 5 and html.count("<img") == 5
     assert all(im is not None and im.shape[1] <= 1052 for im in images), [im.shape for im in images]
-    assert "max-width:1100px" in page
-    assert "Includes" in page and "Excludes" in page and "pose" in page
+    assert "max-width:1100px" in html and "Includes" in html and "Excludes" in html
 
 
-def test_projection_sigma_matches_opencv_jacobian(result):
-    """σ map against an independent J C Jᵀ: OpenCV's analytic projectPoints Jacobian w.r.t.
-    (fx, fy, cx, cy, k1, k2, p1, p2, k3) at rays found by OpenCV's undistortPoints."""
-    cam = result.file.cameras["cam0"]
-    u, v, sigma = projection_sigma_map(cam, grid=(9, 7))
-    pix = np.stack([u.ravel(), v.ravel()], axis=-1)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
-    xy = cv2.undistortPointsIter(pix[:, None, :], cam.K, cam.dist, None, None, crit)[:, 0, :]
-    p = np.concatenate([xy, np.ones((len(xy), 1))], axis=-1)
-    proj, jac = cv2.projectPoints(p[:, None, :], np.zeros(3), np.zeros(3), cam.K, cam.dist)
-    np.testing.assert_allclose(proj[:, 0, :], pix, atol=1e-6)  # the rays are right
-    J = jac[:, 6:].reshape(len(p), 2, 9)
-    cov = np.einsum("nip,pq,njq->nij", J, cam.covariance, J)
-    ref = np.sqrt(np.linalg.eigvalsh(cov)[:, -1])
-    # same linearisation, float64 both: agreement far below any displayed digit
-    np.testing.assert_allclose(sigma.ravel(), ref, rtol=1e-6)
-    # at the principal point only cx, cy move the projection: σ = sqrt(λ_max(C[cx, cy]))
-    pp = camera_sigma_at(cam, np.array([[cam.K[0, 2], cam.K[1, 2]]]))
-    np.testing.assert_allclose(pp, np.sqrt(np.linalg.eigvalsh(cam.covariance[2:4, 2:4])[-1]), rtol=1e-9)
-
-
-def camera_sigma_at(cam, pixels):
-    """σ (px) at arbitrary pixels ``(n, 2)`` through the report's jitted propagation."""
-    import jax.numpy as jnp
-
-    from jcalib.report import plots
-
-    model = plots._camera_model(cam)
-    rays = model.unproject(jnp.asarray(pixels))
-    fn = plots._sigma_fn(type(model), tuple(model.image_size), bool(model.has_skew))
-    c = np.asarray(fn(jnp.asarray(cam.params), rays, jnp.asarray(cam.covariance)))
-    return np.sqrt(np.linalg.eigvalsh(c)[:, -1])
-
-
-def test_residual_plot_matches_opencv_reprojection(page, result, observations):
-    """The residual caption's RMS equals the RMS of OpenCV's reprojection with the solver's poses."""
+def test_residual_caption_matches_opencv_reprojection(pages, camera_case, cases):
+    """The residual caption's RMS equals the RMS of OpenCV's reprojection with the solve's view poses."""
+    html, (_, obs, result) = pages["camera"], camera_case
     cam = result.file.cameras["cam0"]
     res = []
-    for st in observations["stations"]:
+    for st in obs["stations"]:
         T = result.details.T_cam_target[st["id"]]["cam0"]
-        rvec, _ = cv2.Rodrigues(T[:3, :3])
-        proj, _ = cv2.projectPoints(BOARD.points, rvec, T[:3, 3], cam.K, cam.dist)
+        proj, _ = cv2.projectPoints(cases.BOARD.points, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], cam.K, cam.dist)
         res.append(np.asarray(st["detections"][0]["pixels"]) - proj[:, 0, :])
     res = np.concatenate(res)
-    rms = float(np.sqrt(np.mean(res**2)))
-    m = re.search(r"arrows magnified \d+x, RMS ([0-9.e+-]+) px", page)
-    assert m is not None
-    assert m.group(1) == f"{rms:.3g}"
-    assert "radial residuals of cam0" in page
+    assert result.file.stats["num_outliers"] == 0
+    m = re.search(r"arrows magnified \d+x, RMS ([0-9.e+-]+) px", html)
+    assert m is not None and m.group(1) == f"{np.sqrt(np.mean(np.sum(res**2, axis=-1))):.3g}"
 
 
-def test_warnings_first_transforms_and_file_poses(result, observations):
-    """Warnings come before the summary; transforms read in mm / deg with σ; poses from the file."""
-    f = result.file
+def test_warnings_first_escaped_and_transforms_in_mm_deg(camera_case):
+    """A result file alone: warnings come before the summary (escaped), transforms read in mm / deg with σ."""
+    f = camera_case[2].file
     c = np.cos(np.pi / 6)
     T = np.array([[c, -0.5, 0, 0.1], [0.5, c, 0, -0.2], [0, 0, 1, 0.3], [0, 0, 0, 1]])  # 30° about z
     cov = np.diag([1e-6, 4e-6, 9e-6, 1e-8, 4e-8, 9e-8])  # σ r = 1, 2, 3 mrad; σ t = 0.1, 0.2, 0.3 mm
-    poses = {sid: {"cam0": Tc.tolist()} for sid, per in result.details.T_cam_target.items()
-             for Tc in [per["cam0"]]}
-    file = ResultFile(
-        cameras=f.cameras, transforms={"T_flange_cam0": TransformResult(T, cov)},
-        stats={**f.stats, "warnings": ["lens model is probably too simple <b>"]},
-        provenance=f.provenance, extra={POSES_KEY: poses},
-    )
-    html = render_report(file, observations)
+    file = ResultFile(cameras=f.cameras, transforms={"T_flange_cam0": TransformResult(T, cov)},
+                      stats={**f.stats, "warnings": ["lens model is probably too simple <b>"]}, provenance=f.provenance)
+    html = render_report(file)
     _self_contained(html)
     warn = html.index("lens model is probably too simple &lt;b&gt;")  # escaped, not markup
-    assert warn < html.index("<h2>Summary</h2>")
-    assert 'class="warn"' in html
+    assert warn < html.index("<h2>Summary</h2>") and 'class="warn"' in html
     assert "100.000 -200.000 300.000" in html and "0.100 0.200 0.300" in html
     assert "0.0000 0.0000 30.0000" in html
     assert " ".join(f"{np.degrees(x):.4f}" for x in (1e-3, 2e-3, 3e-3)) in html
-    assert "radial residuals of cam0" in html  # residuals from the file's poses, no details
+    # 3 mrad = 0.17° about z is over the 0.05° tolerance: named from the file's σ
+    assert "T_flange_cam0 rotation z is weakly determined" in html
 
 
-def test_cli_report_without_poses_shows_coverage(tmp_path, result, observations):
+def test_cli_report_restores_the_solve_from_files(tmp_path, camera_case):
+    """``jcalib report RESULT --observations OBS --cell CELL``: the calibration restored from the files (every
+    section from the solve, cross-validation included); with observations only: the coverage of the
+    detections and a note; a missing file: exit 2 with the name, no traceback, no page."""
+    cell, obs, result = camera_case
     result.to_json(tmp_path / "result.json")
-    (tmp_path / "obs.json").write_text(json.dumps(observations))
-    proc = subprocess.run([*JCALIB, "report", "result.json", "-o", "report.html", "--observations", "obs.json"],
-                          capture_output=True, text=True, cwd=tmp_path, check=False)
+    (tmp_path / "obs.json").write_text(json.dumps(obs))
+    (tmp_path / "cell.json").write_text(json.dumps(cell))
+    run = {"capture_output": True, "text": True, "cwd": tmp_path, "check": False}
+    proc = subprocess.run([*JCALIB, "report", "result.json", "-o", "report.html", "--observations", "obs.json",
+                           "--cell", "cell.json"], **run)
     assert proc.returncode == 0, proc.stderr
     html = (tmp_path / "report.html").read_text()
     _self_contained(html)
-    assert "radial residuals" in html  # the result file keeps the per-view poses
-    # A result without per-view poses (e.g. written by an older jcalib): coverage instead.
-    data = json.loads((tmp_path / "result.json").read_text())
-    del data["T_cam_target"]
-    (tmp_path / "result.json").write_text(json.dumps(data))
-    proc = subprocess.run([*JCALIB, "report", "result.json", "-o", "report.html", "--observations", "obs.json"],
-                          capture_output=True, text=True, cwd=tmp_path, check=False)
+    assert _sections(html) == list(SECTIONS)
+    assert "radial residuals of cam0" in html and "one more station" in html
+    assert 'alt="cross-validation of cam0"' in html
+    proc = subprocess.run([*JCALIB, "report", "result.json", "-o", "report.html", "--observations", "obs.json"], **run)
     assert proc.returncode == 0, proc.stderr
     html = (tmp_path / "report.html").read_text()
-    _self_contained(html)
-    assert "432 detected corners in 8 views" in html  # 8 views x 54 corners
-    assert "radial residuals" not in html
-    proc = subprocess.run([*JCALIB, "report", "missing.json", "-o", "r.html"],
-                          capture_output=True, text=True, cwd=tmp_path, check=False)
+    assert "486 detected corners in 9 views" in html and "radial residuals" not in html  # 9 views x 54 corners
+    assert _sections(html) == list(SECTIONS)
+    proc = subprocess.run([*JCALIB, "report", "missing.json", "-o", "r.html"], **run)
     assert proc.returncode == 2 and "missing.json" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "r.html").exists()
+
+
+def test_wrong_cell_for_the_result_is_refused(camera_case, cell_case):
+    """A result with the observations and cell of another calibration: a clear error, not a page."""
+    from jcalib.errors import BadInputError
+
+    with pytest.raises(BadInputError, match="cell"):
+        render_report(cell_case[2].file, camera_case[1], cell=camera_case[0])
 
 
 # ------------------------------------------------------------------------------ rendering
@@ -221,12 +182,10 @@ def _console_errors(log: str) -> list[str]:
     return [line for line in log.splitlines() if "Uncaught" in line or ":CONSOLE" in line]
 
 
-def test_chromium_renders_report_without_console_errors(tmp_path, result, observations):
-    # the fullest page: with the cell, the cross-validation section and its map are added
-    path = write_report(result, tmp_path / "report.html", observations=observations, cell=CELL)
+def test_chromium_renders_report_without_console_errors(tmp_path, pages):
+    path = tmp_path / "report.html"
+    path.write_text(pages["cell"])  # the fullest page: a whole cell
     html = path.read_text()
-    _self_contained(html)
-    assert "<h2>Cross-validation</h2>" in html and 'alt="cross-validation of cam0"' in html
     assert all(im.shape[1] <= 1052 for im in _images(html))  # no figure wider than the column
     png, log = _chromium(path, tmp_path)
     assert _console_errors(log) == []
