@@ -15,8 +15,8 @@
   servo's goal pixel ray from the trial's cell spec (the camera's ``pose`` and intrinsics must be stated
   there, e.g. ``fixed`` or ``given``). Covariance: the method's error amplification with the robot's
   translation noise and the servo residual (taken isotropic) and its rotation noise.
-- ``pivot`` (:func:`jcalib.init.pivot_calibration`) on the first pivot block: tip and point, with its
-  a-posteriori covariance.
+- ``pivot`` (:func:`jcalib.init.pivot_calibration`) on the stations with the first (tool, point) contact:
+  tip and point, with its a-posteriori covariance.
 - ``opencv``: ``cv2.calibrateCameraExtended`` per camera on all its views of its first target
   (models ``pinhole``, ``opencv4``, ``opencv5``, ``opencv8``); σ from OpenCV's standard deviations.
 """
@@ -242,20 +242,20 @@ def _tcp(method: str, scenario: Scenario, trial: Trial) -> Estimate:
 def _pivot(scenario: Scenario, trial: Trial) -> Estimate:
     from jcalib.init import pivot_calibration
 
-    rec = next((r for r in trial.records if r.block.kind == "pivot"), None)
-    if rec is None:
-        raise BadInputError("the pivot closed form needs a pivot station block")
-    b = rec.block
-    kept = [i for i in rec.ids if i in set(trial.kept)]
-    res = pivot_calibration(_flange(trial, kept, holder(trial.cell, b.tool)))
-    name = f"T_flange_{b.tool}"
+    pair = next(((c.tool, c.point) for s in trial.observations.stations for c in s.contacts), None)
+    if pair is None:
+        raise BadInputError("the pivot closed form needs stations with contacts (a pivot or explicit station block)")
+    tool, point = pair
+    kept = [s.id for s in trial.observations.stations if any((c.tool, c.point) == pair for c in s.contacts)]
+    res = pivot_calibration(_flange(trial, kept, holder(trial.cell, tool)))
+    name = f"T_flange_{tool}"
     T = np.eye(4)
     T[:3, 3] = res.p_flange_tip
     cov = np.zeros((6, 6))
     cov[3:, 3:] = res.covariance[:3, :3]
     return Estimate(transforms={name: T}, calibrated={name: ["tx", "ty", "tz"]}, transform_covariance={name: cov},
-                    tool_orientation={b.tool: "not calibrated"}, points={b.point: np.asarray(res.p_base_pivot)},
-                    point_covariance={b.point: np.asarray(res.covariance[3:, 3:])}, num_stations=len(kept))
+                    tool_orientation={tool: "not calibrated"}, points={point: np.asarray(res.p_base_pivot)},
+                    point_covariance={point: np.asarray(res.covariance[3:, 3:])}, num_stations=len(kept))
 
 
 def closed_form(name: str, scenario: Scenario, trial: Trial) -> Estimate:

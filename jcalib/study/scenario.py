@@ -71,7 +71,7 @@ CLOSED_FORMS: dict[str, str] = {
     **{m: "a hand-eye pair (robot-world: AX = ZB)" for m in ROBOT_WORLD_CLOSED_FORMS},
     "three_pose": "a tcp_three_pose station block",
     "ray_lsq": "a tcp_three_pose or tcp_random station block",
-    "pivot": "a pivot station block",
+    "pivot": "stations with contacts (a pivot or explicit station block)",
     "opencv": "cameras that see targets (cv2.calibrateCameraExtended per camera)",
 }
 #: Builder estimators by name without options: name -> CalibrationOptions fields.
@@ -92,7 +92,8 @@ class Noise:
         axis_sigma_px: points on an imaged tool axis.
         robot_translation_m, robot_rotation_deg: recorded flange poses, per axis (flange frame);
             None: each robot's ``pose_noise`` in the cell spec (exact poses without one).
-        contact_sigma_m: how far a tool tip sits from the point it touches, per axis.
+        contact_sigma_m: how far a tool tip sits from the point it touches, per axis (pivot blocks; the
+            poses of explicit blocks are taken as true).
         pose_rotation_deg, pose_translation_m: 6-DOF pose measurements.
         dropout_rate: probability that a detection is lost, in [0, 1).
         min_points: fewest corners of a view that count as a detection (>= 6).

@@ -249,11 +249,11 @@ def _explicit(opts: dict, where: str, base: Path | None, cell: CellSpec) -> tupl
         check_keys(r, ("T_base_flange", "flange_poses", "free", "contacts"), w)
         rec: dict[str, Any] = {}
         if r.get("T_base_flange") is not None:
-            rec["flange"] = {"robot": poses(r["T_base_flange"], f"{w}.T_base_flange")[0].tolist()}
+            rec["T_base_flange"] = poses(r["T_base_flange"], f"{w}.T_base_flange")[0].tolist()
         if r.get("flange_poses") is not None:
             if not isinstance(r["flange_poses"], dict):
                 raise fail(f"{w}.flange_poses", r["flange_poses"], "{robot: [[4x4]]}")
-            rec["flange"] = {k: poses(v, f"{w}.flange_poses.{k}")[0].tolist() for k, v in r["flange_poses"].items()}
+            rec["flange_poses"] = {k: poses(v, f"{w}.flange_poses.{k}")[0].tolist() for k, v in r["flange_poses"].items()}
         if r.get("free") is not None:
             if not isinstance(r["free"], dict) or any(t not in cell.targets for t in r["free"]):
                 raise fail(f"{w}.free", r["free"], "{free target: [[4x4]]}")
@@ -262,7 +262,8 @@ def _explicit(opts: dict, where: str, base: Path | None, cell: CellSpec) -> tupl
         if not isinstance(contacts, list) or not all(isinstance(c, dict) and c.get("tool") in cell.tools
                                                      and c.get("point") in cell.points for c in contacts):
             raise fail(f"{w}.contacts", contacts, "[{tool: <cell tool>, point: <cell point>}]")
-        rec["contacts"] = [[c["tool"], c["point"]] for c in contacts]
+        if contacts:
+            rec["contacts"] = [{"tool": c["tool"], "point": c["point"]} for c in contacts]
         out.append(rec)
     return tuple(out)
 
@@ -511,10 +512,14 @@ def _pivot_stations(cell: CellSpec, truth: CellTruth, block: Block, noise, rng, 
 
 
 def _explicit_stations(block: Block, ids) -> list[SimStation]:
-    return [SimStation(next(ids), flange={k: np.asarray(v) for k, v in rec.get("flange", {}).items()},
-                       free={k: np.asarray(v) for k, v in rec.get("free", {}).items()},
-                       contacts=tuple(tuple(c) for c in rec.get("contacts", ())))
-            for rec in block.stations]
+    out = []
+    for rec in block.stations:
+        flange = {k: np.asarray(v) for k, v in rec.get("flange_poses", {}).items()}
+        if "T_base_flange" in rec:
+            flange["robot"] = np.asarray(rec["T_base_flange"])
+        out.append(SimStation(next(ids), flange=flange, free={k: np.asarray(v) for k, v in rec.get("free", {}).items()},
+                              contacts=tuple((c["tool"], c["point"]) for c in rec.get("contacts", ()))))
+    return out
 
 
 def plan_stations(cell: CellSpec, truth: CellTruth, blocks, noise, rng: np.random.Generator

@@ -232,3 +232,34 @@ def test_known_values_reach_the_estimators():
         np.testing.assert_allclose(t.cell.cameras["cam1"].K, np.asarray(t.truth.cameras["cam1"].to_opencv()[0]))
         np.testing.assert_array_equal(t.cell.points["p"].position, t.truth.points["p"])
     assert not np.array_equal(a.truth.poses["cam1"], b.truth.poses["cam1"])  # drawn per trial
+
+
+def test_explicit_stations_are_the_true_poses():
+    """``strategy: explicit`` simulates exactly the given flange poses (true poses; robot noise on the
+    recorded ones): the pivot closed form recovers tip and point from noise-free contacts (1e-9 mm)."""
+    rng = np.random.default_rng(0)
+    tip, point = np.array([0.01, -0.02, 0.175]), np.array([0.5, 0.0, 0.1])
+    records = []
+    for _ in range(6):
+        R = rot_x(np.pi) @ exp_so3(0.4 * rng.normal(size=3))
+        records.append({"T_base_flange": make_pose(R, point - R @ tip).tolist(),
+                        "contacts": [{"tool": "tip", "point": "divot"}]})
+    sc = {"cell": {"cameras": {}, "tools": {"tip": {}}, "points": {"divot": {}}, "robot": {}},
+          "truth": {"poses": {"tip": make_pose(np.eye(3), tip).tolist()}, "points": {"divot": point.tolist()}},
+          "stations": {"strategy": "explicit", "stations": records}, "noise": ZERO, "estimators": ["pivot"]}
+    t = simulate_trial(load_scenario(sc), 0, 0)
+    for s, rec in zip(t.observations.stations, records):
+        np.testing.assert_array_equal(s.T_base_flange, np.asarray(rec["T_base_flange"]))
+    (row,) = run_study(sc, 1, progress=False)
+    assert row["status"] == "ok" and row["err_T_flange_tip_trans_mm"] < 1e-9 and row["err_divot_norm_mm"] < 1e-9
+
+
+@pytest.mark.parametrize("kind", list(ANY_CELL))
+def test_scenarios_round_trip_as_plain_data(kind):
+    """A scenario's plain data (what a Dask worker receives) loads back to the same scenario and the same
+    simulated trial."""
+    cell, stations, truth, estimators = ANY_CELL[kind]
+    sc = load_scenario({"cell": cell, "truth": truth, "stations": stations, "estimators": estimators})
+    back = load_scenario(sc.to_dict())
+    assert back.to_dict() == sc.to_dict()
+    assert simulate_trial(back, 5, 2).observations.to_dict() == simulate_trial(sc, 5, 2).observations.to_dict()
