@@ -1,9 +1,10 @@
 """jcalib camera calibration on real data: OpenCV's left/right samples (against cv2) and mrcal's
 wide-angle Figueroa set as a stress test.
 
-Part 1: corners as OpenCV's calibration sample finds them (see tests/problems/test_camera_real.py),
-CALIB_FIX_ASPECT_RATIO, opencv5; jcalib (no rejection, no re-seeding) vs cv2.calibrateCamera on the
-same corners: parameters, RMS, wall time (warm, median of 5).
+Part 1: corners as OpenCV's calibration sample finds them (findChessboardCorners with ADAPTIVE_THRESH |
+FAST_CHECK | NORMALIZE_IMAGE, cornerSubPix 11x11, EPS + COUNT 30, 0.1: the settings that reproduce its
+left_intrinsics.yml), CALIB_FIX_ASPECT_RATIO, opencv5; ``jcalib.calibrate_cell`` (no rejection, no
+re-seeding) vs cv2.calibrateCamera on the same corners: parameters, RMS, wall time (warm, median of 5).
 Part 2: mrcal_figueroa (186 views, 10x10 board, 6016x4016): corners with weight <= 0 dropped; the
 observation format has no per-corner weight, so the others count equally. Reports what happens.
 
@@ -21,14 +22,51 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-import jcalib  # noqa: F401
+import jcalib
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
 
 REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real"
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "problems"))
-from test_camera_real import board_points, cell, detect, observations  # noqa: E402
+IMAGES = REAL / "opencv_left_right_chessboard" / "images"
+VIEWS = [i for i in range(1, 15) if i != 10]  # 13 pairs, no pair 10
+COLS, ROWS = 9, 6
+SAMPLE_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_FAST_CHECK | cv2.CALIB_CB_NORMALIZE_IMAGE
+
+
+def board_points(square: float) -> np.ndarray:
+    """calibration.cpp's calcChessboardCorners, rounded to float32 as OpenCV takes them (same problem)."""
+    points = np.array([[j * square, i * square, 0.0] for i in range(ROWS) for j in range(COLS)])
+    return points.astype(np.float32).astype(np.float64)
+
+
+def detect(side: str, win: int) -> dict[int, np.ndarray]:
+    """Corners of every ``side`` image as OpenCV's calibration sample finds them, (54, 2) px each."""
+    out = {}
+    for i in VIEWS:
+        view = cv2.imread(str(IMAGES / f"{side}{i:02d}.jpg"), cv2.IMREAD_COLOR)
+        gray = cv2.cvtColor(view, cv2.COLOR_BGR2GRAY)
+        found, corners = cv2.findChessboardCorners(view, (COLS, ROWS), flags=SAMPLE_FLAGS)
+        if not found:
+            raise SystemExit(f"{side}{i:02d}.jpg: chessboard not found")
+        criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.1)
+        out[i] = cv2.cornerSubPix(gray, corners, (win, win), (-1, -1), criteria)[:, 0].astype(np.float64)
+    return out
+
+
+def observations(corners: dict[str, dict[int, np.ndarray]], square: float):
+    return parse_observations({
+        "schema": "jcalib.observations/1",
+        "cameras": {s: {"image_size": [640, 480]} for s in corners},
+        "targets": {"board": {"points": board_points(square).tolist()}},
+        "stations": [{"id": f"{i:02d}", "detections": [
+            {"camera": s, "target": "board", "point_index": list(range(COLS * ROWS)), "pixels": corners[s][i].tolist()}
+            for s in corners]} for i in VIEWS],
+    })
+
+
+def cell(cameras: dict[str, dict], square: float):
+    return parse_cell({"schema": "jcalib.cell/1", "cameras": cameras,
+                       "targets": {"board": {"type": "checkerboard", "cols": COLS, "rows": ROWS, "square": square}}})
 
 
 def timed(fn, repeat=5):
@@ -49,11 +87,11 @@ def opencv_samples() -> None:
         corners = detect(side, 11)
         obs = observations({side: corners}, 0.025)
         c = cell({side: {"model": "opencv5", "fix": ["aspect"]}}, 0.025)
-        opts = CameraCalibrationOptions(outlier_threshold=None, reseed_views=False)
+        opts = jcalib.CalibrationOptions(outlier_threshold=None, reseed_views=False)
         t0 = time.perf_counter()
-        calibrate_cameras(c, obs, opts)
+        jcalib.calibrate_cell(c, obs, opts)
         first = time.perf_counter() - t0
-        cal, t_ours = timed(lambda: calibrate_cameras(c, obs, opts))
+        cal, t_ours = timed(lambda: jcalib.calibrate_cell(c, obs, opts))
         K, d = cal.cameras[side].to_opencv()
         obj = [board_points(0.025).astype(np.float32)] * len(corners)
         img = [v.astype(np.float32) for v in corners.values()]
@@ -95,7 +133,7 @@ def mrcal_figueroa() -> None:
                         "targets": {"board": {"type": "checkerboard", "cols": 10, "rows": 10, "square": 0.077}}})
         t0 = time.perf_counter()
         try:
-            cal = calibrate_cameras(c, obs)
+            cal = jcalib.calibrate_cell(c, obs)
         except Exception as exc:  # report, do not stop: this is a stress test
             print(f"| {model} | {type(exc).__name__}: {str(exc)[:200]} | | | | | | | | | | "
                   f"{time.perf_counter() - t0:.1f} |")

@@ -2,11 +2,13 @@
 
 Run: ``.venv/bin/python benchmarks/bench_handeye.py [--trials 100] [--stations 15]``
 
-Setting (the generator of ``tests/problems/test_handeye_joint.py``, itself built on the scene of
-``tests/init/test_handeye.py``): a 1600x1200 opencv5 camera (fx 1400 px, k1 -0.12) on the flange
-looks at a 9x6 board (25 mm) from 0.35-0.7 m, tilted up to +-40 deg, roll +-30 deg; random
-``T_flange_cam``. Corner pixels get N(0, 0.2 px) per axis; the recorded flange poses are the true
-ones rotated by N(0, 0.01 deg) per axis and shifted by N(0, 0.1 mm) per axis.
+Setting: a study scenario (``jcalib.study``, simulated by ``jcalib.sim.observe``): a 1600x1200 opencv5
+camera (fx 1400 px, k1 -0.12) on the flange, any ``T_flange_cam`` within 0.1 m of the flange, a 9x6 board
+(25 mm) fixed 0.6 m in front of the base; ``--stations`` random views (``random_calibration_views``: the
+board filling 35-80 % of the image, tilted up to +-40 deg, rolled up to +-30 deg). Corner pixels get
+N(0, 0.2 px) per axis; the recorded flange poses are the true ones rotated by N(0, 0.01 deg) per axis
+and shifted by N(0, 0.1 mm) per axis (right perturbation). jcalib's joint solves are cells of the one
+builder (``jcalib.calibrate_cell``).
 
 Rows (errors of ``T_flange_cam``: rotation angle, deg; translation distance, mm; medians):
 - known intrinsics (the setting of the issue target and of bench_handeye_closed_forms.py):
@@ -31,64 +33,73 @@ translation (known intrinsics).
 board's x and y axes and rolled by up to +-0.75 A about its optical axis (the default design above is
 A = 40: +-40 deg tilt, +-30 deg roll); all else as above. Per amplitude: the median errors of the best
 OpenCV closed form (by median, per column) and of the joint solve with the robot pose model, their
-ratio, and the Cramér-Rao ratio (bound / best closed form), against the issue-4 target.
+ratio, and the Cramér-Rao ratio (bound / best closed form), against the issue-4 target. (With the
+board filling the image the amplitude is the view-tilt range of the random strategy.)
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
+import copy
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
+import jcalib
 from jcalib.geometry import lie
 from jcalib.init.handeye import HAND_EYE_METHODS
-from jcalib.io.cell import load_cell
-from jcalib.io.observations import load_observations
-from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
+from jcalib.io.cell import parse_cell
+from jcalib.study import load_scenario, simulate_trial
+from jcalib.study.closed_forms import hand_eye_data
 
-_path = Path(__file__).resolve().parents[1] / "tests" / "problems" / "test_handeye_joint.py"
-_spec = importlib.util.spec_from_file_location("_handeye_joint_helpers", _path)
-T = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(T)
-H = T.H
-
-def _opencv_intrinsics(obs):
-    obj = [H.BOARD[s["detections"][0]["point_index"]].astype(np.float32) for s in obs["stations"]]
-    img = [np.asarray(s["detections"][0]["pixels"], np.float32) for s in obs["stations"]]
-    _, K, dist, _, _ = cv2.calibrateCamera(obj, img, T.IMAGE_SIZE, None, None,
-                                           criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))
-    return K, dist.ravel()
+X_NAME = "T_flange_cam0"
+KNOWN = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
 
 
-def _make_data_amplitude(seed, n, amplitude_deg, sigma_px, robot_m, robot_deg):
-    """``T.make_data`` (eye-in-hand) with the station rotation amplitude set: tilt +-A, roll +-0.75 A."""
-    rng = np.random.default_rng(seed)
-    X, Y, T_bf, T_ct = H.make_scene(rng, n=n, mount="flange", tilt_deg=amplitude_deg, roll_deg=0.75 * amplitude_deg)
-    T_ct, Y = T_ct @ T.FLIP, Y @ T.FLIP
-    T_meas = H.perturb_robot(T_bf, rng, sigma_m=robot_m, sigma_deg=robot_deg)
-    stations = []
-    for i in range(n):
-        pix, vis = T.project_target(T.CAMERA, T_ct[i], H.BOARD)
-        pix = pix + sigma_px * rng.normal(size=pix.shape)
-        idx = np.flatnonzero(vis)
-        stations.append({"id": f"s{i:03d}", "T_base_flange": T_meas[i].tolist(),
-                         "detections": [{"camera": "cam0", "target": "board", "point_index": idx.tolist(),
-                                         "pixels": pix[idx].tolist()}]})
-    obs = {"schema": "jcalib.observations/1", "cameras": {"cam0": {"image_size": list(T.IMAGE_SIZE)}},
-           "targets": {"board": {"points": H.BOARD.tolist()}}, "stations": stations}
-    cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "opencv5", "mount": "flange"}},
-            "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025, "mount": "base"}},
-            "robot": {"pose_noise": {"translation_m": robot_m, "rotation_deg": robot_deg}}}
-    return cell, obs, {"T_hand_eye": X, "T_base_flange": T_meas}
+def scenario(stations: int, amplitude_deg: float, sigma_px: float, robot_m: float, robot_deg: float):
+    """The eye-in-hand study (intrinsics estimated; the known-intrinsics cell is derived per trial)."""
+    return load_scenario({
+        "cell": {"cameras": {"cam0": {"model": "opencv5", "mount": "flange"}},
+                 "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025, "mount": "base"}},
+                 "robot": {"pose_noise": {"translation_m": robot_m, "rotation_deg": robot_deg}}},
+        "noise": {"pixel_sigma_px": sigma_px, "robot_translation_m": robot_m, "robot_rotation_deg": robot_deg},
+        "stations": {"strategy": "random", "count": stations, "max_tilt_deg": amplitude_deg,
+                     "max_roll_deg": 0.75 * amplitude_deg},
+        "estimators": ["joint"]})
+
+
+def known_intrinsics(sc, trial):
+    """The scenario and trial with the camera's intrinsics held at the truth (the same observations)."""
+    cell = copy.deepcopy(trial.cell_dict)
+    K, dist = (np.asarray(a) for a in trial.truth.cameras["cam0"].to_opencv())
+    cell["cameras"]["cam0"].update(fix=KNOWN, intrinsics={"K": K.tolist(), "dist": dist.ravel().tolist()})
+    known = copy.copy(trial)
+    known.cell, known.cell_dict = parse_cell(cell), cell
+    return known
+
+
+def _errors(T_est, T_true):
+    dR = T_est[:3, :3].T @ T_true[:3, :3]
+    return (float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))),
+            float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3])))
+
+
+def opencv_hand_eye(T_bf, T_ct, method):
+    R, t = cv2.calibrateHandEye(list(T_bf[:, :3, :3]), list(T_bf[:, :3, 3]), list(T_ct[:, :3, :3]),
+                                list(T_ct[:, :3, 3]), method=getattr(cv2, HAND_EYE_METHODS[method]))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t.ravel()
+    return T
+
+
+def joint(trial, sigma_px, pose_model):
+    return jcalib.calibrate_cell(trial.cell, trial.observations,
+                                 jcalib.CalibrationOptions(sigma_px=sigma_px, pose_model=pose_model))
 
 
 def amplitude_sweep(args) -> None:
     """The ``--amplitudes`` table (known intrinsics): best closed form vs joint + pose model vs the bound."""
-    K_true, dist_true = (np.asarray(a) for a in T.CAMERA.to_opencv())
     rng = np.random.default_rng(12345)
     robot_m = 1e-3 * args.robot_mm
     print(f"\nEye-in-hand, known intrinsics, {args.trials} trials per amplitude, {args.stations} stations, "
@@ -100,31 +111,30 @@ def amplitude_sweep(args) -> None:
     print(head)
     t_start = time.perf_counter()
     for amp in args.amplitudes:
+        sc = scenario(args.stations, amp, args.sigma_px, robot_m, args.robot_deg)
         cf: dict[str, dict[str, list[float]]] = {}
-        joint = {"rot": [], "t": []}
+        jt = {"rot": [], "t": []}
         bound = {"rot": [], "t": []}
-        for trial in range(args.trials):
-            cell, obs, truth = _make_data_amplitude(10_000 * args.seed + trial, args.stations, amp, args.sigma_px,
-                                                    robot_m, args.robot_deg)
-            X = truth["T_hand_eye"]
-            T_ct = T.pnp_poses(obs, K_true, dist_true)
+        for k in range(args.trials):
+            trial = known_intrinsics(sc, simulate_trial(sc, args.seed, k))
+            X = trial.truth.transform(X_NAME)
+            _, _, T_bf, T_ct = hand_eye_data(sc, trial)
             for m, cv_name in HAND_EYE_METHODS.items():
-                d_rot, d_t = T._errors(H.opencv_hand_eye(truth["T_base_flange"], T_ct, m), X)
+                d_rot, d_t = _errors(opencv_hand_eye(T_bf, T_ct, m), X)
                 r = cf.setdefault(cv_name, {"rot": [], "t": []})
                 r["rot"].append(d_rot)
                 r["t"].append(1e3 * d_t)
-            cal = calibrate_hand_eye(load_cell(T.with_known_intrinsics(cell)), load_observations(obs),
-                                     HandEyeOptions(sigma_px=args.sigma_px, pose_model=True))
-            d_rot, d_t = T._errors(cal.T_hand_eye, X)
-            joint["rot"].append(d_rot)
-            joint["t"].append(1e3 * d_t)
-            d = rng.multivariate_normal(np.zeros(6), np.asarray(cal.solution.covariance(cal.hand_eye_name, noise="stated")), size=200)
+            cal = joint(trial, args.sigma_px, True)
+            d_rot, d_t = _errors(cal.transforms[X_NAME], X)
+            jt["rot"].append(d_rot)
+            jt["t"].append(1e3 * d_t)
+            d = rng.multivariate_normal(np.zeros(6), cal.solution.covariance(X_NAME, noise="stated"), size=200)
             bound["rot"].extend(np.degrees(np.linalg.norm(d[:, :3], axis=1)).tolist())
             bound["t"].extend((1e3 * np.linalg.norm(d[:, 3:], axis=1)).tolist())
-        best_r = min(cf, key=lambda k: np.median(cf[k]["rot"]))
-        best_t = min(cf, key=lambda k: np.median(cf[k]["t"]))
+        best_r = min(cf, key=lambda c: np.median(cf[c]["rot"]))
+        best_t = min(cf, key=lambda c: np.median(cf[c]["t"]))
         cf_r, cf_t = np.median(cf[best_r]["rot"]), np.median(cf[best_t]["t"])
-        j_r, j_t = np.median(joint["rot"]), np.median(joint["t"])
+        j_r, j_t = np.median(jt["rot"]), np.median(jt["t"])
         ratio_r, ratio_t = j_r / cf_r, j_t / cf_t
         met = "met" if (ratio_r <= 0.8 and ratio_t <= 0.5) else "MISSED"
         print(f"{amp:6.0f} {cf_r:16.4f} {j_r:14.4f} {ratio_r:10.2f} {np.median(bound['rot']) / cf_r:8.2f} "
@@ -151,12 +161,10 @@ def main() -> None:
         amplitude_sweep(args)
         return
 
-    K_true, dist_true = (np.asarray(a) for a in T.CAMERA.to_opencv())
-    rows: dict[str, dict[str, list[float]]] = {}
-
+    rows: dict[tuple[str, str], dict[str, list[float]]] = {}
     rng = np.random.default_rng(12345)
 
-    def record_bound(group, T_est, cov_stated):
+    def record_bound(group, cov_stated):
         """Errors of an efficient estimator: 200 draws of δ ~ N(0, Σ) per trial, ‖rotation‖ and ‖R δt‖."""
         d = rng.multivariate_normal(np.zeros(6), cov_stated, size=200)
         r = rows.setdefault((group, "Cramer-Rao bound (efficient estimator)"),
@@ -165,7 +173,7 @@ def main() -> None:
         r["t"].extend((1e3 * np.linalg.norm(d[:, 3:], axis=1)).tolist())  # ‖R v‖ = ‖v‖
 
     def record(group, name, T_est, T_true, dt=float("nan"), cov=None):
-        d_rot, d_t = T._errors(T_est, T_true)
+        d_rot, d_t = _errors(T_est, T_true)
         r = rows.setdefault((group, name), {"rot": [], "t": [], "time": [], "nees": []})
         r["rot"].append(d_rot)
         r["t"].append(1e3 * d_t)
@@ -174,40 +182,29 @@ def main() -> None:
             delta = np.asarray(lie.local(lie.se3_from_matrix(T_est), lie.se3_from_matrix(T_true)))
             r["nees"].append(float(delta @ np.linalg.solve(cov, delta)))
 
+    sc = scenario(args.stations, 40.0, args.sigma_px, 1e-3 * args.robot_mm, args.robot_deg)
     robot = {}
     t_start = time.perf_counter()
-    for trial in range(args.trials):
-        cell, obs, truth = T.make_data(10_000 * args.seed + trial, "flange", n=args.stations, sigma_px=args.sigma_px,
-                                       robot_m=1e-3 * args.robot_mm, robot_deg=args.robot_deg)
-        X = truth["T_hand_eye"]
-        c_obs = load_observations(obs)
-        # known intrinsics
-        T_ct = T.pnp_poses(obs, K_true, dist_true)
-        for m, cv_name in HAND_EYE_METHODS.items():
-            record("known intrinsics", f"OpenCV {cv_name}", H.opencv_hand_eye(truth["T_base_flange"], T_ct, m), X)
-        c_fixed = load_cell(T.with_known_intrinsics(cell))
-        for label, pose_model in (("jcalib joint, pixels only", False), ("jcalib joint + robot pose model", True)):
-            t0 = time.perf_counter()
-            cal = calibrate_hand_eye(c_fixed, c_obs, HandEyeOptions(sigma_px=args.sigma_px, pose_model=pose_model))
-            record("known intrinsics", label, cal.T_hand_eye, X, time.perf_counter() - t0, cal.T_hand_eye_covariance)
-            if pose_model:
-                record_bound("known intrinsics", cal.T_hand_eye, np.asarray(cal.solution.covariance(cal.hand_eye_name, noise="stated")))
-                for k in ("a_posteriori_sigma_translation_m", "a_posteriori_sigma_rotation_deg"):
-                    robot.setdefault(k, []).append(float(np.mean(cal.robot[k])))
-        if args.no_free_intrinsics:
-            continue
-        K_cv, dist_cv = _opencv_intrinsics(obs)
-        T_ct = T.pnp_poses(obs, K_cv, dist_cv)
-        for m, cv_name in HAND_EYE_METHODS.items():
-            record("estimated intrinsics", f"OpenCV {cv_name}", H.opencv_hand_eye(truth["T_base_flange"], T_ct, m), X)
-        c_free = load_cell(cell)
-        for label, pose_model in (("jcalib joint, pixels only", False), ("jcalib joint + robot pose model", True)):
-            t0 = time.perf_counter()
-            cal = calibrate_hand_eye(c_free, c_obs, HandEyeOptions(sigma_px=args.sigma_px, pose_model=pose_model))
-            record("estimated intrinsics", label, cal.T_hand_eye, X, time.perf_counter() - t0,
-                   cal.T_hand_eye_covariance)
-            if pose_model:
-                record_bound("estimated intrinsics", cal.T_hand_eye, np.asarray(cal.solution.covariance(cal.hand_eye_name, noise="stated")))
+    for k in range(args.trials):
+        trial = simulate_trial(sc, args.seed, k)
+        X = trial.truth.transform(X_NAME)
+        groups = [("known intrinsics", known_intrinsics(sc, trial))]
+        if not args.no_free_intrinsics:
+            groups.append(("estimated intrinsics", trial))
+        for group, t in groups:
+            _, _, T_bf, T_ct = hand_eye_data(sc, t)  # PnP with the true / cv2.calibrateCamera intrinsics
+            for m, cv_name in HAND_EYE_METHODS.items():
+                record(group, f"OpenCV {cv_name}", opencv_hand_eye(T_bf, T_ct, m), X)
+            for label, pose_model in (("jcalib joint, pixels only", False), ("jcalib joint + robot pose model", True)):
+                t0 = time.perf_counter()
+                cal = joint(t, args.sigma_px, pose_model)
+                record(group, label, cal.transforms[X_NAME], X, time.perf_counter() - t0,
+                       cal.transform_covariance[X_NAME])
+                if pose_model:
+                    record_bound(group, cal.solution.covariance(X_NAME, noise="stated"))
+                    if group == "known intrinsics":
+                        for key in ("a_posteriori_sigma_translation_m", "a_posteriori_sigma_rotation_deg"):
+                            robot.setdefault(key, []).append(float(np.mean(cal.robot["robot"][key])))
     wall = time.perf_counter() - t_start
 
     print(f"\nEye-in-hand, {args.trials} trials, {args.stations} stations, {args.sigma_px} px, "
@@ -215,18 +212,18 @@ def main() -> None:
           f"median, so the first call's compile does not count)\n")
     print(f"{'intrinsics':22s} {'method':40s} {'rot deg':>9s} {'trans mm':>9s} {'time ms':>9s} {'NEES':>7s}")
     for group in ("known intrinsics", "estimated intrinsics"):
-        keys = [k for k in rows if k[0] == group]
+        keys = [key for key in rows if key[0] == group]
         if not keys:
             continue
-        cv_keys = [k for k in keys if k[1].startswith("OpenCV")]
-        best_rot_key = min(cv_keys, key=lambda k: np.median(rows[k]["rot"]))
-        best_t_key = min(cv_keys, key=lambda k: np.median(rows[k]["t"]))
+        cv_keys = [key for key in keys if key[1].startswith("OpenCV")]
+        best_rot_key = min(cv_keys, key=lambda key: np.median(rows[key]["rot"]))
+        best_t_key = min(cv_keys, key=lambda key: np.median(rows[key]["t"]))
         best_rot, best_t = np.median(rows[best_rot_key]["rot"]), np.median(rows[best_t_key]["t"])
-        for k in keys:
-            r = rows[k]
+        for key in keys:
+            r = rows[key]
             tm = np.nanmedian(r["time"]) * 1e3 if np.any(np.isfinite(r["time"])) else float("nan")
             nees = f"{np.mean(r['nees']):7.2f}" if r["nees"] else f"{'':7s}"
-            print(f"{group:22s} {k[1]:40s} {np.median(r['rot']):9.4f} {np.median(r['t']):9.4f} {tm:9.1f} {nees}")
+            print(f"{group:22s} {key[1]:40s} {np.median(r['rot']):9.4f} {np.median(r['t']):9.4f} {tm:9.1f} {nees}")
         for label in ("jcalib joint + robot pose model", "Cramer-Rao bound (efficient estimator)"):
             j = rows[(group, label)]
             ratio_r, ratio_t = np.median(j["rot"]) / best_rot, np.median(j["t"]) / best_t

@@ -2,26 +2,27 @@
 
 Run: ``.venv/bin/python benchmarks/bench_study.py [--trials 32] [--stations 15] [--batch-size 8] [--camera]``
 
-The study (``jcalib.study``): eye-in-hand, 1600x1200 opencv5 camera with known intrinsics, 9x6 board,
-``--stations`` random stations, 0.2 px corners, robot 0.1 mm / 0.01 deg; estimators: the five closed
-forms (jcalib's, on cv2.solvePnP poses), the joint solve pixels-only and with the robot pose model.
-One trial = simulate + all seven estimators.
+The study (``jcalib.study``, first scenario form ``cell: handeye``, read as a cell spec): eye-in-hand,
+1600x1200 opencv5 camera with known intrinsics, 9x6 board, ``--stations`` random stations, 0.2 px
+corners, robot 0.1 mm / 0.01 deg; estimators: the five closed forms (jcalib's, on cv2.solvePnP poses),
+the builder pixels-only and with the robot pose model (``jcalib.calibrate_batch``). One trial =
+simulate (``jcalib.sim.observe``) + all seven estimators.
 
 Rows (compilation excluded everywhere: each process solves one warm-up study first, timed apart):
 - sequential loop: ``run_study(batch_size=1)`` in this process, one trial at a time;
-- local batched: ``run_study(batch_size=B)`` in this process: each joint estimator solves the batch
-  with one ``calibrate_hand_eye_batch`` call (host preparation per trial, then the B main solves in
-  one vmapped jitted call and the B covariance systems of the pose model in another);
+- local batched: ``run_study(batch_size=B)`` in this process: each builder estimator solves the batch
+  with one ``calibrate_batch`` call (host preparation per trial, then every refinement round of the B
+  data sets in vmapped jitted calls);
 - Dask: ``run_study(backend="dask")`` on a ``LocalCluster(2 workers, 1 thread each, 127.0.0.1)``,
   one task per batch (workers warmed up first with one batch of B each; their warm-up time is printed);
 - OpenCV closed forms alone: ``cv2.calibrateHandEye`` with its five methods on precomputed PnP poses
   (the scale of a closed-form-only study).
 With ``--camera`` also the camera study (12 random views, jcalib joint + OpenCV): sequential vs
-vmapped batches of ``calibrate_cameras_batch``.
+vmapped batches of ``calibrate_batch``.
 
 Then where a joint hand-eye solve spends its time (``joint_pose_model`` on the same trials, ms per
-trial): the host preparation alone (gather, Zhang/PnP starts, closed form, problem), the per-trial
-``calibrate_hand_eye`` loop and ``calibrate_hand_eye_batch`` in sub-batches of B.
+trial): the host preparation alone (graph, closed-form starts, problem), the per-trial
+``calibrate_cell`` loop and ``calibrate_batch`` in sub-batches of B.
 
 Timings on shared CPUs move by ±30-50 % between runs: compare rows of one run.
 """
@@ -55,23 +56,17 @@ def _timed(fn):
 
 
 def _opencv_closed_forms(scenario, trials: int, seed: int) -> float:
-    """Seconds for cv2.calibrateHandEye (5 methods) on ``trials`` precomputed trials."""
+    """Seconds for cv2.calibrateHandEye (5 methods) on ``trials`` precomputed trials (PnP poses)."""
     import cv2
 
     from jcalib.study import load_scenario, simulate_trial
-    from jcalib.study.simulate import camera_model
+    from jcalib.study.closed_forms import hand_eye_data
 
     sc = load_scenario(scenario)
-    K, dist = (np.asarray(a) for a in camera_model(sc).to_opencv())
     data = []
     for k in range(trials):
-        d = simulate_trial(sc, seed, k)
-        Rs, ts = [], []
-        for idx, pix in zip(d.point_index, d.pixels):
-            _, r, t = cv2.solvePnP(d.points[idx], pix, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
-            Rs.append(cv2.Rodrigues(r)[0])
-            ts.append(t)
-        data.append((list(d.T_base_flange[:, :3, :3]), list(d.T_base_flange[:, :3, 3]), Rs, ts))
+        _, _, T_bf, T_ct = hand_eye_data(sc, simulate_trial(sc, seed, k))
+        data.append((list(T_bf[:, :3, :3]), list(T_bf[:, :3, 3]), list(T_ct[:, :3, :3]), list(T_ct[:, :3, 3])))
     methods = [cv2.CALIB_HAND_EYE_TSAI, cv2.CALIB_HAND_EYE_PARK, cv2.CALIB_HAND_EYE_HORAUD,
                cv2.CALIB_HAND_EYE_ANDREFF, cv2.CALIB_HAND_EYE_DANIILIDIS]
     t0 = time.perf_counter()
@@ -83,26 +78,26 @@ def _opencv_closed_forms(scenario, trials: int, seed: int) -> float:
 
 def _breakdown(scenario, trials: int, seed: int, B: int) -> list[tuple[str, float]]:
     """ms per trial of the joint solve with the pose model: host preparation, loop, batched."""
-    from jcalib.io.cell import load_cell
-    from jcalib.io.observations import load_observations
-    from jcalib.problems import handeye
+    import jcalib
+    from jcalib.problems.calibrate import prepare
     from jcalib.study import load_scenario, simulate_trial
-    from jcalib.study.estimators import _handeye_cell, _handeye_obs
+    from jcalib.study.estimators import builder_options
 
     sc = load_scenario(scenario)
-    cell = load_cell(_handeye_cell(sc, True))
-    obs = [load_observations(_handeye_obs(sc, simulate_trial(sc, seed, k))) for k in range(trials)]
-    opt = handeye.HandEyeOptions(sigma_px=sc.noise.pixel_sigma_px, pose_model=True)
-    handeye.calibrate_hand_eye_batch(cell, obs[:B], opt)  # warm (compiled by the study already)
-    for o in obs:  # warm: the single-solve path compiles per padded shape
-        handeye.calibrate_hand_eye(cell, o, opt)
+    est = next(e for e in sc.estimators if e.name == "joint_pose_model")
+    opt = jcalib.CalibrationOptions(**builder_options(sc, est))
+    data = [simulate_trial(sc, seed, k) for k in range(trials)]
+    cells, obs = [d.cell for d in data], [d.observations for d in data]
+    jcalib.calibrate_batch(cells[:B], obs[:B], opt)  # warm (compiled by the study already)
+    for c, o in zip(cells, obs):  # warm: the single-solve path compiles per padded shape
+        jcalib.calibrate_cell(c, o, opt)
     out = []
-    dt, _ = _timed(lambda: [handeye._prepare(cell, o, opt) for o in obs])
-    out.append(("host preparation only (gather, starts, closed form)", dt))
-    dt, _ = _timed(lambda: [handeye.calibrate_hand_eye(cell, o, opt) for o in obs])
-    out.append(("calibrate_hand_eye, loop", dt))
-    dt, _ = _timed(lambda: [handeye.calibrate_hand_eye_batch(cell, obs[s:s + B], opt) for s in range(0, trials, B)])
-    out.append((f"calibrate_hand_eye_batch, batches of {B}", dt))
+    dt, _ = _timed(lambda: [prepare(c, o, opt) for c, o in zip(cells, obs)])
+    out.append(("host preparation only (graph, starts, problem)", dt))
+    dt, _ = _timed(lambda: [jcalib.calibrate_cell(c, o, opt) for c, o in zip(cells, obs)])
+    out.append(("calibrate_cell, loop", dt))
+    dt, _ = _timed(lambda: [jcalib.calibrate_batch(cells[s:s + B], obs[s:s + B], opt) for s in range(0, trials, B)])
+    out.append((f"calibrate_batch, batches of {B}", dt))
     return [(name, 1e3 * t / trials) for name, t in out]
 
 
@@ -111,7 +106,8 @@ def _medians(table) -> dict:
     out = {}
     for e in dict.fromkeys(r["estimator"] for r in rows):
         rr = [r for r in rows if r["estimator"] == e and r["status"] == "ok"]
-        out[e] = (np.median([r["err_rot_deg"] for r in rr]), np.median([r["err_trans_mm"] for r in rr]),
+        out[e] = (np.median([r["err_T_flange_cam0_rot_deg"] for r in rr]),
+                  np.median([r["err_T_flange_cam0_trans_mm"] for r in rr]),
                   np.median([r["runtime_s"] for r in rr]) * 1e3)
     return out
 
@@ -157,7 +153,7 @@ def main() -> None:
         _timed(lambda: (run_study(cs, 1, seed=1, batch_size=1, progress=False),
                                       run_study(cs, B, seed=2, batch_size=B, progress=False)))
         dt, _ = _timed(lambda: run_study(cs, n, seed=args.seed, batch_size=1, progress=False))
-        rows.append(("camera", "sequential loop (calibrate_cameras_batch of 1)", n, dt))
+        rows.append(("camera", "sequential loop (calibrate_batch of 1)", n, dt))
         dt, _ = _timed(lambda: run_study(cs, n, seed=args.seed, batch_size=B, progress=False))
         rows.append(("camera", f"vmapped batches of {B}", n, dt))
 

@@ -19,9 +19,10 @@
 # - every closed form of `jcalib.init` on `cv2.solvePnP` poses: the five AX = XB methods
 #   (Tsai–Lenz, Park–Martin, Horaud, Andreff, Daniilidis) and the two AX = ZB robot-world methods
 #   (Shah, Li);
-# - `calibrate_hand_eye` pixels only (robot poses taken as exact);
-# - `calibrate_hand_eye` + robot pose model (per-station corrections under the stated prior: the
-#   model that generated the data, i.e. the maximum-likelihood estimator).
+# - the joint solve (`jcalib.calibrate_cell` on the eye-in-hand cell) pixels only (robot poses taken
+#   as exact: `CalibrationOptions(pose_model=False)`);
+# - the joint solve + robot pose model (per-station corrections under the stated prior: the model that
+#   generated the data, i.e. the maximum-likelihood estimator).
 #
 # **Cramér–Rao bound.** For each trial's design, the joint estimator (pose model on) is run on the
 # *noise-free* data of that design with `noise="stated"`: its covariance is then evaluated at the truth
@@ -52,7 +53,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-import jcalib  # noqa: F401  (float64)
+import jcalib
 from jcalib.solve.cache import enable_compilation_cache
 from jcalib.errors import NotObservableError
 from jcalib.geometry.cameras import camera_model_from_name
@@ -60,7 +61,6 @@ from jcalib.init.handeye import HAND_EYE_METHODS, solve_hand_eye
 from jcalib.init.robot_world import ROBOT_WORLD_METHODS, solve_robot_world_hand_eye
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
-from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
 from jcalib.sim.scene import project_target
 
 enable_compilation_cache()
@@ -190,17 +190,17 @@ def trial(seed, stations, amplitude_deg, sigma_px, robot_mm, rng):
     c, o = load_cell(cell), load_observations(obs)
     for name, pm in zip(JOINT, (False, True)):
         try:
-            cal = calibrate_hand_eye(c, o, HandEyeOptions(sigma_px=sigma_px, pose_model=pm))
+            cal = jcalib.calibrate_cell(c, o, jcalib.CalibrationOptions(sigma_px=sigma_px, pose_model=pm))
         except NotObservableError:
             out[name] = (np.nan, np.nan)
             continue
-        out[name] = errors(cal.T_hand_eye, X)
-        extra[f"reported: {name}"] = draws(cal.T_hand_eye_covariance, rng)
+        out[name] = errors(cal.transforms["T_flange_cam0"], X)
+        extra[f"reported: {name}"] = draws(cal.transform_covariance["T_flange_cam0"], rng)
     # Cramér-Rao bound: the ML estimator's stated-noise covariance at the truth (exact data, same design)
     c0, o0, _ = simulate(seed, stations, amplitude_deg, sigma_px, robot_mm, noise=False)
-    crb = calibrate_hand_eye(load_cell(c0), load_observations(o0),
-                             HandEyeOptions(sigma_px=sigma_px, pose_model=True, noise="stated"))
-    extra["Cramér–Rao bound"] = draws(crb.T_hand_eye_covariance, rng)
+    crb = jcalib.calibrate_cell(load_cell(c0), load_observations(o0),
+                                jcalib.CalibrationOptions(sigma_px=sigma_px, pose_model=True, noise="stated"))
+    extra["Cramér–Rao bound"] = draws(crb.transform_covariance["T_flange_cam0"], rng)
     return out, extra
 
 

@@ -16,11 +16,11 @@
 #
 # | data | jcalib call | published answer |
 # |---|---|---|
-# | Zhang 1998 (5 images, 256 corners) | `calibrate_cameras`, opencv5 + skew, p1 = p2 = k3 = 0 | Zhang's a, b, u0, v0, c, k1, k2 |
-# | OpenCV left01..14 (13 images, 9x6) | `calibrate_cameras`, opencv5, fixed aspect ratio | OpenCV's `left_intrinsics.yml` |
+# | Zhang 1998 (5 images, 256 corners) | `jcalib.calibrate_cell`, opencv5 + skew, p1 = p2 = k3 = 0 | Zhang's a, b, u0, v0, c, k1, k2 |
+# | OpenCV left01..14 (13 images, 9x6) | `jcalib.calibrate_cell`, opencv5, fixed aspect ratio | OpenCV's `left_intrinsics.yml` |
 # | camodocal hand-eye (42 pose pairs, eye-to-hand) | `calibrate_hand_eye_pairs` | `CalibratedTransform.yml` (another estimator, AX = XB relative to station 0; the data is noisy: degrees, cm) |
 # | UCL pivot (1151 tracker poses, mm) | `refine_pivot` (Newey–West σ) | no published tip: the linear least-squares pivot (`pivot_calibration`) |
-# | mrcal Figueroa (186 views, 6016x4016, wide angle) | `calibrate_cameras`, opencv8 | no published intrinsics in the README: RMS and σ only |
+# | mrcal Figueroa (186 views, 6016x4016, wide angle) | `jcalib.calibrate_cell`, opencv8 | no published intrinsics in the README: RMS and σ only |
 #
 # "σ" is jcalib's reported 1σ (a-posteriori): sampling noise only, not model error (the published
 # values come from other estimators, corner detectors or distortion models, so differences of a few σ
@@ -46,12 +46,11 @@ import cv2
 import matplotlib.pyplot as plt
 import numpy as np
 
-import jcalib  # noqa: F401  (float64)
+import jcalib
 from jcalib.solve.cache import enable_compilation_cache
 from jcalib.init.pivot import pivot_calibration
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
 from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
 from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 from jcalib.problems.pivot import refine_pivot
@@ -93,7 +92,7 @@ obs = parse_observations({
 cell = parse_cell({"schema": "jcalib.cell/1",
                    "cameras": {"cam": {"model": "opencv5", "skew": True, "fix": ["p1", "p2", "k3"]}},
                    "targets": {"board": {"type": "checkerboard", "cols": 2, "rows": 2, "square": 0.01}}})
-cal = calibrate_cameras(cell, obs, CameraCalibrationOptions(outlier_threshold=None))
+cal = jcalib.calibrate_cell(cell, obs, jcalib.CalibrationOptions(outlier_threshold=None))
 p, s = camera_params(cal, "cam")
 zhang = {"fx": 832.5, "fy": 832.53, "cx": 303.959, "cy": 206.585, "skew": 0.204494, "k1": -0.228601, "k2": 0.190353}
 for k, v in zhang.items():
@@ -121,7 +120,7 @@ obs = parse_observations({"schema": "jcalib.observations/1", "cameras": {"left":
                           "targets": {"board": {"points": board.tolist()}}, "stations": stations})
 cell = parse_cell({"schema": "jcalib.cell/1", "cameras": {"left": {"model": "opencv5", "fix": ["aspect"]}},
                    "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025}}})
-cal = calibrate_cameras(cell, obs, CameraCalibrationOptions(outlier_threshold=None, reseed_views=False))
+cal = jcalib.calibrate_cell(cell, obs, jcalib.CalibrationOptions(outlier_threshold=None, reseed_views=False))
 p, s = camera_params(cal, "left")
 fs = cv2.FileStorage(str(folder / "reference" / "opencv_samples_data_left_intrinsics.yml"), cv2.FILE_STORAGE_READ)
 K_pub, d_pub = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat().ravel()
@@ -200,7 +199,7 @@ obs = parse_observations({"schema": "jcalib.observations/1", "cameras": {"cam": 
                           "targets": {"board": {"points": grid.tolist()}}, "stations": stations})
 cell = parse_cell({"schema": "jcalib.cell/1", "cameras": {"cam": {"model": "opencv8"}},
                    "targets": {"board": {"type": "checkerboard", "cols": 10, "rows": 10, "square": 0.077}}})
-cal = calibrate_cameras(cell, obs)
+cal = jcalib.calibrate_cell(cell, obs)
 p, s = camera_params(cal, "cam")
 label = f"mrcal Figueroa ({len(views)} views)"
 for k in ("fx", "fy", "cx", "cy", "k1", "k2"):

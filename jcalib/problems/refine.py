@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import jax
 import numpy as np
 
 from jcalib.errors import JcalibError, NotObservableError
@@ -120,17 +121,27 @@ class _Rounds:
         groups: dict[tuple, list[int]] = {}
         for j, i in enumerate(idx):
             groups.setdefault((self.traces[i], id(type(self.m[i].built.problem))), []).append(j)
-        for (traces, _), js in groups.items():
+        for (traces, kind), js in groups.items():
             problems = []
             for j in js:
                 x = self.m[idx[j]]
                 p = x.built.with_weights(x.weights, x.scale or None)
                 problems.append(p if x0s[j] is None else p.with_values(x0s[j]))
+            # A round that re-solves some members only is filled up with the others at their current
+            # solution (converged: they add no iterations), so every round has the first round's batch
+            # width and padded shapes and re-uses its compiled solve instead of compiling a new one.
+            asked, shape = {idx[j] for j in js}, jax.tree.structure(problems[0])
+            for i, x in enumerate(self.m):
+                if (i not in asked and x.error is None and x.sol is not None and self.traces[i] == traces
+                        and id(type(x.built.problem)) == kind):
+                    p = x.built.with_weights(x.weights, x.scale or None).with_values(x.sol.values)
+                    if jax.tree.structure(p) == shape:
+                        problems.append(p)
             try:
-                sols = solve_many(problems, self.so, traces=traces)
+                sols = solve_many(problems, self.so, traces=traces)[:len(js)]
             except JcalibError:  # different structures: one by one
                 sols = []
-                for p in problems:
+                for p in problems[:len(js)]:
                     sols.append(solve(p, options=self.so, traces=traces, raise_on_unobservable=False))
             for j, s in zip(js, sols):
                 x = self.m[idx[j]]

@@ -1,6 +1,7 @@
 """Synthetic cells: scenes, target and tool image rendering, sensor noise — what tests, benchmarks
 and the demo use when no hardware is there."""
 
+from jcalib.sim.observe import CellTruth, ObservationNoise, SimStation, simulate_observations
 from jcalib.sim.render import RenderOptions, render_target_image, render_targets_image
 from jcalib.sim.scene import (
     Scene,
@@ -16,6 +17,9 @@ from jcalib.sim.textures import TargetTexture, target_texture
 from jcalib.sim.tool import SymmetricTool, render_tool_image
 
 __all__ = [
+    "CellTruth",
+    "ObservationNoise",
+    "SimStation",
     "RenderOptions",
     "Scene",
     "SceneCamera",
@@ -30,5 +34,6 @@ __all__ = [
     "render_target_image",
     "render_targets_image",
     "render_tool_image",
+    "simulate_observations",
     "target_texture",
 ]

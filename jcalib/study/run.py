@@ -11,13 +11,47 @@ from pathlib import Path
 from jcalib.errors import BadInputError
 from jcalib.solve.cache import enable_compilation_cache
 from jcalib.study.backends import batches, run_dask, run_local
-from jcalib.study.estimators import columns, run_trials
+from jcalib.study.estimators import run_estimator
+from jcalib.study.metrics import columns, error_row, row
 from jcalib.study.scenario import Scenario, load_scenario
+from jcalib.study.simulate import simulate_trial
 
-__all__ = ["DEFAULT_BATCH_SIZE", "run_study", "write_table"]
+__all__ = ["DEFAULT_BATCH_SIZE", "run_study", "run_trials", "write_table"]
 
-#: Trials per batch (one Dask task, one vmapped camera solve).
+#: Trials per batch (one Dask task, one vmapped solve per builder estimator).
 DEFAULT_BATCH_SIZE = 8
+
+
+def run_trials(scenario: Scenario, seed: int, trials: list[int]) -> list[dict]:
+    """Simulate and estimate the given trials (one batch); rows ordered by trial, then estimator.
+
+    Each builder estimator solves the batch's trials with one :func:`jcalib.calibrate_batch` call; the
+    closed forms loop over the trials. A trial the scenario cannot simulate gives one failed row per
+    estimator.
+    """
+    cols = columns(scenario)
+    trials = [int(k) for k in trials]
+    data, failed = {}, {}
+    for k in trials:
+        try:
+            data[k] = simulate_trial(scenario, seed, k)
+        except Exception as err:  # noqa: BLE001  (a failed trial is a row, not a crash)
+            failed[k] = err
+    live = [k for k in trials if k in data]
+    results = {e.name: dict(zip(live, run_estimator(scenario, e, [data[k] for k in live])))
+               for e in scenario.estimators}
+    rows = []
+    for k in trials:
+        for e in scenario.estimators:
+            if k in failed:
+                rows.append(error_row(cols, k, e.name, failed[k]))
+                continue
+            res = results[e.name][k]
+            if isinstance(res, Exception):
+                rows.append(error_row(cols, k, e.name, res, len(data[k].kept)))
+            else:
+                rows.append(row(scenario, cols, k, e.name, res, data[k].truth))
+    return rows
 
 
 def _run_batch(scenario_data: dict, seed: int, trials: list[int]) -> list[dict]:
@@ -96,7 +130,7 @@ def run_study(
         scenario: a scenario (dict, :class:`Scenario` or YAML/JSON path), see :mod:`jcalib.study.scenario`.
         trials: number of trials, >= 1.
         seed: the study's seed.
-        backend: ``"local"`` (this process; camera cells use one vmapped solve per batch) or ``"dask"``
+        backend: ``"local"`` (this process; one vmapped solve per builder estimator and batch) or ``"dask"``
             (one task per batch on a ``dask.distributed`` cluster).
         scheduler: Dask scheduler address (``tcp://HOST:PORT``); ``None`` starts a loopback
             ``LocalCluster`` of ``n_workers`` single-threaded workers. Setting it implies ``"dask"``.
@@ -107,7 +141,7 @@ def run_study(
         progress: show a rich progress bar.
 
     Returns:
-        The tidy table, one row per trial × estimator (columns: :func:`jcalib.study.estimators.columns`):
+        The tidy table, one row per trial × estimator (columns: :func:`jcalib.study.metrics.columns`):
         a ``pandas.DataFrame`` when pandas is installed, else a list of dicts (column -> value).
 
     Raises:

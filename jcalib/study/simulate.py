@@ -1,22 +1,27 @@
-"""One simulated trial of a study: ground truth, station poses and noisy measurements.
+"""One simulated trial of a study: its truth, stations and observations, and the cell spec it is solved with.
 
 Every random number of trial ``i`` comes from its own generator, derived from ``(seed, i)`` only
-(:func:`trial_rng`), so a trial is the same whichever batch or worker runs it. Draws happen in a
-fixed order whatever the outcome (a dropped station still consumes its noise draws).
-
-Frames and units as in DESIGN.md: ``T_a_b`` maps b to a, metres, radians inside, degrees in names.
-The board is printed on its -z side; cameras look along the target's +z axis.
+(:func:`trial_rng`), drawn in a fixed order: the truth (:func:`jcalib.study.truth.draw_truth`), the
+stations (:func:`jcalib.study.stations.plan_stations`), then the measurements
+(:func:`jcalib.sim.observe.simulate_observations`). A trial is therefore the same whichever batch or
+worker runs it.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
 
+from jcalib.io.cell import CellSpec, parse_cell
+from jcalib.io.observations import Observations, parse_observations
+from jcalib.sim.observe import CellTruth, ObservationNoise, SimStation, simulate_observations
 from jcalib.study.scenario import Scenario
+from jcalib.study.stations import BlockRecord, holder, plan_stations
+from jcalib.study.truth import draw_truth
 
-__all__ = ["CameraTrial", "HandEyeTrial", "TCPTrial", "simulate_trial", "trial_rng"]
+__all__ = ["Trial", "observation_noise", "simulate_trial", "trial_cell", "trial_rng"]
 
 
 def trial_rng(seed: int, trial: int) -> np.random.Generator:
@@ -27,280 +32,97 @@ def trial_rng(seed: int, trial: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(entropy=int(seed), spawn_key=(int(trial),)))
 
 
-# ------------------------------------------------------------------------------------ small SE(3)
-
-
-def _pose(R: np.ndarray, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` of rotation vectors ``(..., 3)`` (rad), Rodrigues."""
-    w = np.asarray(w, dtype=np.float64)
-    th = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = np.zeros(w.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
-    small = th < 1e-8
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def _random_rotation(rng: np.random.Generator) -> np.ndarray:
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def perturb_poses(T: np.ndarray, rng: np.random.Generator, sigma_m: float, sigma_deg: float) -> np.ndarray:
-    """Measured flange poses ``T · [Exp(ω) | v]``: ω ~ N(0, σ_rot²), v ~ N(0, σ_m²) per flange axis.
-
-    Args:
-        T: (N, 4, 4) true poses, m.  sigma_m: m.  sigma_deg: deg.
-    Returns:
-        (N, 4, 4) perturbed poses (the right perturbation of the robot pose model, to first order).
-    """
-    w = np.radians(sigma_deg) * rng.normal(size=(len(T), 3))
-    v = sigma_m * rng.normal(size=(len(T), 3))
-    D = np.zeros((len(T), 4, 4))
-    D[:, :3, :3] = _exp_so3(w)
-    D[:, :3, 3] = v
-    D[:, 3, 3] = 1.0
-    return T @ D
-
-
-# ------------------------------------------------------------------------------------ model objects
-
-
-def camera_model(scenario: Scenario):
-    """The scenario's true camera model."""
-    from jcalib.geometry.cameras import camera_model_from_name
-
-    c = scenario.camera
-    return camera_model_from_name(c["model"], tuple(c["image_size"]), np.asarray(c["params"], np.float64))
-
-
-def board(scenario: Scenario):
-    """The scenario's checkerboard (:class:`jcalib.geometry.Checkerboard`)."""
-    from jcalib.geometry import Checkerboard
-
-    t = scenario.target
-    return Checkerboard(cols=int(t["cols"]), rows=int(t["rows"]), square=float(t["square"]))
-
-
-# ------------------------------------------------------------------------------------ strategies
-
-
-def _rot(axis: str, a: float) -> np.ndarray:
-    return _exp_so3(np.radians(a) * {"X": np.array([1.0, 0, 0]), "Y": np.array([0, 1.0, 0]),
-                                     "Z": np.array([0, 0, 1.0])}[axis])
-
-
-def target_cam_views(scenario: Scenario, rng: np.random.Generator, camera, points: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) ``T_target_cam`` of the station strategy (hand-eye and camera cells), m."""
-    from jcalib.geometry import views as rc
-    from jcalib.sim.scene import random_calibration_views
-
-    st = scenario.stations
-    o = st.options
-    centre = points.mean(axis=0)
-    if st.strategy == "random":
-        T_ct = random_calibration_views(camera, points, int(o["count"]), rng, fill=tuple(o["fill"]),
-                                        max_tilt_deg=float(o["max_tilt_deg"]), max_roll_deg=float(o["max_roll_deg"]))
-        return _inv(np.stack(T_ct))
-    if st.strategy == "robocalib_handeye":
-        D = float(o["distance_m"])
-        T0 = rc.frontal_view(centre, D)
-        views = [T0]
-        for axis in ("Z", "Y", "X"):
-            for a in o[f"angles_{axis.lower()}_deg"]:
-                views.append(rc.recentre(rc.rotate_camera(T0, axis, np.radians(a)), centre, D))
-        return np.stack(views)
-    if st.strategy == "robocalib_viewsets":
-        D, t = float(o["distance_m"]), float(o["tilt_deg"])
-        views = [rc.frontal_view(centre, D)]
-        views += [rc.tilted_view(centre, D, ax, np.radians(s * t)) for ax in ("X", "Y") for s in (1.0, -1.0)]
-        views.append(rc.origin_view(D))
-        views += [rc.height_view(centre, D, float(h), np.radians(float(r))) for h in o["heights"]
-                  for r in o["rolls_deg"]]
-        return np.stack(views)
-    if st.strategy == "file":
-        return np.asarray(st.T_target_cam, dtype=np.float64).copy()
-    raise AssertionError(st.strategy)  # validated by load_scenario
-
-
-# ------------------------------------------------------------------------------------ trials
-
-
 @dataclass
-class HandEyeTrial:
-    """A simulated eye-in-hand data set.
+class Trial:
+    """A simulated data set and what the estimators are given.
 
     Attributes:
-        T_flange_cam: (4, 4) true hand-eye transform, m.  T_base_target: (4, 4) true board pose, m.
-        T_base_flange: (N, 4, 4) measured (noisy) flange poses of the kept stations, m.
-        point_index: per kept station, the indices of the board corners seen.
-        pixels: per kept station, (k, 2) noisy corner pixels, px.
-        points: (M, 3) board corners, target frame, m.
-        num_planned: stations planned (before dropouts and views without enough corners).
+        truth: the true cell.
+        stations: the planned stations (true poses); ``records``: per station block, its station ids
+            and what closed forms need (servo noise, goal pixel).
+        observations: the simulated ``jcalib.observations/1`` data (parsed); ``kept``: ids of the
+            stations that observed something.
+        cell: the cell spec this trial is solved with (the scenario's, with the true values of the
+            things it holds fixed or names in ``given``); ``cell_dict``: the same as plain data.
+        num_planned: stations planned (before dropouts and stations without any detection).
     """
 
-    T_flange_cam: np.ndarray
-    T_base_target: np.ndarray
-    T_base_flange: np.ndarray
-    point_index: list[np.ndarray]
-    pixels: list[np.ndarray]
-    points: np.ndarray
+    truth: CellTruth
+    stations: list[SimStation]
+    records: list[BlockRecord]
+    observations: Observations
+    kept: list[str]
+    cell: CellSpec
+    cell_dict: dict
     num_planned: int
 
 
-@dataclass
-class CameraTrial:
-    """A simulated camera-calibration data set: per kept view the corner indices and noisy pixels."""
+def observation_noise(scenario: Scenario) -> ObservationNoise:
+    """The scenario's noise as the simulator takes it (robot noise per robot of the cell)."""
+    n, cell = scenario.noise, scenario.cell_spec
+    robots = dict(cell.robots) if cell.robots else ({(cell.robot.name or "robot"): cell.robot} if cell.robot else {})
+    per_robot = {}
+    for r, spec in robots.items():
+        if n.robot_translation_m is not None:
+            per_robot[r] = (np.full(3, n.robot_translation_m), np.full(3, n.robot_rotation_deg))
+        elif spec is not None and spec.pose_noise_translation_m is not None:
+            per_robot[r] = (np.asarray(spec.pose_noise_translation_m), np.asarray(spec.pose_noise_rotation_deg))
+    return ObservationNoise(pixel_sigma_px=n.pixel_sigma_px, tip_sigma_px=n.tip_px, axis_sigma_px=n.axis_sigma_px,
+                            robot=per_robot, pose_rotation_deg=n.pose_rotation_deg,
+                            pose_translation_m=n.pose_translation_m, dropout_rate=n.dropout_rate,
+                            min_points=n.min_points)
 
-    point_index: list[np.ndarray]
-    pixels: list[np.ndarray]
-    points: np.ndarray
-    num_planned: int
 
+def trial_cell(scenario: Scenario, truth: CellTruth) -> dict:
+    """The scenario's cell spec with the true values of what it holds fixed without a value, or ``given``.
 
-@dataclass
-class TCPTrial:
-    """A simulated camera-based TCP data set.
-
-    Attributes:
-        p_flange_tip: (3,) true tool tip in the flange frame, m.
-        R_base_cam: (3, 3) camera orientation (known to the estimators).
-        T_base_flange: (N, 4, 4) measured flange poses (robot noise on top of the servo residual), m.
-        ray_base: (3,) direction of the viewing ray of the tip pixel in the base frame.
-        servo_sigma_m: σ of the servo residual per image axis converted to metres at the tip depth.
+    A camera whose every intrinsic is in ``fix`` (or named in ``given``) gets ``intrinsics`` (OpenCV K and
+    dist of its true model); a fixed-mounted camera or target listed in ``fixed`` (or ``given``) gets its
+    true ``pose``; a robot listed in ``fixed`` or ``given`` its true ``base``; a point its ``position``.
     """
-
-    p_flange_tip: np.ndarray
-    R_base_cam: np.ndarray
-    T_base_flange: np.ndarray
-    ray_base: np.ndarray
-    servo_sigma_m: float
-    num_planned: int
-
-
-#: Fewest corners a view must keep to be used (below this a planar pose is poorly determined).
-MIN_CORNERS = 8
-
-
-def _observe(scenario: Scenario, rng, camera, points, T_cam_target: np.ndarray):
-    """Noisy corners of every view; views lost to dropout or with too few corners are marked."""
-    from jcalib.sim.scene import project_target
-
-    n = len(T_cam_target)
-    noise = scenario.noise.pixel_sigma_px * rng.normal(size=(n, len(points), 2))
-    dropped = rng.random(n) < scenario.noise.dropout_rate
-    keep, idx_list, pix_list = [], [], []
-    for i in range(n):
-        pix, vis = project_target(camera, T_cam_target[i], points)
-        idx = np.flatnonzero(vis)
-        if dropped[i] or len(idx) < MIN_CORNERS:
-            continue
-        keep.append(i)
-        idx_list.append(idx)
-        pix_list.append(pix[idx] + noise[i, idx])
-    return np.asarray(keep, dtype=np.int64), idx_list, pix_list
+    cell = copy.deepcopy(scenario.cell)
+    spec = scenario.cell_spec
+    given = set(scenario.given)
+    fixed = set(spec.fixed)
+    for c, cam in spec.cameras.items():
+        entry = cell["cameras"][c]
+        model = truth.cameras[c]
+        names = set(model.param_names)
+        if "intrinsics" not in entry and (c in given or names <= set(cam.fix)):
+            K, dist = model.to_opencv()
+            entry["intrinsics"] = {"K": np.asarray(K).tolist(), "dist": np.asarray(dist).ravel().tolist()}
+        if "pose" not in entry and holder(spec, c) is None and (c in given or c in fixed):
+            entry["pose"] = np.asarray(truth.poses[c]).tolist()
+    for t, tgt in spec.targets.items():
+        entry = cell["targets"][t]
+        if "pose" not in entry and holder(spec, t) is None and (t in given or t in fixed):
+            entry["pose"] = np.asarray(truth.poses[t]).tolist()
+    for r in spec.robots:
+        entry = cell["robots"].get(r) or {}
+        if entry.get("base") is None and (r in given or r in fixed or f"T_world_{r}" in fixed) and r in truth.bases:
+            entry["base"] = np.asarray(truth.bases[r]).tolist()
+            cell["robots"][r] = entry
+    for p in spec.points:
+        entry = (cell.get("points") or {}).get(p) or {}
+        if "position" not in entry and (p in given or p in fixed):
+            entry["position"] = np.asarray(truth.points[p]).tolist()
+            cell["points"][p] = entry
+    return cell
 
 
-def simulate_handeye(scenario: Scenario, rng: np.random.Generator) -> HandEyeTrial:
-    """An eye-in-hand trial: random ``T_flange_cam`` (any rotation, translation within ±0.1 m), the board
-    0.6 m in front of the base facing up (random yaw), the strategy's views, noisy corners and poses."""
-    camera, points = camera_model(scenario), board(scenario).points
-    X = _pose(_random_rotation(rng), rng.uniform(-0.1, 0.1, 3))
-    yaw = rng.uniform(-np.pi, np.pi)
-    T_base_target = _pose(_exp_so3(np.array([0.0, 0.0, yaw])) @ _rot("X", 180.0), [0.6, 0.1, 0.0])
-    T_tc = target_cam_views(scenario, rng, camera, points)
-    T_bf_true = T_base_target @ T_tc @ _inv(X)
-    n = scenario.noise
-    T_bf_meas = perturb_poses(T_bf_true, rng, n.robot_translation_m, n.robot_rotation_deg)
-    keep, idx, pix = _observe(scenario, rng, camera, points, _inv(T_tc))
-    return HandEyeTrial(T_flange_cam=X, T_base_target=T_base_target, T_base_flange=T_bf_meas[keep],
-                        point_index=idx, pixels=pix, points=points, num_planned=len(T_tc))
+def simulate_trial(scenario: Scenario, seed: int, trial: int) -> Trial:
+    """The data of trial ``trial`` (see the module docstring).
 
-
-def simulate_camera(scenario: Scenario, rng: np.random.Generator) -> CameraTrial:
-    """A camera-calibration trial: the strategy's views of the board, noisy corners."""
-    camera, points = camera_model(scenario), board(scenario).points
-    T_tc = target_cam_views(scenario, rng, camera, points)
-    _, idx, pix = _observe(scenario, rng, camera, points, _inv(T_tc))
-    return CameraTrial(point_index=idx, pixels=pix, points=points, num_planned=len(T_tc))
-
-
-def simulate_tcp(scenario: Scenario, rng: np.random.Generator) -> TCPTrial:
-    """A camera-based TCP trial (the thesis' setting).
-
-    A fixed camera (random orientation ``R_base_cam``) sees the tool tip on its optical axis at
-    ``tip_depth_m``; the tip is ``p_flange_tip`` (±50 mm across, 100–250 mm along the flange z).
-    ``tcp_three_pose``: pose 1 = pose 0 rotated by ``alpha_deg`` about the camera z axis, pose 2 by
-    ``beta_deg`` about the camera x axis, each followed by a servo translation in the camera x-y plane
-    back onto the pixel. ``random``: ``count`` poses rotated by 50–100 % of ``rotation_deg`` about
-    random axes, the tip moved back onto the ray. The servo stops within the pixel noise: a residual
-    of N(0, (σ_px · depth / f)²) per image axis. The recorded poses also carry the robot noise.
+    Raises:
+        BadInputError: the scenario cannot be simulated (e.g. a target too large for the image).
     """
-    n = scenario.noise
-    o = scenario.stations.options
-    depth = float(o["tip_depth_m"])
-    f = float(np.mean(scenario.camera["params"][:2]))
-    servo_sigma_m = n.pixel_sigma_px * depth / f
-    Rc = _random_rotation(rng)
-    x = np.array([*rng.uniform(-0.05, 0.05, 2), rng.uniform(0.10, 0.25)])
-    R0 = _random_rotation(rng)
-    cam_centre = np.array([1.0, 0.0, 0.8])
-    p0 = cam_centre + depth * Rc[:, 2]
-    t0 = p0 - R0 @ x
-    if scenario.stations.strategy == "tcp_three_pose":
-        rel = [Rc @ _rot("Z", o["alpha_deg"]) @ Rc.T, Rc @ _rot("X", o["beta_deg"]) @ Rc.T]
-        servo_xy_only = True
-    else:
-        k = int(o["count"]) - 1
-        axes = rng.normal(size=(k, 3))
-        axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-        ang = np.radians(o["rotation_deg"]) * rng.uniform(0.5, 1.0, k)
-        rel = list(_exp_so3(axes * ang[:, None]))
-        servo_xy_only = False
-    servo = servo_sigma_m * rng.normal(size=(len(rel), 2))
-    Rs, ts = [R0], [t0]
-    for j, Rrel in enumerate(rel):
-        R = Rrel @ R0
-        tip = R @ x + t0  # rotated about the flange origin, before the servo
-        d_cam = Rc.T @ (tip - p0)
-        if servo_xy_only:  # servo in the camera x-y plane only: depth may change (thesis)
-            shift = -Rc[:, :2] @ d_cam[:2]
-        else:  # back onto the ray at the initial depth
-            shift = -(tip - p0)
-        ts.append(t0 + shift + Rc[:, :2] @ servo[j])
-        Rs.append(R)
-    T_true = np.stack([_pose(R, t) for R, t in zip(Rs, ts)])
-    T_meas = perturb_poses(T_true, rng, n.robot_translation_m, n.robot_rotation_deg)
-    return TCPTrial(p_flange_tip=x, R_base_cam=Rc, T_base_flange=T_meas, ray_base=Rc[:, 2],
-                    servo_sigma_m=float(servo_sigma_m), num_planned=len(T_true))
-
-
-def simulate_trial(scenario: Scenario, seed: int, trial: int):
-    """The data of trial ``trial`` (:class:`HandEyeTrial`, :class:`TCPTrial` or :class:`CameraTrial`)."""
     rng = trial_rng(seed, trial)
-    return {"handeye": simulate_handeye, "tcp": simulate_tcp, "camera": simulate_camera}[scenario.cell](scenario, rng)
+    spec = scenario.cell_spec
+    truth = draw_truth(spec, scenario.truth, rng)
+    noise = observation_noise(scenario)
+    stations, records = plan_stations(spec, truth, scenario.stations, scenario.noise, rng)
+    obs, kept = simulate_observations(spec, truth, stations, noise, rng)
+    cell_dict = trial_cell(scenario, truth)
+    return Trial(truth=truth, stations=stations, records=records, observations=parse_observations(obs), kept=kept,
+                 cell=parse_cell(cell_dict, source=scenario.cell_spec.source), cell_dict=cell_dict,
+                 num_planned=len(stations))

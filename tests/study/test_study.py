@@ -1,4 +1,4 @@
-"""Strategy studies (``jcalib.study``): scenario validation, estimators against independent
+"""Strategy studies (``jcalib.study``): scenario validation (both forms), estimators against independent
 references (ground truth, OpenCV), and the same table on the local and the Dask backend."""
 
 from __future__ import annotations
@@ -12,16 +12,27 @@ import pytest
 
 from jcalib.errors import BadInputError
 from jcalib.study import columns, load_scenario, run_study, simulate_trial, trial_rng
-from jcalib.study.simulate import camera_model
 
 CLOSED = ["tsai_lenz", "park_martin", "horaud", "andreff", "daniilidis"]
-#: Hand-eye scenario of the backend test: 6 stations, every corner visible (one solver shape).
+X = "T_flange_cam0"
+#: Hand-eye scenario of the backend test (first form): 6 stations, every corner visible (one solver shape).
 HANDEYE = {
     "schema": "jcalib.study/1",
     "cell": "handeye",
     "noise": {"pixel_sigma_px": 0.2, "robot_translation_m": 1e-4, "robot_rotation_deg": 0.01, "dropout_rate": 0.0},
     "stations": {"strategy": "random", "count": 6},
     "estimators": ["park_martin", "tsai_lenz", "joint_pose_model"],
+}
+BOARD = {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025}
+KNOWN = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+#: The same study in the cell-spec form.
+HANDEYE_CELL = {
+    "schema": "jcalib.study/1",
+    "cell": {"cameras": {"cam0": {"model": "opencv5", "mount": "flange", "fix": KNOWN}},
+             "targets": {"board": {**BOARD, "mount": "base"}},
+             "robot": {"pose_noise": {"translation_m": 1e-4, "rotation_deg": 0.01}}},
+    "stations": {"strategy": "random", "camera": "cam0", "target": "board", "count": 6},
+    "estimators": ["park_martin"],
 }
 
 
@@ -63,11 +74,39 @@ def _assert_tables_equal(t1, t2, exclude=("runtime_s",)):
         ({"camera": {"params": [1400.0, 1400.0]}}, "scenario.camera.params"),
     ],
 )
-def test_validation_error_names_the_bad_key(patch, key):
-    bad = {**HANDEYE, **patch}
+def test_first_form_validation_names_the_bad_key(patch, key):
     with pytest.raises(BadInputError) as err:
-        load_scenario(bad)
+        load_scenario({**HANDEYE, **patch})
     assert str(err.value).startswith(key + ":"), str(err.value)
+
+
+@pytest.mark.parametrize(
+    "patch, key",
+    [
+        ({"stations": [{"strategy": "random", "count": 5}, {"strategy": "random", "count": 2}]},
+         "scenario.stations[1].count"),
+        ({"stations": {"strategy": "random", "target": "plate"}}, "scenario.stations.target"),
+        ({"stations": {"strategy": "tcp_spread"}}, "scenario.stations.tool"),
+        ({"stations": {"strategy": "random", "measure": "depth"}}, "scenario.stations.measure"),
+        ({"estimators": [{"name": "j", "options": {"sigma_pix": 1.0}}]}, "scenario.estimators[0].options"),
+        ({"estimators": [{"name": "j", "closed_form": "zhang"}]}, "scenario.estimators[0].closed_form"),
+        ({"estimators": ["park_martin", {"name": "park_martin", "options": {}}]}, "scenario.estimators"),
+        ({"truth": {"poses": {"cam9": np.eye(4).tolist()}}}, "scenario.truth.poses.cam9"),
+        ({"truth": {"poses": {"board": {"rotation_deg": 200.0}}}}, "scenario.truth.poses.board.rotation_deg"),
+        ({"truth": {"cameras": {"cam0": {"params": [1.0, 2.0]}}}}, "scenario.truth.cameras.cam0.params"),
+        ({"given": ["cam7"]}, "scenario.given[0]"),
+        ({"intrinsics": "known"}, "scenario.intrinsics"),
+    ],
+)
+def test_cell_form_validation_names_the_bad_key(patch, key):
+    with pytest.raises(BadInputError) as err:
+        load_scenario({**HANDEYE_CELL, **patch})
+    assert str(err.value).startswith(key + ":"), str(err.value)
+
+
+def test_first_form_key_with_a_cell_says_how_to_write_it():
+    with pytest.raises(BadInputError, match=r"^scenario\.camera: .*truth\.cameras"):
+        load_scenario({**HANDEYE_CELL, "camera": {"model": "opencv5"}})
 
 
 def test_validation_from_yaml_file(tmp_path):
@@ -77,9 +116,29 @@ def test_validation_from_yaml_file(tmp_path):
         load_scenario(path)
 
 
+def test_cell_spec_errors_name_the_cell_file(tmp_path):
+    (tmp_path / "cell.yaml").write_text("schema: jcalib.cell/1\ncameras: {cam0: {model: opencv99}}\n")
+    (tmp_path / "s.yaml").write_text("cell: cell.yaml\n")
+    with pytest.raises(BadInputError, match=r"cell\.yaml: cameras\.cam0"):
+        load_scenario(tmp_path / "s.yaml")
+
+
 def test_three_pose_needs_its_strategy():
     with pytest.raises(BadInputError, match="three_pose"):
         load_scenario({"cell": "tcp", "stations": {"strategy": "random", "count": 5}, "estimators": ["three_pose"]})
+
+
+def test_first_form_is_the_cell_form_it_converts_to():
+    """The first form is read as a cell spec + truth + blocks; its plain data reloads to the same
+    scenario and the same trial (the truth draws, stations and noise do not depend on the form)."""
+    old = load_scenario(HANDEYE)
+    new = load_scenario(old.to_dict())
+    assert old.to_dict() == new.to_dict()
+    assert old.cell_spec.cameras["cam0"].mount == "flange" and old.cell_spec.targets["board"].mount == "base"
+    assert [e.name for e in old.estimators] == HANDEYE["estimators"]
+    a, b = simulate_trial(old, 4, 1), simulate_trial(new, 4, 1)
+    assert a.observations.to_dict() == b.observations.to_dict()
+    np.testing.assert_array_equal(a.truth.poses["cam0"], b.truth.poses["cam0"])
 
 
 def test_bad_run_arguments():
@@ -111,8 +170,9 @@ def test_noise_free_closed_forms_recover_the_truth():
     assert [r["estimator"] for r in rows] == CLOSED * 2
     for r in rows:
         assert r["status"] == "ok", r
-        assert r["err_rot_deg"] < 1e-6 and r["err_trans_mm"] < 1e-6, r
-        assert math.isnan(r["sigma_tx_mm"])  # closed forms report no σ
+        assert r[f"err_{X}_rot_deg"] < 1e-6 and r[f"err_{X}_trans_mm"] < 1e-6, r
+        assert r["err_T_base_board_trans_mm"] < 1e-6, r
+        assert math.isnan(r[f"sigma_{X}_tx_mm"])  # closed forms report no σ
 
 
 @pytest.mark.parametrize("strategy", ["robocalib_handeye", "robocalib_viewsets"])
@@ -123,21 +183,24 @@ def test_park_martin_matches_opencv_on_the_simulated_trial(strategy):
     sc = load_scenario({**HANDEYE, "stations": {"strategy": strategy}, "estimators": ["park_martin"]})
     (row,) = _rows(run_study(sc, 1, seed=11, progress=False))
     d = simulate_trial(sc, 11, 0)
-    K, dist = (np.asarray(a) for a in camera_model(sc).to_opencv())
-    Rs, ts = [], []
-    for idx, pix in zip(d.point_index, d.pixels):
-        ok, r, t = cv2.solvePnP(d.points[idx], pix, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+    K, dist = (np.asarray(a) for a in d.truth.cameras["cam0"].to_opencv())
+    points = d.observations.targets["board"]
+    Rs, ts, T_bf = [], [], []
+    for s in d.observations.stations:
+        (det,) = s.detections
+        ok, r, t = cv2.solvePnP(points[det.point_index], det.pixels, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
         assert ok
         Rs.append(cv2.Rodrigues(r)[0])
         ts.append(t.ravel())
-    R, t = cv2.calibrateHandEye(list(d.T_base_flange[:, :3, :3]), list(d.T_base_flange[:, :3, 3]), Rs, ts,
-                                method=cv2.CALIB_HAND_EYE_PARK)
-    X = d.T_flange_cam
-    err_t = 1e3 * np.linalg.norm(t.ravel() - X[:3, 3])
-    err_r = np.degrees(np.linalg.norm(cv2.Rodrigues(R.T @ X[:3, :3])[0]))
-    assert row["status"] == "ok" and row["num_stations"] == len(d.pixels) >= 5
-    assert abs(row["err_trans_mm"] - err_t) < 1e-9
-    assert abs(row["err_rot_deg"] - err_r) < 1e-9
+        T_bf.append(s.T_base_flange)
+    T_bf = np.array(T_bf)
+    R, t = cv2.calibrateHandEye(list(T_bf[:, :3, :3]), list(T_bf[:, :3, 3]), Rs, ts, method=cv2.CALIB_HAND_EYE_PARK)
+    T = d.truth.poses["cam0"]
+    err_t = 1e3 * np.linalg.norm(t.ravel() - T[:3, 3])
+    err_r = np.degrees(np.linalg.norm(cv2.Rodrigues(R.T @ T[:3, :3])[0]))
+    assert row["status"] == "ok" and row["num_stations"] == len(T_bf) >= 5
+    assert abs(row[f"err_{X}_trans_mm"] - err_t) < 1e-9
+    assert abs(row[f"err_{X}_rot_deg"] - err_r) < 1e-9
 
 
 @pytest.mark.parametrize("strategy, estimators", [("tcp_three_pose", ["three_pose", "ray_lsq"]),
@@ -149,15 +212,34 @@ def test_tcp_noise_free_recovers_the_tip(strategy, estimators):
           "noise": {"pixel_sigma_px": 0.0, "robot_translation_m": 0.0, "robot_rotation_deg": 0.0}}
     for r in _rows(run_study(sc, 3, seed=5, progress=False)):
         assert r["status"] == "ok", r
-        assert r["err_norm_mm"] < 1e-9, r
+        assert r["err_T_flange_tool_trans_mm"] < 1e-9, r
+        assert math.isnan(r["err_T_flange_tool_rot_deg"])  # the closed forms do not estimate a rotation
 
 
 def test_tcp_reported_sigma_covers_the_errors():
     """With noise, the TCP errors are of the order of the reported σ (NEES is χ²(3): mean 3; the
     servo residual is taken isotropic, so the σ is conservative: mean NEES in [0.5, 6] over 40 trials)."""
     sc = {"cell": "tcp", "stations": {"strategy": "tcp_three_pose"}, "estimators": ["three_pose"]}
-    nees = [r["nees"] for r in _rows(run_study(sc, 40, seed=2, progress=False))]
+    nees = [r["nees_T_flange_tool"] for r in _rows(run_study(sc, 40, seed=2, progress=False))]
     assert 0.5 < np.mean(nees) < 6.0, np.mean(nees)
+
+
+def test_opencv_estimator_equals_cv2_on_the_same_corners():
+    """The ``opencv`` camera estimator is cv2.calibrateCameraExtended on the trial's corners (run here
+    independently: the same numbers to 1e-9 relative; OpenCV's threaded reductions are not bitwise
+    reproducible from call to call)."""
+    sc = load_scenario({"cell": "camera", "stations": {"strategy": "random", "count": 6}, "estimators": ["opencv"]})
+    (row,) = _rows(run_study(sc, 1, seed=8, progress=False))
+    d = simulate_trial(sc, 8, 0)
+    P = d.observations.targets["board"]
+    obj = [P[det.point_index].astype(np.float32) for s in d.observations.stations for det in s.detections]
+    img = [det.pixels.astype(np.float32) for s in d.observations.stations for det in s.detections]
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    rms, K, dist, *_ = cv2.calibrateCameraExtended(obj, img, (1600, 1200), None, None, criteria=crit)
+    truth = np.asarray(d.truth.cameras["cam0"].params)
+    assert row["status"] == "ok" and row["rms_px"] == pytest.approx(rms, rel=1e-9)
+    assert row["err_cam0_fx_px"] + truth[0] == pytest.approx(K[0, 0], rel=1e-9)
+    assert row["err_cam0_k3"] + truth[8] == pytest.approx(dist.ravel()[4], rel=1e-9, abs=1e-12)
 
 
 # ------------------------------------------------------------------------------------ tables and backends
@@ -176,14 +258,14 @@ def test_batching_does_not_change_the_table(tmp_path):
     assert list(back[0]) == columns(load_scenario(sc))
     for r, s in zip(rows, back):
         assert s["estimator"] == r["estimator"] and int(s["trial"]) == r["trial"]
-        assert float(s["err_trans_mm"]) == r["err_trans_mm"]  # repr round-trips float64 exactly
-        assert s["sigma_tx_mm"] == ""  # NaN written as an empty cell
+        assert float(s[f"err_{X}_trans_mm"]) == r[f"err_{X}_trans_mm"]  # repr round-trips float64 exactly
+        assert s[f"sigma_{X}_tx_mm"] == ""  # NaN written as an empty cell
 
 
 @pytest.fixture(scope="module")
 def worker_env(tmp_path_factory):
     """Workers see the test process's JAX settings and share a persistent compilation cache with it
-    (so each worker loads the hand-eye solve the local run compiled instead of compiling it again)."""
+    (so each worker loads the solve the local run compiled instead of compiling it again)."""
     import jax
 
     mp = pytest.MonkeyPatch()
@@ -222,8 +304,8 @@ def test_local_and_dask_give_identical_tables(worker_env):
 
 @pytest.mark.slow
 def test_local_and_dask_give_identical_tables_with_the_joint_solve(worker_env):
-    """As above with the joint solve (robot pose model): the compiled LM gives bit-identical results
-    in the workers. Slow (~60-80 s on 2 busy cores): each worker traces the solve once."""
+    """As above with the joint solve (robot pose model, through calibrate_batch): the compiled solve gives
+    bit-identical results in the workers. Slow: each worker loads or traces the solve once."""
     rows = _dask_study(HANDEYE, 6, 42, 2)
     assert all(r["status"] == "ok" for r in rows), [r["status"] for r in rows]
     assert all(r["nees"] > 0 for r in rows if r["estimator"] == "joint_pose_model")
@@ -247,15 +329,19 @@ def test_file_strategy_reads_poses_relative_to_the_scenario(tmp_path):
     scenario = {**HANDEYE, "stations": {"strategy": "file", "path": "poses.yaml"}, "estimators": ["daniilidis"]}
     (tmp_path / "study.yaml").write_text(yaml.safe_dump(scenario))
     sc = load_scenario(tmp_path / "study.yaml")
-    np.testing.assert_array_equal(sc.stations.T_target_cam, np.array(poses))
-    np.testing.assert_array_equal(load_scenario(sc.to_dict()).stations.T_target_cam, sc.stations.T_target_cam)
+    np.testing.assert_array_equal(sc.stations[0].T_target_cam, np.array(poses))
+    np.testing.assert_array_equal(load_scenario(sc.to_dict()).stations[0].T_target_cam, sc.stations[0].T_target_cam)
     (row,) = _rows(run_study(tmp_path / "study.yaml", 1, seed=1, progress=False))
     assert row["status"] == "ok" and row["num_stations"] == 6
-    assert row["err_trans_mm"] < 5.0  # 0.2 px, 0.1 mm robot noise: millimetre level, not a wrong solution
+    assert row[f"err_{X}_trans_mm"] < 5.0  # 0.2 px, 0.1 mm robot noise: millimetre level, not a wrong solution
+    d = simulate_trial(sc, 1, 0)  # the camera poses relative to the board are exactly the file's
+    T_bt, X_true = d.truth.poses["board"], d.truth.poses["cam0"]
+    for s, T_tc in zip(d.stations, poses):
+        np.testing.assert_allclose(np.linalg.inv(T_bt) @ s.flange["robot"] @ X_true, T_tc, atol=1e-12)
 
 
 def test_study_command_writes_the_table(tmp_path, monkeypatch):
-    """The CLI body, registered on a typer app as the lead will: exit 0, a CSV with one row per
+    """The CLI body, registered on a typer app as the CLI does: exit 0, a CSV with one row per
     trial × estimator."""
     import typer
     from typer.testing import CliRunner
@@ -276,3 +362,22 @@ def test_study_command_writes_the_table(tmp_path, monkeypatch):
         rows = list(csv.DictReader(fh))
     assert [(r["trial"], r["estimator"]) for r in rows] == [(str(k), e) for k in range(3)
                                                             for e in ("three_pose", "ray_lsq")]
+
+
+def test_jcalib_study_bad_scenario_exits_2_naming_the_key(tmp_path, monkeypatch, capsys):
+    """``jcalib study`` on a scenario with a mistyped key: exit 2, the key in the message, no traceback."""
+    import sys
+
+    from jcalib.app import cli
+
+    (tmp_path / "s.yaml").write_text("cell: handeye\nnoise: {pixl_sigma_px: 0.2}\n")
+    monkeypatch.setattr(sys, "argv", ["jcalib", "study", str(tmp_path / "s.yaml"), "-n", "1", "-o",
+                                      str(tmp_path / "t.csv")])
+    import jcalib.solve.cache
+
+    monkeypatch.setattr(jcalib.solve.cache, "enable_compilation_cache", lambda: None)
+    with pytest.raises(SystemExit) as exit_:
+        cli.main()
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "scenario.noise.pixl_sigma_px" in err and "Traceback" not in err
