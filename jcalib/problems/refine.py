@@ -42,6 +42,10 @@ VARIANCE_COMPONENT_ITERATIONS = 25
 #: count); below, χ² has too few degrees of freedom (e.g. tool tips whose 2 coordinates per station
 #: the station's robot pose correction can absorb) and the kind keeps its stated σ.
 MIN_REDUNDANCY = 5.0
+#: Smallest variance factor of a kind (its σ at least 1e-3 of the stated one): noise-free data would
+#: drive ``χ²_k / r_k`` to ~0 and that kind's weight to infinity, which buries every stated prior
+#: (the robot's pose noise) below the rank test's resolution and reports them as not observable.
+MIN_VARIANCE_FACTOR = 1e-6
 #: Views whose RMS exceeds this many times the median are re-seeded.
 RESEED_FACTOR = 3.0
 
@@ -220,9 +224,11 @@ class _Rounds:
                 use = _component_update(x)
                 if not use:
                     continue
+                step = {}
                 for k, f in use.items():
-                    x.scale[k] *= f
-                todo.append((i, all(abs(v - 1.0) < 0.01 for v in use.values())))
+                    new = max(x.scale[k] * f, MIN_VARIANCE_FACTOR)
+                    step[k], x.scale[k] = new / x.scale[k], new
+                todo.append((i, all(abs(v - 1.0) < 0.01 for v in step.values())))
             if not todo:
                 break
             idx = [i for i, _ in todo]
