@@ -31,7 +31,7 @@ from jcalib.errors import JcalibError, NotObservableError
 from jcalib.problems.build import Built, se3_matrix, se3_params
 from jcalib.problems.graph import Graph
 from jcalib.problems.start import Start, pnp_poses
-from jcalib.solve import Solution, SolveOptions, Status, solve, solve_many
+from jcalib.solve import Solution, SolveOptions, Status, batch_width, bucket_size, solve, solve_many
 from jcalib.solve.core import raise_if_unobservable
 
 #: Rounds of outlier rejection (each re-solves once; stops when the rejected set stops changing).
@@ -123,14 +123,15 @@ class _Rounds:
         groups: dict[tuple, list[int]] = {}
         for j, i in enumerate(idx):
             groups.setdefault((self.traces[i], id(type(self.m[i].built.problem))), []).append(j)
-        for (traces, _), js in groups.items():
+        for (traces, kind), js in groups.items():
             problems = []
             for j in js:
                 x = self.m[idx[j]]
                 p = x.built.with_weights(x.weights, x.scale or None)
                 problems.append(p if x0s[j] is None else p.with_values(x0s[j]))
+            fill, width = self._shape_fillers((traces, kind), {idx[j] for j in js})
             try:
-                sols = solve_many(problems, self.so, traces=traces)
+                sols = solve_many(problems + fill, self.so, traces=traces, width=width)[:len(problems)]
             except JcalibError:  # different structures: one by one
                 sols = []
                 for p in problems:
@@ -146,6 +147,27 @@ class _Rounds:
                 except JcalibError as err:
                     x.error = err
         return out
+
+    def _shape_fillers(self, key: tuple, taking: set[int]) -> tuple[list, int]:
+        """Problems that keep a later round's vmapped call at the first call's shape and width (one
+        compiled solve for every round): the members whose counts set the batch's padded size, at their
+        current solution (their results are dropped), and the first call's width."""
+        group = [i for i, x in enumerate(self.m)
+                 if (self.traces[i], id(type(x.built.problem))) == key]
+        biggest: dict[str, tuple[int, int]] = {}
+        for i in group:
+            p = self.m[i].built.problem
+            sizes = {v.name: bucket_size(v.num) for v in p.variables}
+            sizes.update({f.name: bucket_size(f.num_obs // (f.chunk or 1)) for f in p.factors})
+            for name, n in sizes.items():
+                if n > biggest.get(name, (-1, -1))[0]:
+                    biggest[name] = (n, i)
+        fill = []
+        for i in sorted({i for _, i in biggest.values()} - taking):
+            x = self.m[i]
+            if x.sol is not None:
+                fill.append(x.built.with_weights(x.weights, x.scale or None).with_values(x.sol.values))
+        return fill, batch_width(len(group))
 
     def live(self) -> list[int]:
         return [i for i, x in enumerate(self.m) if x.error is None]
