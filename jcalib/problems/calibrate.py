@@ -148,6 +148,9 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     start_poses(g, s, method=options.method, rot_noise=rot_noise, fix_unobservable=options.fix_unobservable,
                 prior_m=options.unobservable_prior_m, prior_sigma_m=options.unobservable_prior_sigma_m,
                 tool_robots=tool_robots)
+    if options.fix_unobservable and s.unobservable_fixed is None:
+        s.warnings.append("fix_unobservable: the stations' rotations determine every hand-eye translation; nothing "
+                          "was held at the stated prior (unobservable_prior_m)")
     start_tools(g, s)
     built = build(g, s, options, pose_model, {**_priors(prior, prior_names, g, s), **(priors or {})})
     return g, s, built
