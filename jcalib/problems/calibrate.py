@@ -108,10 +108,10 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     Arguments as :func:`calibrate_cell`. Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
+    if cell.tools and cell.robot is None and not cell.robots:  # before the graph, which puts tools on a flange
+        raise BadInputError(f"{cell.source}: tools need a robot (their TCP is on its flange); add robot: {{}}")
     g = Graph(cell, obs, options.reference_camera)
     check_applicable(options, g, set(given or ()))
-    if cell.tools and not g.has_robot:
-        raise BadInputError(f"{cell.source}: tools need a robot (their TCP is on its flange); add robot: {{}}")
     pose_model = {r: g.has_noise(r) if options.pose_model is None else bool(options.pose_model) for r in g.used_robots}
     seed = prior if prior is not None else start
     s = Start()
