@@ -5,17 +5,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from scipy.stats import binom
 
 import jcalib
-from jcalib.problems.calibrate import cell_result
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
-from jcalib.problems.cell import CellOptions, _rot, calibrate_cell, synthetic_cell
+from jcalib.problems import CalibrationOptions, calibrate_cell, result_file
 from jcalib.problems.reoptimise import compare_results, reoptimise
+from jcalib.sim.cells import synthetic_cell
 
 SIZES = dict(num_board_stations=10, num_tool_stations=20)
-OPTIONS = CellOptions(sigma_px=0.2, tip_sigma_px=0.2)
+OPTIONS = CalibrationOptions(sigma_px=0.2, tip_sigma_px=0.2)
 ALPHA = 0.05
 
 
@@ -45,7 +46,7 @@ def test_moved_tcp_is_flagged(old):
 def test_bumped_camera_is_flagged(old):
     result, truth = old
     T = truth["T_base_cam1"].copy()
-    T[:3, :3] = T[:3, :3] @ _rot((0.0, 1.0, 0.0), np.radians(0.1))
+    T[:3, :3] = T[:3, :3] @ Rotation.from_rotvec([0.0, np.radians(0.1), 0.0]).as_matrix()
     T[:3, 3] += [0.001, 0.0, 0.0]
     cell, obs, _ = synthetic_cell(102, truth={"T_base_cam1": T}, **SIZES)
     r = jcalib.calibrate(cell, obs, OPTIONS, prior=result)
@@ -59,7 +60,7 @@ def test_unchanged_cell_not_flagged_in_95_percent(old):
     for seed in range(repeats):
         cell, obs, _ = synthetic_cell(200 + seed, **SIZES)
         spec = load_cell(cell)
-        new = cell_result(calibrate_cell(spec, load_observations(obs), OPTIONS, start=result.file), spec, OPTIONS, "x")
-        flagged += any(c.moved for c in compare_results(result.file, new.file, alpha=ALPHA))
+        new = result_file(calibrate_cell(spec, load_observations(obs), OPTIONS, start=result.file), OPTIONS, "x")
+        flagged += any(c.moved for c in compare_results(result.file, new, alpha=ALPHA))
     # P(flag) <= ALPHA per repeat when nothing moved; fail only above the binomial 99.9 % quantile
     assert flagged <= binom.ppf(0.999, repeats, ALPHA)

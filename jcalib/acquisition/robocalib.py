@@ -53,16 +53,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jcalib.geometry.se3 import check_pose, invert, make_pose
+from jcalib.geometry.se3 import check_pose, invert
 from jcalib.geometry.views import (
-    AXES,
     frontal_view,
     height_view,
     origin_view,
     recentre,
     rotate_camera,
     tilted_view,
-    viewing_distance,
 )
 from jcalib.errors import BadInputError
 

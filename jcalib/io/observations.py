@@ -88,7 +88,7 @@ class Station:
         flange_poses: robot name -> (4, 4) measured flange pose of that robot in its own base
             (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
             the station gives ``T_base_flange``. Which robots a station must give is checked against
-            the cell (:func:`jcalib.problems.cell.calibrate_cell`).
+            the cell (:func:`jcalib.problems.calibrate_cell`).
     """
 
     id: str

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from jcalib.errors import JcalibError
+from jcalib.errors import BadInputError, JcalibError
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
 from jcalib.problems.assemble import Calibration, assemble
@@ -31,9 +31,17 @@ def calibrate_batch(cells, observations: Sequence, options=None, *,
 
     Returns:
         One :class:`Calibration` per data set, or the :class:`jcalib.JcalibError` that data set raised.
+
+    Raises:
+        BadInputError: no data sets, or a list of cells whose length is not that of ``observations``.
     """
     observations = list(observations)
+    if not observations:
+        raise BadInputError("observations: got an empty list, expected one observations document per data set")
     if isinstance(cells, (list, tuple)):
+        if len(cells) != len(observations):
+            raise BadInputError(f"cells: got {len(cells)} cell specs for {len(observations)} observations, expected "
+                                "one cell spec for all or one per data set")
         cells = [load_cell(c) for c in cells]
     else:
         cells = [load_cell(cells)] * len(observations)

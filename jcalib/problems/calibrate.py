@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.io.cell import CellSpec, cell_to_dict, load_cell
-from jcalib.io.observations import Observations, load_observations
+from jcalib.io.cell import CellSpec, cell_to_dict
+from jcalib.io.observations import Observations
 from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TransformResult, hash_inputs
 from jcalib.problems.assemble import Calibration, assemble
 from jcalib.problems.build import build, se3_params, sqrt_info
@@ -133,10 +133,10 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
+    if cell.tools and cell.robot is None and not cell.robots:  # before the graph, which puts tools on a flange
+        raise BadInputError(f"{cell.source}: tools need a robot (their TCP is on its flange); add robot: {{}}")
     g = Graph(cell, obs, options.reference_camera)
     check_applicable(options, g, set(given or ()))
-    if cell.tools and not g.has_robot:
-        raise BadInputError(f"{cell.source}: tools need a robot (their TCP is on its flange); add robot: {{}}")
     pose_model = {r: g.has_noise(r) if options.pose_model is None else bool(options.pose_model) for r in g.used_robots}
     seed = prior if prior is not None else start
     s = Start()
@@ -179,6 +179,9 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     start_tools(g, s)
     if unobservable_fixed is not None and s.unobservable_fixed is None:
         s.unobservable_fixed = dict(unobservable_fixed)
+    if options.fix_unobservable and s.unobservable_fixed is None:
+        s.warnings.append("fix_unobservable: the stations' rotations determine every hand-eye translation; nothing "
+                          "was held at the stated prior (unobservable_prior_m)")
     built = build(g, s, options, pose_model, {**_priors(prior, prior_names, g, s), **(priors or {})})
     return g, s, built
 

@@ -122,6 +122,14 @@ def _positive_or_none(value, name: str, unit: str):
     return value
 
 
+def _nearest_pose(T: np.ndarray) -> np.ndarray:
+    """``T`` with its rotation block replaced by the nearest proper rotation (SVD, det +1)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    out = np.array(T, np.float64)
+    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return out
+
+
 def _closed_form(T_bf, T_ct, mount: str, method: str, rotation_noise_deg: float) -> HandEyeInit:
     if method in ROBOT_WORLD_METHODS:
         return solve_robot_world_hand_eye(T_bf, T_ct, method=method, mount=mount, rotation_noise_deg=rotation_noise_deg)
@@ -183,8 +191,8 @@ def calibrate_hand_eye_pairs(
         for name, T in (("init[0] (X)", X0), ("init[1] (Y)", Y0)):
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise BadInputError(f"{name}: expected a finite 4x4 pose, got shape {T.shape}")
-    else:
-        X0, Y0 = start.T, start.T_other
+    else:  # a closed form on nearly degenerate motion can return a reflection: start from the nearest rotation
+        X0, Y0 = _nearest_pose(start.T), _nearest_pose(start.T_other)
     H = T_bf if mount == "flange" else np.linalg.inv(T_bf)
     n = len(T_bf)
 

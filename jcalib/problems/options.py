@@ -99,8 +99,17 @@ class CalibrationOptions:
         return CalibrationOptions(**{**{f.name: getattr(self, f.name) for f in fields(self)}, **changes})
 
 
+def _hand_eye_pair(g) -> bool:
+    """A camera and a target that a robot moves relative to each other (neither free)."""
+    return any(g.holder(g.cell.cameras[c]) != g.holder(g.cell.targets[t])
+               and "~free" not in (g.holder(g.cell.cameras[c]), g.holder(g.cell.targets[t]))
+               for (c, t) in list(g.pairs) + list(g.poses))
+
+
+_HAND_EYE = "a camera and a target that a robot moves relative to each other (a hand-eye pair)"
+
 #: Option name -> (what in the cell it needs, a predicate on the problem graph). Options not listed
-#: apply to every cell (noise, loss, outlier threshold, max_iterations).
+#: apply to every cell (noise, max_iterations).
 APPLIES = {
     "sigma_px": ("target corners in the observations", lambda g: bool(g.pairs)),
     "tip_sigma_px": ("tool-tip detections", lambda g: bool(g.tips)),
@@ -111,14 +120,24 @@ APPLIES = {
     "pose_sigma_m": ("6-DOF pose measurements", lambda g: bool(g.poses)),
     "reseed_views": ("free-moving targets (mount: free)", lambda g: bool(g.free_things())),
     "pose_model": ("a robot with pose_noise in the cell spec", lambda g: any(g.has_noise(r) for r in g.used_robots)),
-    "method": ("a camera and a target that a robot moves relative to each other (a hand-eye pair)",
-               lambda g: any(g.holder(g.cell.cameras[c]) != g.holder(g.cell.targets[t])
-                             and "~free" not in (g.holder(g.cell.cameras[c]), g.holder(g.cell.targets[t]))
-                             for (c, t) in list(g.pairs) + list(g.poses))),
+    "method": (_HAND_EYE, _hand_eye_pair),
     "reference_camera": ("cells without robots (camera rigs)", lambda g: not g.has_robot),
-    "fix_unobservable": ("cells with a robot (hand-eye pairs)", lambda g: g.has_robot),
-    "unobservable_prior_m": ("cells with a robot (hand-eye pairs)", lambda g: g.has_robot),
-    "unobservable_prior_sigma_m": ("cells with a robot (hand-eye pairs)", lambda g: g.has_robot),
+    "fix_unobservable": (_HAND_EYE, _hand_eye_pair),
+    "unobservable_prior_m": (_HAND_EYE, _hand_eye_pair),
+    "unobservable_prior_sigma_m": (_HAND_EYE, _hand_eye_pair),
+    "loss": ("target corners, tool tips, axis points or contacts (pose measurements take no robust loss)",
+             lambda g: bool(g.pairs or g.tips or g.contacts)),
+    "loss_scale": ("target corners, tool tips, axis points or contacts (pose measurements take no robust loss)",
+                   lambda g: bool(g.pairs or g.tips or g.contacts)),
+    "outlier_threshold": ("target corners, tool tips or axis points (contacts and pose measurements are never "
+                          "rejected)", lambda g: bool(g.pairs or g.tips)),
+}
+
+#: Option name -> (the option it acts through, that option's default): refused while that one is off.
+NEEDS = {
+    "loss_scale": ("loss", "none"),
+    "unobservable_prior_m": ("fix_unobservable", False),
+    "unobservable_prior_sigma_m": ("fix_unobservable", False),
 }
 
 
@@ -129,6 +148,10 @@ def check_applicable(options: CalibrationOptions, graph, given: set[str]) -> Non
         BadInputError: naming the option and what the cell lacks for it.
     """
     for name in sorted(given):
+        if name in NEEDS and getattr(options, NEEDS[name][0]) == NEEDS[name][1]:
+            other = NEEDS[name][0].replace("_", "-")
+            raise BadInputError(f"option --{name.replace('_', '-')} has no effect without --{other} (it scales or "
+                                f"sets what --{other} does); give --{other} too, or drop it")
         if name in APPLIES:
             need, ok = APPLIES[name]
             if not ok(graph):

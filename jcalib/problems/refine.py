@@ -25,14 +25,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import jax
 import numpy as np
 
 from jcalib.errors import JcalibError, NotObservableError
 from jcalib.problems.build import Built, se3_matrix, se3_params
 from jcalib.problems.graph import Graph
 from jcalib.problems.start import Start, pnp_poses
-from jcalib.solve import Solution, SolveOptions, Status, solve, solve_many
+from jcalib.solve import Solution, SolveOptions, Status, batch_width, bucket_size, solve, solve_many
 from jcalib.solve.core import raise_if_unobservable
 
 #: Rounds of outlier rejection (each re-solves once; stops when the rejected set stops changing).
@@ -43,6 +42,10 @@ VARIANCE_COMPONENT_ITERATIONS = 25
 #: count); below, χ² has too few degrees of freedom (e.g. tool tips whose 2 coordinates per station
 #: the station's robot pose correction can absorb) and the kind keeps its stated σ.
 MIN_REDUNDANCY = 5.0
+#: Smallest variance factor of a kind (its σ at least 1e-3 of the stated one): noise-free data would
+#: drive ``χ²_k / r_k`` to ~0 and that kind's weight to infinity, which buries every stated prior
+#: (the robot's pose noise) below the rank test's resolution and reports them as not observable.
+MIN_VARIANCE_FACTOR = 1e-6
 #: Views whose RMS exceeds this many times the median are re-seeded.
 RESEED_FACTOR = 3.0
 
@@ -127,18 +130,9 @@ class _Rounds:
                 x = self.m[idx[j]]
                 p = x.built.with_weights(x.weights, x.scale or None)
                 problems.append(p if x0s[j] is None else p.with_values(x0s[j]))
-            # A round that re-solves some members only is filled up with the others at their current
-            # solution (converged: they add no iterations), so every round has the first round's batch
-            # width and padded shapes and re-uses its compiled solve instead of compiling a new one.
-            asked, shape = {idx[j] for j in js}, jax.tree.structure(problems[0])
-            for i, x in enumerate(self.m):
-                if (i not in asked and x.error is None and x.sol is not None and self.traces[i] == traces
-                        and id(type(x.built.problem)) == kind):
-                    p = x.built.with_weights(x.weights, x.scale or None).with_values(x.sol.values)
-                    if jax.tree.structure(p) == shape:
-                        problems.append(p)
+            fill, width = self._shape_fillers((traces, kind), {idx[j] for j in js})
             try:
-                sols = solve_many(problems, self.so, traces=traces)[:len(js)]
+                sols = solve_many(problems + fill, self.so, traces=traces, width=width)[:len(problems)]
             except JcalibError:  # different structures: one by one
                 sols = []
                 for p in problems[:len(js)]:
@@ -154,6 +148,27 @@ class _Rounds:
                 except JcalibError as err:
                     x.error = err
         return out
+
+    def _shape_fillers(self, key: tuple, taking: set[int]) -> tuple[list, int]:
+        """Problems that keep a later round's vmapped call at the first call's shape and width (one
+        compiled solve for every round): the members whose counts set the batch's padded size, at their
+        current solution (their results are dropped), and the first call's width."""
+        group = [i for i, x in enumerate(self.m)
+                 if (self.traces[i], id(type(x.built.problem))) == key]
+        biggest: dict[str, tuple[int, int]] = {}
+        for i in group:
+            p = self.m[i].built.problem
+            sizes = {v.name: bucket_size(v.num) for v in p.variables}
+            sizes.update({f.name: bucket_size(f.num_obs // (f.chunk or 1)) for f in p.factors})
+            for name, n in sizes.items():
+                if n > biggest.get(name, (-1, -1))[0]:
+                    biggest[name] = (n, i)
+        fill = []
+        for i in sorted({i for _, i in biggest.values()} - taking):
+            x = self.m[i]
+            if x.sol is not None:
+                fill.append(x.built.with_weights(x.weights, x.scale or None).with_values(x.sol.values))
+        return fill, batch_width(len(group))
 
     def live(self) -> list[int]:
         return [i for i, x in enumerate(self.m) if x.error is None]
@@ -232,9 +247,11 @@ class _Rounds:
                 use = _component_update(x)
                 if not use:
                     continue
+                step = {}
                 for k, f in use.items():
-                    x.scale[k] *= f
-                todo.append((i, all(abs(v - 1.0) < 0.01 for v in use.values())))
+                    new = max(x.scale[k] * f, MIN_VARIANCE_FACTOR)
+                    step[k], x.scale[k] = new / x.scale[k], new
+                todo.append((i, all(abs(v - 1.0) < 0.01 for v in step.values())))
             if not todo:
                 break
             idx = [i for i, _ in todo]

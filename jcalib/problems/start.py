@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
@@ -305,7 +304,7 @@ class _Poses:
 
     def hand_eye(self) -> bool:
         """One closed-form hand-eye solve for a moving pair whose two poses are unknown."""
-        s, g = self.s, self.g
+        s = self.s
         todo = []
         for key in self.pairs:
             X, Y, hc, ht = self.info(key)

@@ -111,7 +111,10 @@ def _prior_sqrt_info(cov, name: str, dim: int) -> tuple[np.ndarray, np.ndarray]:
         raise BadInputError(f"{name}: expected a ({dim}, {dim}) covariance (inf on the diagonal = no prior), "
                             f"got shape {C.shape}")
     d = np.diag(C)
-    held = d <= 0.0
+    if np.any(d < 0.0):
+        raise BadInputError(f"{name}: expected a symmetric positive-definite covariance (0 on the diagonal = known "
+                            f"exactly, inf = no prior), got negative variances {d[d < 0.0].tolist()}")
+    held = d == 0.0
     fin = np.isfinite(d) & ~held
     S = np.zeros((dim, dim))
     if fin.any():

@@ -17,9 +17,10 @@
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
-from jcalib.errors import NotObservableError
+from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.se3 import make_pose, rotation_z_to
 from jcalib.init.pivot import DEFAULT_MIN_ROTATION_DEG, check_rotations, rotation_spread
 from jcalib.problems.graph import Graph
@@ -195,6 +196,20 @@ def axis_start(name: str, axis_views: list, tip: np.ndarray) -> np.ndarray:
     return a / np.linalg.norm(a)
 
 
+def _check_in_front(source: str, tool: str, tips: list, views: list, tip: np.ndarray, station_ids) -> None:
+    """Raise when the started tip lies behind a camera that sees it (the ray system ignores the sign
+    of each ray, so a camera pose that maps the wrong way round would otherwise fit silently)."""
+    for t, (model, Tc, Twf, px) in zip(tips, views):
+        d = np.asarray(model.unproject(jnp.asarray(px))) @ Tc[:3, :3].T
+        depth = np.einsum("na,na->n", d, Twf[:, :3, :3] @ tip + Twf[:, :3, 3] - Tc[:3, 3])
+        if np.any(depth <= 0.0):
+            k = t.stations[int(np.argmax(depth <= 0.0))]
+            raise BadInputError(
+                f"{source}: the start puts the tip of tool '{tool}' behind camera '{t.camera}' at station "
+                f"'{station_ids[k]}'; check the camera's pose (it maps camera to cell coordinates) and the "
+                "tip detections")
+
+
 def start_tools(g: Graph, start, *, min_rotation_deg: float = DEFAULT_MIN_ROTATION_DEG) -> None:
     """Start every tool's ``T_flange_<tool>`` and every cell point (into ``start.known`` / ``points``).
 
@@ -248,6 +263,7 @@ def start_tools(g: Graph, start, *, min_rotation_deg: float = DEFAULT_MIN_ROTATI
                 views.append((start.models[t.camera], start.known[cam_name], T_wf[ks], np.stack(t.pixels)))
             tip = tip_ray_start(name, views, free_centre=any(centre_free(t.camera) for t in tips),
                                 min_rotation_deg=min_rotation_deg)
+            _check_in_front(cell.source, tool.name, tips, views, tip, g.station_ids)
             start.how[name] = "tip_rays"
         else:
             raise NotObservableError(f"{g.obs.source}: tool '{tool.name}' has no tip detections and no contacts; "

@@ -4,7 +4,6 @@ its station list) and re-take what went missing, camera settings from the cell a
 
 from __future__ import annotations
 
-import json
 import socket
 import struct
 import time

@@ -49,7 +49,7 @@ SUITES = {
     "small_rotations": (lambda: D.scara_data(3, angles_deg=np.linspace(-0.004, 0.004, 6),
                                              pose_noise=(1e-4, 0.01))[:2],
                         "rotation of T_flange_cam0", "too small"),
-    "two_stations": (_few_stations, "rotation of T_flange_cam0", "in 2 station(s)"),
+    "two_stations": (_few_stations, "rotation of T_flange_cam0", "got 2 station(s)"),
 }
 
 

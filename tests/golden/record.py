@@ -7,6 +7,10 @@ the outputs (estimates, standard deviations / covariances, statuses, or the erro
 unknowns it names) in ``tests/golden/cases/<name>.json``. ``tests/golden/test_golden.py`` runs the
 same inputs through today's code and compares in units of σ. Inputs are stored, not regenerated,
 so the comparison does not depend on simulators that may change.
+
+It imports the pre-rebuild modules (``jcalib.problems.camera``, ``.handeye``, ``.cell``), so it runs on
+a checkout of the commit before the single-builder rebuild (428809f), not on today's tree; the cases it
+wrote are the record. pytest does not collect it.
 """
 
 from __future__ import annotations
@@ -15,7 +19,6 @@ import argparse
 import importlib.util
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np

@@ -1,5 +1,5 @@
-"""Batched camera calibration (``calibrate_cameras_batch``, one vmapped solve): every member
-reaches OpenCV's optimum on identical corners, its standard deviations agree with OpenCV's, sets of
+"""Batched camera calibration (``jcalib.calibrate_batch``, vmapped solves): every member reaches
+OpenCV's optimum on identical corners, its standard deviations agree with OpenCV's, sets of
 different sizes share one padded shape, and a bad member is reported in its place."""
 
 import numpy as np
@@ -9,8 +9,10 @@ from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras, calibrate_cameras_batch
+from jcalib.problems import CalibrationOptions, calibrate_cell
+from jcalib.problems.batch import calibrate_batch
 from jcalib.sim.scene import project_target, random_calibration_views
+from jcalib.solve import core, solve_many
 
 BOARD = Checkerboard(cols=9, rows=6, square=0.03)
 SIZE = (1280, 960)
@@ -53,8 +55,8 @@ def batch():
         fronto.append(T)
     bad, _ = make_obs(fronto, rng, sigma_px=0.1)
     obs = [o for o, _ in sets]
-    results = calibrate_cameras_batch(CELL, [obs[0], bad, obs[1], obs[2]],
-                                      CameraCalibrationOptions(outlier_threshold=None), raise_errors=False)
+    results = calibrate_batch(CELL, [obs[0], bad, obs[1], obs[2]], CalibrationOptions(outlier_threshold=None),
+                              raise_errors=False)
     return sets, results
 
 
@@ -101,13 +103,13 @@ def test_raise_errors_raises_the_members_error(batch):
     T[:3, 3] = [-0.12, -0.08, 0.6]
     bad, _ = make_obs([T] * 5, rng, sigma_px=0.1)
     with pytest.raises(NotObservableError):
-        calibrate_cameras_batch(CELL, [sets[0][0], bad])
+        calibrate_batch(CELL, [sets[0][0], bad], raise_errors=True)
 
 
-def test_members_equal_calibrate_cameras_across_calls_and_refinements():
+def test_members_equal_calibrate_cell_across_calls_and_refinements(monkeypatch):
     """Calls of 2 members (the last one filled with copies), a member with gross outliers (re-solved
-    after the batch), models built for the whole batch at once: every member's result is what
-    ``calibrate_cameras`` gives on its own data set."""
+    in the outlier rounds), starts built for the whole batch at once: every member's result is what
+    ``calibrate_cell`` gives on its own data set."""
     rng = np.random.default_rng(5)
     obs = []
     for k in range(3):
@@ -115,10 +117,20 @@ def test_members_equal_calibrate_cameras_across_calls_and_refinements():
         # member 1: two corners 40 px off, rejected, then re-solved
         o, _ = make_obs(poses, rng, sigma_px=0.2, offsets={(2, 5): 40.0, (6, 11): -40.0} if k == 1 else None)
         obs.append(o)
-    batch = calibrate_cameras_batch(CELL, obs, batch_size=2)
+    widths = []
+    vmapped = core._core_vmap_jit
+    from jcalib.problems import refine
+
+    monkeypatch.setattr(core, "batch_width", lambda num: 2)
+    monkeypatch.setattr(refine, "batch_width", lambda num: 2)  # the rounds keep the first call's width
+    monkeypatch.setattr(core, "_core_vmap_jit", lambda p, *a: widths.append(p.variables[0].value.shape[0])
+                        or vmapped(p, *a))
+    batch = calibrate_batch(CELL, obs)
+    monkeypatch.undo()
+    assert widths[:2] == [2, 2]  # the first solve: members 0, 1, then member 2 with a copy
     assert len(batch[1].outliers) == 2
     for o, got in zip(obs, batch):
-        want = calibrate_cameras(CELL, o)
+        want = calibrate_cell(CELL, o)
         assert got.outliers == want.outliers and got.reseeded_views == want.reseeded_views
         assert type(got.cameras["cam0"]) is type(want.cameras["cam0"])
         sigma = np.sqrt(np.diag(want.intrinsics_covariance["cam0"]))
@@ -134,8 +146,10 @@ def test_members_equal_calibrate_cameras_across_calls_and_refinements():
         assert abs(got.rms_px - want.rms_px) < 1e-9 and got.num_residuals == want.num_residuals
 
 
-def test_batch_size_must_be_a_positive_integer():
+def test_batch_width_must_be_a_positive_integer():
+    """The width of a vmapped call (the old ``batch_size``) is the engine's: refused by name."""
     rng = np.random.default_rng(2)
     o, _ = make_obs(random_calibration_views(CAM, BOARD.points, 6, rng=rng), rng, sigma_px=0.2)
-    with pytest.raises(BadInputError, match="batch_size"):
-        calibrate_cameras_batch(CELL, [o], batch_size=0)
+    problem = calibrate_cell(CELL, o).built.problem
+    with pytest.raises(BadInputError, match="width"):
+        solve_many([problem], width=0)

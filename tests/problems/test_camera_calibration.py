@@ -8,7 +8,7 @@ from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
+from jcalib.problems import CalibrationOptions, calibrate_cell
 from jcalib.sim.scene import project_target, random_calibration_views
 
 BOARD = Checkerboard(cols=9, rows=6, square=0.03)
@@ -58,7 +58,7 @@ def test_zhang_1998_reproduces_published_values(real_data):
     cell = parse_cell({"schema": "jcalib.cell/1",
                        "cameras": {"cam": {"model": "opencv5", "skew": True, "fix": ["p1", "p2", "k3"]}},
                        "targets": {"board": {"type": "checkerboard", "cols": 2, "rows": 2, "square": 0.01}}})
-    cal = calibrate_cameras(cell, obs, CameraCalibrationOptions(outlier_threshold=None))
+    cal = calibrate_cell(cell, obs, CalibrationOptions(outlier_threshold=None))
     p = dict(zip(cal.cameras["cam"].param_names, np.asarray(cal.cameras["cam"].params)))
     published = dict(fx=832.5, fy=832.53, cx=303.959, cy=206.585, skew=0.204494, k1=-0.228601, k2=0.190353)
     for name in ("fx", "fy", "cx", "cy"):
@@ -82,7 +82,7 @@ def test_noise_free_synthetic_recovers_truth(model, K, dist):
     cam = camera_from_opencv(np.array(K), np.array(dist), (1280, 960))
     views = random_calibration_views(cam, BOARD.points, 12, rng=rng)
     obs = make_obs({"cam0": cam}, [{"cam0": T} for T in views], rng)
-    cal = calibrate_cameras(make_cell({"cam0": model}), obs)
+    cal = calibrate_cell(make_cell({"cam0": model}), obs)
     # Noise-free data: parameter recovery to 1e-6 relative (float64 solve; 1e-6 covers the
     # conditioning of higher-order distortion terms).
     np.testing.assert_allclose(np.asarray(cal.cameras["cam0"].params), np.asarray(cam.params), rtol=1e-6, atol=1e-8)
@@ -98,7 +98,7 @@ def test_rational_model_on_ordinary_lens_names_its_degenerate_directions():
     views = random_calibration_views(cam, BOARD.points, 12, rng=rng)
     obs = make_obs({"cam0": cam}, [{"cam0": T} for T in views], rng)
     with pytest.raises(NotObservableError) as info:
-        calibrate_cameras(make_cell({"cam0": "opencv8"}), obs)
+        calibrate_cell(make_cell({"cam0": "opencv8"}), obs)
     named = " ".join(info.value.unknowns)
     assert "cam0 k1" in named and "cam0 k4" in named
 
@@ -111,7 +111,7 @@ def test_matches_opencv_on_identical_noisy_corners():
                              np.array([-0.25, 0.08, 5e-4, -3e-4, 0.0]), (1280, 960))
     views = random_calibration_views(cam, BOARD.points, 15, rng=rng)
     obs = make_obs({"cam0": cam}, [{"cam0": T} for T in views], rng, sigma_px=0.3)
-    cal = calibrate_cameras(make_cell({"cam0": "opencv5"}), obs, CameraCalibrationOptions(outlier_threshold=None))
+    cal = calibrate_cell(make_cell({"cam0": "opencv5"}), obs, CalibrationOptions(outlier_threshold=None))
     obj = [BOARD.points.astype(np.float32)] * len(views)
     img = [s.detections[0].pixels.astype(np.float32) for s in obs.stations]
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-15)
@@ -140,8 +140,9 @@ def test_stereo_rig_recovers_relative_pose():
             views.append({"cam0": T, "cam1": T_cam1_cam0 @ T})
     assert len(views) >= 8
     obs = make_obs({"cam0": cam0, "cam1": cam1}, views, rng)
-    cal = calibrate_cameras(make_cell({"cam0": "opencv5", "cam1": "opencv5"}), obs)
-    np.testing.assert_allclose(cal.T_ref_cam["cam1"], np.linalg.inv(T_cam1_cam0), atol=1e-8)
+    cal = calibrate_cell(make_cell({"cam0": "opencv5", "cam1": "opencv5"}), obs)
+    assert cal.frame == "cam0" and set(cal.transforms) == {"T_cam0_cam1"}  # the rig frame is cam0's
+    np.testing.assert_allclose(cal.transforms["T_cam0_cam1"], np.linalg.inv(T_cam1_cam0), atol=1e-8)
     np.testing.assert_allclose(np.asarray(cal.cameras["cam1"].params), np.asarray(cam1.params), rtol=1e-6, atol=1e-8)
 
 
@@ -154,7 +155,7 @@ def test_fronto_parallel_views_are_not_observable():
         views.append({"cam0": T})
     obs = make_obs({"cam0": cam}, views, np.random.default_rng(0), sigma_px=0.1)
     with pytest.raises(NotObservableError) as info:
-        calibrate_cameras(make_cell({"cam0": "opencv5"}), obs)
+        calibrate_cell(make_cell({"cam0": "opencv5"}), obs)
     assert "fx" in " ".join(info.value.unknowns)
 
 
@@ -165,40 +166,33 @@ def test_bad_inputs_name_the_problem():
     obs = make_obs({"cam0": cam}, views, rng).to_dict()
     three = obs["stations"][2]["detections"][0]
     three["point_index"], three["pixels"] = three["point_index"][:3], three["pixels"][:3]
-    with pytest.raises(BadInputError, match="v002.*only 3 target points"):
-        calibrate_cameras(make_cell({"cam0": "opencv5"}), parse_observations(obs))
+    with pytest.raises(BadInputError, match="v002.*only 3 points of target 'board'"):
+        calibrate_cell(make_cell({"cam0": "opencv5"}), parse_observations(obs))
     with pytest.raises(BadInputError, match="nodist"):
-        calibrate_cameras(make_cell({"cam0": "opencv5"}, fix=["nodist"]), make_obs({"cam0": cam}, views, rng))
+        calibrate_cell(make_cell({"cam0": "opencv5"}, fix=["nodist"]), make_obs({"cam0": cam}, views, rng))
 
 
 @pytest.mark.parametrize("options", [{}, {"skew": True}, {"fix": ["aspect", "k3"]}, {"fix": ["cx", "cy"]}])
-def test_in_jit_start_reaches_the_host_starts_optimum(options):
-    """The jitted solve's own Zhang start (default) and the host's numpy start give one optimum."""
-    from jcalib.problems import camera as C
-
+def test_zhang_start_and_a_given_start_reach_one_optimum(options):
+    """The closed-form (Zhang) start and a start from intrinsics given in the cell (20 px off, no
+    distortion; held coordinates at the same values) end at one optimum: the answer does not depend
+    on where the solve started. (The camera family's in-jit Zhang start is gone: Zhang runs once, on
+    the host, for every cell.)"""
     rng = np.random.default_rng(17)
     model = camera_from_opencv(np.array([[900.0, 0, 639.5], [0, 900.0, 479.5], [0, 0, 1]]),
                                np.array([-0.1, 0.02, 0.0, 0.0, 0.0]), (1280, 960))
     poses = random_calibration_views(model, BOARD.points, 12, rng=rng)
     obs = make_obs({"cam": model}, [{"cam": T} for T in poses], rng, sigma_px=0.2)
-    cell = make_cell({"cam": "opencv5"}, **options)
-    opts = CameraCalibrationOptions()
-    fast = C._prepare(cell, obs, opts)
-    host = C._prepare(cell, obs, opts, fast=False)
-    assert fast.fast and not host.fast and fast.config == host.config  # one compiled function
-    o_fast = C._run_one(fast, C._start_arrays(fast))
-    o_host = C._run_one(host, C._start_arrays(host))
-    assert o_fast.start_ok
-    # the two starts differ (h33 = 1 vs homogeneous DLT); the optimum does not (solver tolerance)
-    def refine_and_finish(p, o):
-        return C._finish_all({0: (p, *C._refine(p, o, opts))}, opts)[0]
-
-    cal_fast, cal_host = refine_and_finish(fast, o_fast), refine_and_finish(host, o_host)
-    # one optimum to solver tolerance, in units of each parameter's σ (k3's 2e-10 is 1e-7 σ)
-    sigma = np.sqrt(np.diag(cal_host.intrinsics_covariance["cam"]))
-    diff = np.abs(np.asarray(cal_fast.cameras["cam"].params) - np.asarray(cal_host.cameras["cam"].params))
+    given = {"K": [[880.0, 0.0, 639.5], [0.0, 880.0, 479.5], [0.0, 0.0, 1.0]], "dist": [0.0] * 5}
+    zhang = calibrate_cell(make_cell({"cam": "opencv5"}, **options), obs)
+    start = calibrate_cell(make_cell({"cam": "opencv5"}, intrinsics=given, **options), obs)
+    assert zhang.status == start.status == "converged"
+    assert zhang.outliers == start.outliers
+    # one optimum to solver tolerance, in units of each parameter's σ
+    sigma = np.sqrt(np.diag(zhang.intrinsics_covariance["cam"]))
+    diff = np.abs(np.asarray(zhang.cameras["cam"].params) - np.asarray(start.cameras["cam"].params))
     free = sigma > 0
     assert np.all(diff[free] <= 1e-5 * sigma[free]), (diff, sigma)
     assert np.all(diff[~free] <= 1e-12)
-    np.testing.assert_allclose(cal_fast.intrinsics_covariance["cam"], cal_host.intrinsics_covariance["cam"],
+    np.testing.assert_allclose(zhang.intrinsics_covariance["cam"], start.intrinsics_covariance["cam"],
                                rtol=1e-6, atol=1e-14)

@@ -14,7 +14,7 @@ from scipy import stats
 from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.problems.camera import CameraCalibrationOptions, calibrate_cameras
+from jcalib.problems import CalibrationOptions, calibrate_cell
 from jcalib.sim.scene import project_target, random_calibration_views
 
 BOARD = Checkerboard(cols=9, rows=6, square=0.03)
@@ -58,7 +58,7 @@ def trials():
                 for i, p in enumerate(clean)],
         })
         for noise in ("stated", "a_posteriori"):
-            cal = calibrate_cameras(cell, obs, CameraCalibrationOptions(noise=noise, sigma_px=SIGMA_PX))
+            cal = calibrate_cell(cell, obs, CalibrationOptions(noise=noise, sigma_px=SIGMA_PX))
             assert cal.status == "converged"
             out[noise].append(cal.intrinsics_covariance["cam"])
         out["error"].append(np.asarray(cal.cameras["cam"].params) - truth)

@@ -1,6 +1,6 @@
 """Joint hand-eye on degenerate robot motion: every suite raises NotObservableError naming the
 unknowns it leaves undetermined, and one-axis (SCARA) motion gives the partial answer on request
-(``HandEyeOptions(fix_unobservable=True)``), checked against the ground truth."""
+(``CalibrationOptions(fix_unobservable=True)``), checked against the ground truth."""
 
 from __future__ import annotations
 
@@ -12,9 +12,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from jcalib.errors import NotObservableError
-from jcalib.io.cell import load_cell
-from jcalib.io.observations import load_observations
-from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
 from jcalib.sim.scene import project_target
 
 _path = Path(__file__).resolve().parent / "test_handeye_joint.py"
@@ -68,7 +65,7 @@ def scara_data(seed, angles_deg=None, n=8, sigma_px=0.0, pose_noise=None, rotate
 
 
 def _solve(cell, obs, **kw):
-    return calibrate_hand_eye(load_cell(cell), load_observations(obs), HandEyeOptions(**kw))
+    return J.calibrate(cell, obs, **kw)
 
 
 AXIS_Z = "the common rotation axis (axis = [0, 0, 1] in the flange frame)"
@@ -106,8 +103,11 @@ def test_fewer_than_three_stations():
     obs["stations"] = obs["stations"][:2]
     with pytest.raises(NotObservableError) as err:
         _solve(J.with_known_intrinsics(cell), obs)
-    assert "in 2 station(s)" in str(err.value)
-    assert err.value.unknowns == ["rotation of T_flange_cam0", "translation of T_flange_cam0"]
+    # one motion: the closed forms' check names what it leaves free (about / along its rotation axis)
+    assert "got 2 station(s)" in str(err.value)
+    assert len(err.value.unknowns) == 2
+    assert err.value.unknowns[0].startswith("rotation of T_flange_cam0 about the rotation axis of the single motion")
+    assert err.value.unknowns[1].startswith("translation of T_flange_cam0 along the rotation axis")
 
 
 def _along(T):
@@ -121,16 +121,16 @@ def test_scara_fix_unobservable_recovers_the_rest_exactly():
     cell, obs, truth = scara_data(5)
     value = _along(truth["T_hand_eye"])
     cal = _solve(cell, obs, fix_unobservable=True, unobservable_prior_m=value, noise="stated")
-    np.testing.assert_allclose(cal.T_hand_eye, truth["T_hand_eye"], atol=1e-6)
-    np.testing.assert_allclose(cal.T_target, truth["T_target"], atol=1e-6)
+    np.testing.assert_allclose(cal.transforms["T_flange_cam0"], truth["T_hand_eye"], atol=1e-6)
+    np.testing.assert_allclose(cal.transforms["T_base_board"], truth["T_target"], atol=1e-6)
     fixed = dict(cal.unobservable_fixed)
     np.testing.assert_allclose(fixed.pop("axis"), [0.0, 0.0, 1.0], atol=1e-12)  # rotation vectors' rounding
     assert fixed == {"transform": "T_flange_cam0", "frame": "flange", "value_m": value, "sigma_m": 1e-6}
     assert any("held at the stated prior" in w and "T_flange_cam0" in w for w in cal.warnings)
     # the stated-noise variance along the axis is the prior's (the data say nothing about it)
-    R = cal.T_hand_eye[:3, :3]
+    R = cal.transforms["T_flange_cam0"][:3, :3]
     a_tangent = R.T @ np.array([0.0, 0.0, 1.0])
-    var = a_tangent @ cal.T_hand_eye_covariance[3:, 3:] @ a_tangent
+    var = a_tangent @ cal.transform_covariance["T_flange_cam0"][3:, 3:] @ a_tangent
     np.testing.assert_allclose(np.sqrt(var), 1e-6, rtol=1e-3)
 
 
@@ -140,12 +140,13 @@ def test_scara_fix_unobservable_with_a_wrong_prior_shifts_only_that_component():
     cell, obs, truth = scara_data(6, sigma_px=0.0)
     value = _along(truth["T_hand_eye"]) + 0.005
     cal = _solve(cell, obs, fix_unobservable=True, unobservable_prior_m=value, noise="stated")
-    X, Xt = cal.T_hand_eye, truth["T_hand_eye"]
+    X, Xt = cal.transforms["T_flange_cam0"], truth["T_hand_eye"]
     np.testing.assert_allclose(X[:3, :3], Xt[:3, :3], atol=1e-6)
     np.testing.assert_allclose(X[:3, 3], Xt[:3, 3] + [0.0, 0.0, 0.005], atol=1e-6)
     shift = truth["T_base_flange"][0][:3, :3] @ np.array([0.0, 0.0, 0.005])  # = (0, 0, -5 mm) in the base
-    np.testing.assert_allclose(cal.T_target[:3, 3], truth["T_target"][:3, 3] + shift, atol=1e-6)
-    np.testing.assert_allclose(cal.T_target[:3, :3], truth["T_target"][:3, :3], atol=1e-6)
+    T_target = cal.transforms["T_base_board"]
+    np.testing.assert_allclose(T_target[:3, 3], truth["T_target"][:3, 3] + shift, atol=1e-6)
+    np.testing.assert_allclose(T_target[:3, :3], truth["T_target"][:3, :3], atol=1e-6)
 
 
 def test_scara_fix_unobservable_noisy_within_reported_sigma():
@@ -154,9 +155,9 @@ def test_scara_fix_unobservable_noisy_within_reported_sigma():
     cell, obs, truth = scara_data(7, n=12, sigma_px=0.2)
     value = _along(truth["T_hand_eye"])
     cal = _solve(cell, obs, fix_unobservable=True, unobservable_prior_m=value, sigma_px=0.2)
-    delta = np.linalg.solve(cal.T_hand_eye, truth["T_hand_eye"])
+    delta = np.linalg.solve(cal.transforms["T_flange_cam0"], truth["T_hand_eye"])
     rot = Rotation.from_matrix(delta[:3, :3]).as_rotvec()
-    sd = np.sqrt(np.diag(cal.T_hand_eye_covariance))
+    sd = np.sqrt(np.diag(cal.transform_covariance["T_flange_cam0"]))
     assert np.all(np.abs(rot) < 5 * sd[:3] + 1e-9), (rot, sd)
     assert np.all(np.abs(delta[:3, 3]) < 5 * sd[3:] + 1e-9), (delta[:3, 3], sd)
 
@@ -198,8 +199,9 @@ def test_scara_eye_to_hand_names_base_axis_and_fixes_camera_height():
     assert ("translation of T_base_cam0 along the common rotation axis (axis = [0, 0, 1] in the base frame)"
             in err.value.unknowns)
     cal = _solve(cell, obs, fix_unobservable=True, unobservable_prior_m=E2H_CAM[2, 3] + 0.005, noise="stated")
-    assert cal.hand_eye_name == "T_base_cam0" and cal.unobservable_fixed["frame"] == "base"
-    np.testing.assert_allclose(cal.T_hand_eye[:3, :3], E2H_CAM[:3, :3], atol=1e-6)
-    np.testing.assert_allclose(cal.T_hand_eye[:3, 3], E2H_CAM[:3, 3] + [0.0, 0.0, 0.005], atol=1e-6)
-    np.testing.assert_allclose(cal.T_target[:3, :3], E2H_TARGET[:3, :3], atol=1e-6)
-    np.testing.assert_allclose(cal.T_target[:3, 3], E2H_TARGET[:3, 3] + [0.0, 0.0, -0.005], atol=1e-6)
+    assert cal.unobservable_fixed["transform"] == "T_base_cam0" and cal.unobservable_fixed["frame"] == "base"
+    X, Y = cal.transforms["T_base_cam0"], cal.transforms["T_flange_board"]
+    np.testing.assert_allclose(X[:3, :3], E2H_CAM[:3, :3], atol=1e-6)
+    np.testing.assert_allclose(X[:3, 3], E2H_CAM[:3, 3] + [0.0, 0.0, 0.005], atol=1e-6)
+    np.testing.assert_allclose(Y[:3, :3], E2H_TARGET[:3, :3], atol=1e-6)
+    np.testing.assert_allclose(Y[:3, 3], E2H_TARGET[:3, 3] + [0.0, 0.0, -0.005], atol=1e-6)

@@ -18,7 +18,7 @@ from jcalib.init.handeye import HAND_EYE_METHODS
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
 from jcalib.io.result import load_result
-from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
+from jcalib.problems import CalibrationOptions, calibrate_cell
 from jcalib.sim.scene import project_target
 
 # Scene helpers of the closed-form tests (random stations looking at a 9x6 board, robot noise).
@@ -79,30 +79,41 @@ def with_known_intrinsics(cell):
     return out
 
 
+def names(mount):
+    """(hand-eye transform, target transform) of a cell whose camera has ``mount``."""
+    return ("T_flange_cam0", "T_base_board") if mount == "flange" else ("T_base_cam0", "T_flange_board")
+
+
+def calibrate(cell, obs, **options):
+    """The one builder on a cell dict and observations dict with ``CalibrationOptions(**options)``."""
+    return calibrate_cell(load_cell(cell), load_observations(obs), CalibrationOptions(**options))
+
+
 def _errors(T_est, T_true):
     d_rot, d_t = H.errors(T_est, T_true)
     return np.degrees(d_rot), d_t
 
 
 def _check_recovery(cal, truth, mount):
-    assert cal.hand_eye_name == ("T_flange_cam0" if mount == "flange" else "T_base_cam0")
-    assert cal.target_name == ("T_base_board" if mount == "flange" else "T_flange_board")
-    np.testing.assert_allclose(cal.T_hand_eye, truth["T_hand_eye"], atol=1e-6)
-    np.testing.assert_allclose(cal.T_target, truth["T_target"], atol=1e-6)
-    np.testing.assert_allclose(np.asarray(cal.model.params), TRUE_PARAMS, rtol=1e-6, atol=1e-6)
+    X, Y = names(mount)
+    assert set(cal.transforms) == {X, Y}
+    np.testing.assert_allclose(cal.transforms[X], truth["T_hand_eye"], atol=1e-6)
+    np.testing.assert_allclose(cal.transforms[Y], truth["T_target"], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(cal.cameras["cam0"].params), TRUE_PARAMS, rtol=1e-6, atol=1e-6)
     assert cal.rms_px < 1e-6
-    assert cal.T_hand_eye.dtype == np.float64
-    assert cal.T_hand_eye_covariance.shape == (6, 6)
+    assert cal.transforms[X].dtype == np.float64
+    assert cal.transform_covariance[X].shape == (6, 6)
 
 
 def test_noise_free_recovery_pixels_only():
     """Exact pixels and poses, poses taken as exact: everything is recovered to 1e-6 (noiseless
     parameter recovery; the start is a closed form on distortion-free Zhang poses, so far off)."""
     cell, obs, truth = make_data(1, "flange")
-    cal = calibrate_hand_eye(load_cell(cell), load_observations(obs), HandEyeOptions(noise="stated"))
+    cal = calibrate(cell, obs, noise="stated")
     assert not cal.pose_model
     _check_recovery(cal, truth, "flange")
-    np.testing.assert_array_equal(cal.T_base_flange, truth["T_base_flange"])  # fixed: held bit-exact
+    # fixed: held bit-exact
+    np.testing.assert_array_equal(cal.flange_poses["robot"]["estimated"], truth["T_base_flange"])
 
 
 @pytest.mark.parametrize("mount", ["flange", "base"])
@@ -110,11 +121,11 @@ def test_noise_free_recovery_with_pose_model(mount):
     """With the pose model on and exact data, the corrections are zero and the truth is recovered."""
     cell, obs, truth = make_data(2, mount)
     cell["robot"] = {"pose_noise": {"translation_m": 1e-4, "rotation_deg": 0.01}}
-    cal = calibrate_hand_eye(load_cell(cell), load_observations(obs), HandEyeOptions(noise="stated"))
+    cal = calibrate(cell, obs, noise="stated")
     assert cal.pose_model
     _check_recovery(cal, truth, mount)
-    np.testing.assert_allclose(cal.T_base_flange, truth["T_base_flange"], atol=1e-6)
-    assert max(cal.robot["correction_rms_translation_m"]) < 1e-6
+    np.testing.assert_allclose(cal.flange_poses["robot"]["estimated"], truth["T_base_flange"], atol=1e-6)
+    assert max(cal.robot["robot"]["correction_rms_translation_m"]) < 1e-6
 
 
 def pnp_poses(obs, K, dist):
@@ -138,11 +149,10 @@ def test_noisy_joint_with_pose_model_beats_best_closed_form():
     K, dist = (np.asarray(a) for a in CAMERA.to_opencv())
     for seed in range(8):
         cell, obs, truth = make_data(100 + seed, "flange", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
-        cal = calibrate_hand_eye(load_cell(with_known_intrinsics(cell)), load_observations(obs),
-                                 HandEyeOptions(sigma_px=0.2))
+        cal = calibrate(with_known_intrinsics(cell), obs, sigma_px=0.2)
         assert cal.pose_model
-        np.testing.assert_array_equal(np.asarray(cal.model.params), TRUE_PARAMS)  # held exactly
-        joint.append(_errors(cal.T_hand_eye, truth["T_hand_eye"]))
+        np.testing.assert_array_equal(np.asarray(cal.cameras["cam0"].params), TRUE_PARAMS)  # held exactly
+        joint.append(_errors(cal.transforms["T_flange_cam0"], truth["T_hand_eye"]))
         T_ct = pnp_poses(obs, K, dist)
         for m in HAND_EYE_METHODS:
             closed[m].append(_errors(H.opencv_hand_eye(truth["T_base_flange"], T_ct, m), truth["T_hand_eye"]))
@@ -156,8 +166,8 @@ def test_noisy_joint_with_pose_model_beats_best_closed_form():
 def test_robot_accuracy_is_reported():
     """The a-posteriori robot σ is of the order of the true robot noise (0.1 mm / 0.01 deg)."""
     cell, obs, _ = make_data(7, "flange", n=16, sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
-    cal = calibrate_hand_eye(load_cell(cell), load_observations(obs), HandEyeOptions(sigma_px=0.2))
-    r = cal.robot
+    cal = calibrate(cell, obs, sigma_px=0.2)
+    r = cal.robot["robot"]
     assert 0.0 < r["redundancy"] < 6 * 16
     # a variance-component estimate from 16 stations: within a factor 2 of the truth
     assert 0.5e-4 < np.mean(r["a_posteriori_sigma_translation_m"]) < 2e-4, r
@@ -184,7 +194,7 @@ def test_one_axis_rotation_is_not_observable():
                                          "pixels": pix[idx].tolist()}]})
     obs["stations"] = stations
     with pytest.raises(NotObservableError) as err:
-        calibrate_hand_eye(load_cell(cell), load_observations(obs))
+        calibrate(cell, obs)
     unknowns = " ".join(err.value.unknowns)
     assert "translation of T_flange_cam0 along the common rotation axis" in unknowns
     assert "[0, 0, 1]" in unknowns
@@ -198,8 +208,7 @@ def test_calibrate_round_trip_writes_result(tmp_path, mount):
     result = jcalib.calibrate(cell, tmp_path / "obs.json")
     path = result.to_json(tmp_path / "result.json")
     back = load_result(path)
-    he = "T_flange_cam0" if mount == "flange" else "T_base_cam0"
-    tg = "T_base_board" if mount == "flange" else "T_flange_board"
+    he, tg = names(mount)
     assert set(back.transforms) == {he, tg}
     T = np.asarray(back.transforms[he].matrix)
     d_rot, d_t = _errors(T, truth["T_hand_eye"])
@@ -223,10 +232,11 @@ def test_known_target_pose_listed_in_fixed_is_held():
     cell, obs, truth = make_data(12, "flange", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     cell["targets"]["board"]["pose"] = truth["T_target"].tolist()
     cell["fixed"] = ["board"]
-    cal = calibrate_hand_eye(load_cell(cell), load_observations(obs), HandEyeOptions(sigma_px=0.2))
-    np.testing.assert_allclose(cal.T_target, truth["T_target"], atol=1e-12)  # quaternion round trip only
-    np.testing.assert_array_equal(cal.T_target_covariance, np.zeros((6, 6)))
-    assert np.all(np.linalg.eigvalsh(cal.T_hand_eye_covariance) > 0)
+    cal = calibrate(cell, obs, sigma_px=0.2)
+    np.testing.assert_allclose(cal.transforms["T_base_board"], truth["T_target"], atol=1e-12)  # quaternion round trip
+    np.testing.assert_array_equal(cal.transform_covariance["T_base_board"], np.zeros((6, 6)))
+    assert cal.calibrated["T_base_board"] == []
+    assert np.all(np.linalg.eigvalsh(cal.transform_covariance["T_flange_cam0"]) > 0)
 
 
 def test_cli_calibrate_hand_eye_cell(tmp_path):

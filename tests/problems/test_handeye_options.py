@@ -14,7 +14,7 @@ import jcalib
 from jcalib.errors import BadInputError
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import load_observations
-from jcalib.problems.handeye import HandEyeOptions, calibrate_hand_eye
+from jcalib.problems import CalibrationOptions, calibrate_cell
 
 _path = Path(__file__).resolve().parent / "test_handeye_joint.py"
 _spec = importlib.util.spec_from_file_location("_handeye_joint_helpers_options", _path)
@@ -49,19 +49,20 @@ def test_gross_outliers_are_flagged_and_do_not_move_the_estimate(loss):
     times sqrt(3)) of the estimate from the clean data (the reference: same data without outliers)."""
     cell, obs, truth = J.make_data(21, "flange", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     cell = load_cell(J.with_known_intrinsics(cell))
-    opts = HandEyeOptions(sigma_px=0.2, loss=loss)
-    clean = calibrate_hand_eye(cell, load_observations(obs), opts)
+    opts = CalibrationOptions(sigma_px=0.2, loss=loss)
+    clean = calibrate_cell(cell, load_observations(obs), opts)
     assert clean.outliers == []
     dirty, bad = _inject(obs, np.random.default_rng(5), 25)
-    cal = calibrate_hand_eye(cell, load_observations(dirty), opts)
+    cal = calibrate_cell(cell, load_observations(dirty), opts)
     flagged = {(s, i) for c, s, i in cal.outliers}
     assert all(c == "cam0" for c, _, _ in cal.outliers)
     assert bad <= flagged, bad - flagged
     assert len(flagged - bad) <= 1
-    sd = np.sqrt(np.diag(clean.T_hand_eye_covariance))
-    d_rot, d_t = _rot_trans_errors(cal.T_hand_eye, clean.T_hand_eye)
+    X = "T_flange_cam0"
+    sd = np.sqrt(np.diag(clean.transform_covariance[X]))
+    d_rot, d_t = _rot_trans_errors(cal.transforms[X], clean.transforms[X])
     assert d_rot < np.sqrt(3) * sd[:3].max() and d_t < np.sqrt(3) * sd[3:].max(), (d_rot, d_t, sd)
-    d_rot, d_t = _rot_trans_errors(cal.T_hand_eye, truth["T_hand_eye"])  # and near the truth (5 σ)
+    d_rot, d_t = _rot_trans_errors(cal.transforms[X], truth["T_hand_eye"])  # and near the truth (5 σ)
     assert d_rot < 5 * np.sqrt(3) * sd[:3].max() and d_t < 5 * np.sqrt(3) * sd[3:].max(), (d_rot, d_t, sd)
     assert 0.15 < cal.sigma_px < 0.3  # the outliers no longer inflate the noise estimate
 
@@ -71,49 +72,60 @@ def test_without_rejection_outliers_pull_the_estimate():
     (so the rejection above is what removes them)."""
     cell, obs, _ = J.make_data(21, "flange", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     dirty, _ = _inject(obs, np.random.default_rng(5), 25)
-    cal = calibrate_hand_eye(load_cell(J.with_known_intrinsics(cell)), load_observations(dirty),
-                             HandEyeOptions(sigma_px=0.2, outlier_threshold=None))
+    cal = calibrate_cell(load_cell(J.with_known_intrinsics(cell)), load_observations(dirty),
+                         CalibrationOptions(sigma_px=0.2, outlier_threshold=None))
     assert cal.outliers == [] and cal.sigma_px > 1.0
 
 
 def test_pose_model_switch_overrides_the_cell():
-    """``HandEyeOptions(pose_model=False)`` on a cell with robot.pose_noise gives the same estimate as
+    """``CalibrationOptions(pose_model=False)`` on a cell with robot.pose_noise gives the same estimate as
     the cell without pose_noise (to 1e-12: the same problem), through jcalib.calibrate."""
     cell, obs, _ = J.make_data(22, "base", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
-    off = jcalib.calibrate(cell, obs, HandEyeOptions(sigma_px=0.2, pose_model=False))
+    off = jcalib.calibrate(cell, obs, CalibrationOptions(sigma_px=0.2, pose_model=False))
     plain = {k: v for k, v in cell.items() if k != "robot"}
-    ref = jcalib.calibrate(plain, obs, HandEyeOptions(sigma_px=0.2))
-    on = jcalib.calibrate(cell, obs, HandEyeOptions(sigma_px=0.2))
+    ref = jcalib.calibrate(plain, obs, CalibrationOptions(sigma_px=0.2))
+    on = jcalib.calibrate(cell, obs, CalibrationOptions(sigma_px=0.2))
     assert off.file.stats["robot_pose_model"] is False and "robot" not in off.file.stats
     assert on.file.stats["robot_pose_model"] is True and "robot" in on.file.stats
     np.testing.assert_allclose(np.asarray(off.file.transforms["T_base_cam0"].matrix),
                                np.asarray(ref.file.transforms["T_base_cam0"].matrix), atol=1e-12)
     assert not np.allclose(np.asarray(on.file.transforms["T_base_cam0"].matrix),
                            np.asarray(off.file.transforms["T_base_cam0"].matrix), atol=1e-9)
-    with pytest.raises(BadInputError, match="pose_model"):
-        jcalib.calibrate(plain, obs, HandEyeOptions(pose_model=True))
+    with pytest.raises(BadInputError, match="--pose-model has no effect here.*pose_noise"):
+        jcalib.calibrate(plain, obs, CalibrationOptions(pose_model=True))
 
 
-def test_bad_options_name_the_argument():
-    with pytest.raises(BadInputError, match="loss: got 'l1'"):
-        HandEyeOptions(loss="l1")
-    with pytest.raises(BadInputError, match="outlier_threshold"):
-        HandEyeOptions(outlier_threshold=0.0)
-    with pytest.raises(BadInputError, match="unobservable_prior_sigma_m"):
-        HandEyeOptions(unobservable_prior_sigma_m=0.0)
+@pytest.mark.parametrize(("changes", "needle"), [
+    ({"loss": "l1"}, "loss: got 'l1'"),
+    ({"outlier_threshold": 0.0}, "outlier_threshold"),
+    ({"unobservable_prior_sigma_m": 0.0}, "unobservable_prior_sigma_m"),
+    ({"sigma_px": -0.2}, "sigma_px: got -0.2"),
+    ({"tip_sigma_px": float("nan")}, "tip_sigma_px"),
+    ({"contact_sigma_m": float("inf")}, "contact_sigma_m"),
+    ({"noise": "guess"}, "noise: got 'guess'"),
+    ({"pose_model": "yes"}, "pose_model"),
+    ({"method": "magic"}, "method: got 'magic'"),
+    ({"max_iterations": 0}, "max_iterations"),
+    ({"max_iterations": True}, "max_iterations"),
+    ({"unobservable_prior_m": float("nan")}, "unobservable_prior_m"),
+    ({"sigma_pix": 0.2}, r"unknown name\(s\) \['sigma_pix'\]"),
+])
+def test_bad_options_name_the_argument(changes, needle):
+    with pytest.raises(BadInputError, match=needle):
+        CalibrationOptions().replace(**changes)
+    if "sigma_pix" not in changes:
+        with pytest.raises(BadInputError, match=needle):
+            CalibrationOptions(**changes)
 
 
-def test_cli_style_camera_options_carry_over():
-    """The CLI's CameraCalibrationOptions reach the hand-eye problem: the robust loss and threshold
-    are honoured (the injected outliers are flagged) rather than refused."""
-    from jcalib.problems.camera import CameraCalibrationOptions
-
-    cam_opts = CameraCalibrationOptions(loss="cauchy", loss_scale=2.0, sigma_px=0.2, outlier_threshold=4.0)
-    he = HandEyeOptions.from_camera_options(cam_opts, pose_model=False)
-    assert (he.loss, he.loss_scale, he.sigma_px, he.outlier_threshold, he.pose_model) == ("cauchy", 2.0, 0.2, 4.0, False)
+def test_camera_options_reach_the_hand_eye_cell():
+    """One options type for every cell: the robust loss and threshold a user sets for cameras are
+    honoured by the hand-eye cell (the injected outliers are flagged) rather than refused."""
+    opts = CalibrationOptions(loss="cauchy", loss_scale=2.0, sigma_px=0.2, outlier_threshold=4.0)
     cell, obs, _ = J.make_data(23, "flange", sigma_px=0.2)
     dirty, bad = _inject(obs, np.random.default_rng(6), 10)
-    result = jcalib.calibrate(J.with_known_intrinsics(cell), dirty, cam_opts)
+    result = jcalib.calibrate(J.with_known_intrinsics(cell), dirty, opts)
     flagged = {(o["station"], o["point_index"]) for o in result.file.stats["outliers"]}
     assert bad <= flagged and result.file.stats["num_outliers"] == len(flagged)
     assert result.file.provenance.options["loss"] == "cauchy"
+    assert result.file.provenance.options["loss_scale"] == 2.0

@@ -49,11 +49,14 @@ def test_real_tracker_data_agrees_with_linear_least_squares(ndi_poses):
     # the same least squares solved two ways: equal to ~1e-9 mm (values ~2000 mm, float64, cond ~1e3)
     np.testing.assert_allclose(res.p_flange_tip, ref[:3], atol=1e-7)
     np.testing.assert_allclose(res.p_base_pivot, ref[3:], atol=1e-7)
-    # residual statistics and the a-posteriori covariance sigma^2 (A^T A)^-1 from the reference
+    # residual statistics and the a-posteriori covariance sigma^2 (A^T A)^-1 from the reference. The
+    # one builder holds every flange pose as a unit quaternion: the tracker's rotation matrices (printed
+    # to a few decimals, not exactly orthonormal) are orthonormalised, which moves single residuals by
+    # up to 3e-5 mm and Σr² by 3e-9 relative (the family used the raw matrices: 1e-9 held there)
     dof = A.shape[0] - 6
     sigma = np.sqrt(r @ r / dof)
-    np.testing.assert_allclose(res.sigma, sigma, rtol=1e-9)
-    np.testing.assert_allclose(res.rms, np.sqrt(np.mean(r**2)), rtol=1e-9)
+    np.testing.assert_allclose(res.sigma, sigma, rtol=1e-8)
+    np.testing.assert_allclose(res.rms, np.sqrt(np.mean(r**2)), rtol=1e-8)
     np.testing.assert_allclose(res.covariance, sigma**2 * np.linalg.inv(A.T @ A), rtol=1e-6, atol=1e-12)
     assert res.residuals.shape == (1151, 3)
     assert res.noise == "a_posteriori" and res.status == "converged"

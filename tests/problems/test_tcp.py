@@ -204,7 +204,7 @@ def test_rotations_about_one_axis_name_the_offset_along_it():
     with pytest.raises(NotObservableError) as err:
         calibrate_tcp(cam, Tc, T, px, free_camera_pose=True)
     msg = str(err.value)
-    assert "TCP offset along the rotation axis" in msg
+    assert "T_flange_tcp offset along the rotation axis" in msg  # the unknown by its transform name
     assert any("rotation axis" in u for u in err.value.unknowns)
     # the named direction is the common rotation axis in the flange frame
     a_flange = R0.T @ (axis_base / np.linalg.norm(axis_base))
@@ -216,7 +216,7 @@ def test_too_few_poses():
     rng = np.random.default_rng(7)
     cam, Tc = _camera(), _T_base_cam()
     T = _poses(rng, n=2)
-    with pytest.raises(NotObservableError, match="at least 3 poses") as err:
+    with pytest.raises(NotObservableError, match=r"detected at 2 pose\(s\); at least 3") as err:
         calibrate_tcp(cam, Tc, T, _observe(cam, Tc, T))
     assert "too few poses" in err.value.unknowns[0]
     # three poses, but the tip detected in only two of them
@@ -249,20 +249,42 @@ def test_pure_translations_with_free_camera():
         calibrate_tcp(cam, Tc, T, _observe(cam, Tc, T), free_camera_pose=True)
 
 
-def test_prior_sqrt_info_inf_means_no_prior():
-    from jcalib.problems.tcp import _prior_sqrt_info
+def test_prior_covariance_inf_means_no_prior(monkeypatch):
+    """``intrinsics_covariance``: the finite block becomes the prior's square-root information, an
+    ``inf`` variance no prior on that coordinate, a zero variance holds it; a covariance that is not
+    positive definite is refused by name. (Checked on what the preset hands the builder.)"""
+    import jcalib.problems.tcp as tcp
 
-    A = np.random.default_rng(10).normal(size=(3, 3))
+    seen = {}
+
+    def capture(cell, obs, options, *, priors, known):
+        seen.update(cell=cell, priors=priors)
+        raise RuntimeError("captured")
+
+    monkeypatch.setattr(tcp, "calibrate_cell", capture)
+    rng = np.random.default_rng(10)
+    cam, Tc = _camera(), _T_base_cam()
+    T = _poses(rng)
+    px = _observe(cam, Tc, T)
+    A = rng.normal(size=(3, 3))
     B = A @ A.T + 0.1 * np.eye(3)
-    C = np.full((6, 6), 0.0)
+    C = np.zeros((4, 4))  # fx, fy, cx, cy
     C[:3, :3] = B
-    C[3:, 3:] = np.diag([np.inf] * 3)
-    S = _prior_sqrt_info(C, "cov", 6)
+    C[3, 3] = np.inf
+    with pytest.raises(RuntimeError, match="captured"):
+        calibrate_tcp(cam, Tc, T, px, free_intrinsics=True, intrinsics_covariance=[C])
+    mean, S = seen["priors"]["cam0"]
+    np.testing.assert_array_equal(mean, np.asarray(cam.params))
     # S^T S is the inverse of the finite block (1e-9: float64 inverse of a well-conditioned 3x3)
     np.testing.assert_allclose((S.T @ S)[:3, :3], np.linalg.inv(B), rtol=1e-9, atol=1e-9)
     assert not S[3:].any() and not S[:, 3:].any()
+    assert seen["cell"].cameras["cam0"].fix == ()  # nothing held: cy is free, without a prior
+    C[1, :] = C[:, 1] = 0.0  # a zero variance holds fy
+    with pytest.raises(RuntimeError, match="captured"):
+        calibrate_tcp(cam, Tc, T, px, free_intrinsics=True, intrinsics_covariance=[C])
+    assert seen["cell"].cameras["cam0"].fix == ("fy",)
     with pytest.raises(BadInputError, match="positive-definite"):
-        _prior_sqrt_info(-np.eye(6), "cov", 6)
+        calibrate_tcp(cam, Tc, T, px, free_intrinsics=True, intrinsics_covariance=[-np.eye(4)])
 
 
 def test_bad_input_is_named():

@@ -11,7 +11,7 @@ import jcalib  # noqa: F401  (float64)
 from jcalib.errors import BadInputError
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, SolveOptions, Variable, linear, solve
 from jcalib.solve.manifolds import quat_rotate
-from jcalib.solve.problem import pad_problem
+from jcalib.solve import pad_problem
 
 NUM_VIEWS = 5
 POINTS_PER_VIEW = 54  # 9 x 6 board of solve_problems
@@ -36,7 +36,9 @@ def _problem(data, K0, P0, chunk, weights=None):
 
 def _system(problem):
     layout = linear.make_layout(problem)
-    return linear.linearize(problem, layout, problem.initial_values(), linear.free_masks(problem))
+    cost, system, m_eff, _groups = linear.linearize(problem, layout, problem.initial_values(),
+                                                    linear.free_masks(problem))
+    return cost, system, m_eff
 
 
 def test_chunked_group_assembles_the_same_normal_equations():
@@ -104,7 +106,12 @@ def test_constant_variable_equals_a_fully_fixed_one():
     fixed = solve(_rig_problem(data, K0, P0, False))
     const = solve(_rig_problem(data, K0, P0, True))
     np.testing.assert_array_equal(const.values["T_cam_rig"], fixed.values["T_cam_rig"])
-    np.testing.assert_allclose(const.values["intrinsics"], fixed.values["intrinsics"], rtol=1e-9)
+    # A constant variable is laid out as an eliminated kind (never in the dense system), a fully fixed
+    # one as a shared kind: the same optimum, summed in a different order, so the two solves stop at
+    # iterates that differ inside the float64 resolution of the cost (~4e-8 relative on k2, a few 1e-6 σ):
+    # compared in units of σ as the chunked layout is.
+    sigma = np.sqrt(np.diag(fixed.covariance("intrinsics")))
+    assert np.all(np.abs(const.values["intrinsics"][0] - fixed.values["intrinsics"][0]) < 1e-5 * sigma)
     np.testing.assert_allclose(const.covariance("intrinsics"), fixed.covariance("intrinsics"), rtol=1e-7)
     # and it is the right optimum: the rig is the identity, so the plain problem gives the same answer
     # (a different residual function: the two solves stop at different iterates, so compare in σ units)

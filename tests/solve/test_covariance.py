@@ -8,7 +8,7 @@ import scipy.stats
 from solve_problems import TRUE_INTRINSICS, calibration_data, calibration_problem, perturbed_start, project
 
 import jcalib  # noqa: F401
-from jcalib.solve import SE3, Status, lm_solve, propagate, solve, stack_problems
+from jcalib.solve import SE3, Status, lm_solve, solve, stack_problems
 from jcalib.solve import linear
 
 NV = 5
@@ -79,7 +79,7 @@ def test_propagated_covariance_matches_dense_reference(solved):
         return pixel({"intrinsics": K[None], "T_cam_target": poses})
 
     Jy = np.asarray(jax.jacfwd(pixel_flat)(jnp.zeros(6 + 6 * NV)))
-    _assert_close_cov(np.asarray(propagate(sol, pixel)), Jy @ C_ref @ Jy.T)
+    _assert_close_cov(np.asarray(sol.propagate(pixel)), Jy @ C_ref @ Jy.T)
 
 
 def test_monte_carlo_errors_follow_reported_covariance():

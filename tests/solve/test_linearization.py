@@ -118,7 +118,7 @@ def _toy_problem(seed, n_a, n_b, n_e, K):
 def _assembled_dense(problem, values):
     layout = linear.make_layout(problem)
     free = linear.free_masks(problem)
-    _, system, _ = jax.jit(lambda x: linear.linearize(problem, layout, x, free))(values)
+    _, system, _, _ = jax.jit(lambda x: linear.linearize(problem, layout, x, free))(values)
     ns = layout.n_shared
     (V,), (W,), (ge,) = system.V, system.W, system.g_e
     N_e, d = V.shape[0], V.shape[1]
