@@ -20,16 +20,7 @@ PACKAGE = ROOT / "jcalib"
 
 #: Uses that other work in progress removes: (module, the module reached, the name) -> why it is here.
 #: Each entry must still occur (the test below fails when one is fixed, so the list only shrinks).
-KNOWN: dict[tuple[str, str, str], str] = {
-    ("jcalib.report.plots", "jcalib.report.analysis", "_camera_model"): "report rebuild (issue 16)",
-    ("jcalib.report.plots", "jcalib.report.analysis", "_sigma_fn"): "report rebuild (issue 16)",
-    ("jcalib.report.html", "jcalib.report.analysis", "_project"): "report rebuild (issue 16)",
-    ("jcalib.report.html", "jcalib.report.analysis", "_camera_poses"): "report rebuild (issue 16)",
-    ("jcalib.study.estimators", "jcalib.geometry.lie", "_se3_from_matrix"): "study on jcalib.geometry.se3 (issue 16)",
-    ("jcalib.study.estimators", "jcalib.geometry.lie", "_se3_log"): "study on jcalib.geometry.se3 (issue 16)",
-    ("jcalib.study.estimators", "jcalib.geometry.lie", "_se3_compose"): "study on jcalib.geometry.se3 (issue 16)",
-    ("jcalib.study.estimators", "jcalib.geometry.lie", "_se3_inverse"): "study on jcalib.geometry.se3 (issue 16)",
-}
+KNOWN: dict[tuple[str, str, str], str] = {}
 
 
 def _module_name(path: Path) -> str:

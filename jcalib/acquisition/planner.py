@@ -257,14 +257,15 @@ def plan_cell(
             p_tip = layout.work_point + np.array([0.0, 0.0, 0.1])
             w, start = np.array([0.0, 0.0, -1.0]), "tool pointing down"
         R_h = layout.T_base_flange_home[:3, :3]
+        # the flange orientation that turns the tool axis onto w, placed so that the tip is at p_tip (the
+        # TCP frame's own rotation does not matter: only where the tip is and where the shaft points)
         R0 = _turn_onto(R_h @ layout.tool_axis, w) @ R_h
-        T_tool0 = make_pose(R0, p_tip)
-        cands.append((start, T_tool0 @ invert(T_flange_tool)))
+        T_flange0 = make_pose(R0, p_tip - R0 @ T_flange_tool[:3, 3])
+        cands.append((start, T_flange0))
         m = n - 1
         for ax, name, count in ((np.eye(3)[0], "x", m - m // 2), (np.eye(3)[1], "y", m // 2)):
             for ang in _spread(count, amp):
-                T = _about(ax, ang, p_tip) @ T_tool0
-                cands.append((f"tool about base {name} by {np.degrees(ang):+.0f} deg", T @ invert(T_flange_tool)))
+                cands.append((f"tool about base {name} by {np.degrees(ang):+.0f} deg", _about(ax, ang, p_tip) @ T_flange0))
 
     ok, _ = reachable(layout, [T for _, T in cands])
     dropped: dict[str, str] = {}

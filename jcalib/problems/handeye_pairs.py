@@ -29,12 +29,18 @@ from scipy.stats import chi2 as _chi2
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.se3 import log_se3
 from jcalib.init.handeye import HAND_EYE_METHODS, HandEyeInit, solve_hand_eye
-from jcalib.init.handeye_motion import MotionDiagnostics, analyse_motion, check_observable, checked_stations
+from jcalib.init.handeye_motion import (
+    MotionDiagnostics,
+    analyse_motion,
+    check_observable,
+    checked_stations,
+)
 from jcalib.init.robot_world import ROBOT_WORLD_METHODS, solve_robot_world_hand_eye
 from jcalib.io.cell import CameraSpec, CellSpec, RobotSpec, TargetSpec
 from jcalib.io.observations import Observations, PoseMeasurement, Station
 from jcalib.problems.calibrate import calibrate_cell
 from jcalib.problems.options import CalibrationOptions
+from jcalib.problems.refine import MIN_VARIANCE_FACTOR
 
 __all__ = ["MODES", "HandEyePairsCalibration", "PoseNoise", "calibrate_hand_eye_pairs"]
 
@@ -225,8 +231,11 @@ def calibrate_hand_eye_pairs(
         est_t = max(float(np.sqrt(comp.get("pose_translation", 1.0))) * sig_tr, _SIGMA_FLOOR)
         est = used = PoseNoise(float(np.degrees(est_r)), float(est_t), "estimated", red[0], red[1], cal.iterations,
                                cal.status == "converged")
-        if est_r <= _SIGMA_FLOOR or est_t <= _SIGMA_FLOOR:
-            warnings.append("the stations fit exactly (noise-free data?): the noise estimate sits at its floor 1e-12")
+        floored = [k for k in ("pose_rotation", "pose_translation")
+                   if comp.get(k, 1.0) <= 1.01 * MIN_VARIANCE_FACTOR]
+        if est_r <= _SIGMA_FLOOR or est_t <= _SIGMA_FLOOR or floored:
+            warnings.append("the stations fit exactly (noise-free data?): the noise estimate sits at its floor "
+                            f"(variance factor {MIN_VARIANCE_FACTOR:g} of the stated σ², or σ = {_SIGMA_FLOOR:g})")
     else:
         # one estimate at the stated weights: each half's χ² over its share of the 6N − 12 redundancy
         red = [3.0 * n - 6.0, 3.0 * n - 6.0]

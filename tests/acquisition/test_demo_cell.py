@@ -47,22 +47,27 @@ def test_demo_runs_the_whole_cell_and_its_estimates_agree_with_the_truth(aravis,
     obs = json.loads((out / "observations.json").read_text())
     tips = {s["id"] for s in obs["stations"] for d in s["detections"] if d.get("tool") == "torch"}
     assert len(tool_ids) >= 5 and tips == tool_ids, (sorted(tool_ids), sorted(tips))
-    # TCP: the tip in the flange frame, against the simulator's true T_flange_torch. It is measured
-    # through cam_fixed, so it carries that camera's pose error (the board at ~0.8 m fixes it to
-    # ~0.1-0.8 mm at this small image size) plus the tip detection and 7 stations' robot pose noise:
-    # the reported σ is 0.15-0.25 mm per axis here. The error must be within 4σ (the σ is honest:
-    # each residual kind has its own noise factor) and 1 mm (a wrong tool frame, flipped axis or
-    # mismatched station would be off by centimetres), with σ below 0.5 mm.
+    # TCP: the tip in the tool frame (z along the shaft), against the simulator's true T_flange_torch. It
+    # is measured through cam_fixed, so it carries that camera's pose error (at 480x360 and 10 stations
+    # cam_fixed sees the 9x6 board once, at ~0.8 m: ~0.5-1 mm along its viewing ray) plus the tip
+    # detection and the tool stations' robot pose noise: the reported σ is 0.6-1.3 mm per axis here
+    # (measured; the full-size demo reports ~0.1-0.3 mm). The error must be within 4σ (the σ is honest:
+    # each residual kind has its own noise factor) and 2 mm (a wrong tool frame, flipped axis or
+    # mismatched station would be off by centimetres), with σ below 2 mm.
     for ax in "xyz":
         t, e, s = rows[f"T_flange_torch t{ax} (mm, frame b)"]
-        assert abs(e - t) < min(1.0, 4.0 * s) and 0.0 < s < 0.5, (ax, e - t, s)
-    # absolute accuracy of the whole chain (render -> GigE -> detect -> joint solve) against the truth:
-    # sub-millimetre / sub-0.1 degree poses and the focal length within 1 %.
+        assert abs(e - t) < min(2.0, 4.0 * s) and 0.0 < s < 2.0, (ax, e - t, s)
+    # the whole chain (render -> GigE -> detect -> joint solve) against the truth: every unknown within
+    # 4.5σ of it (about 40 rows: a chance failure ~3e-4) and within gross bounds that a wrong frame, a
+    # flipped axis or a mismatched station would break (10 mm, 1 degree, 2 % of the focal length). At
+    # 480x360 and 10 stations the σ are large (the hand camera's tz ~5 mm, its tilt ~0.3 deg; measured):
+    # this is a test of the pipeline and of honest σ, the accuracy study is bench_demo_consistency.py.
     for name, (t, e, s) in rows.items():
         assert np.isfinite(e) and np.isfinite(s), name
+        assert abs(e - t) <= 4.5 * s + 1e-9, (name, e - t, s)
         if "(mm" in name:
-            assert abs(e - t) < 2.0, (name, e - t)
+            assert abs(e - t) < 10.0, (name, e - t)
         elif "(deg)" in name:
-            assert abs(e - t) < 0.1, (name, e - t)
+            assert abs(e - t) < 1.0, (name, e - t)
         elif name.endswith((" fx", " fy")):
-            assert abs(e - t) < 0.01 * t, (name, e, t)
+            assert abs(e - t) < 0.02 * t, (name, e, t)

@@ -35,7 +35,7 @@ def test_formats_and_bad_requests(tmp_path):
     ):
         export_result(GOLDEN / "result.json", "urdf", tmp_path / "x")
     with pytest.raises(
-        BadInputError, match="takes the options tools, bases; got unknown option.*wobjs"
+        BadInputError, match="takes the options tools, bases, orientations; got unknown option.*wobjs"
     ):
         export_result(GOLDEN / "result.json", "krl", tmp_path / "x", wobjs=["board"])
     with pytest.raises(BadInputError, match="does not exist"):

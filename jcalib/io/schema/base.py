@@ -153,14 +153,14 @@ Num = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 _NUMERIC_TEXT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
-def _yaml_number(value: Any) -> Any:
+def yaml_number(value: Any) -> Any:
     if isinstance(value, str) and _NUMERIC_TEXT.fullmatch(value.strip()):
         return float(value)
     return value
 
 
 #: A finite number in a YAML file: also a number written as text (``1e-4`` is a string in YAML 1.1).
-YNum = Annotated[float, BeforeValidator(_yaml_number), Field(strict=True, allow_inf_nan=False)]
+YNum = Annotated[float, BeforeValidator(yaml_number), Field(strict=True, allow_inf_nan=False)]
 #: An integer (not bool, not float).
 Int = Annotated[int, Field(strict=True)]
 

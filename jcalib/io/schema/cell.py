@@ -89,10 +89,10 @@ def _genicam_name(value: Any) -> Any:
 
 
 def _positive_or_vec3(value: Any) -> Any:
-    from jcalib.io.schema.base import _yaml_number  # same text-number rule as YNum
+    from jcalib.io.schema.base import yaml_number  # same text-number rule as YNum
 
     vals = value if isinstance(value, list) else [value]
-    vals = [_yaml_number(v) for v in vals]
+    vals = [yaml_number(v) for v in vals]
     ok = (len(vals) in (1, 3) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
           and all(np.isfinite(v) and v > 0 for v in vals))
     if not ok:

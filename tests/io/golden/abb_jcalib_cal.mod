@@ -5,10 +5,12 @@ MODULE jcalib_cal
     ! Positions in mm, orientations as quaternions [q1, q2, q3, q4] = [w, x, y, z].
 
     ! tool_gripper: T_flange_gripper, the TCP in the tool0 (flange) frame.
+    ! orientation: calibrated.
     ! Load: default 1 kg at the TCP (not calibrated); identify the real load before use.
     PERS tooldata tool_gripper := [TRUE, [[105.000, -2.100, 133.300], [0.707107, 0.000000, 0.707107, 0.000000]], [1.000, [105.000, -2.100, 133.300], [1, 0, 0, 0], 0.000, 0.000, 0.000]];
 
     ! tool_needle: T_flange_needle, the TCP in the tool0 (flange) frame.
+    ! orientation: calibrated.
     ! 1-sigma TCP position std x/y/z (tool0 frame): 0.070/0.067/0.070 mm.
     ! Load: default 1 kg at the TCP (not calibrated); identify the real load before use.
     PERS tooldata tool_needle := [TRUE, [[12.300, -4.500, 201.500], [0.957887, 0.072123, -0.252195, 0.116830]], [1.000, [12.300, -4.500, 201.500], [1, 0, 0, 0], 0.000, 0.000, 0.000]];
