@@ -137,7 +137,7 @@ def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = Solv
     Args:
         problem: the problem graph; start values from its variables unless ``x0`` overrides them.
         x0: optional ``{name: (num, param_dim)}`` start values.
-        options: :class:`SolveOptions` (static: a change recompiles).
+        options: :class:`SolveOptions` (its tolerances and ``max_iterations`` do not recompile).
         pad: round variable and observation counts up to buckets (:func:`pad_problem`) so that a new
             data set of similar size reuses the compiled solve.
         raise_on_unobservable: raise instead of returning ``Status.NOT_OBSERVABLE``.
@@ -156,7 +156,7 @@ def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = Solv
     padded = pad_problem(problem) if pad else problem
     out = traced.run(_core, padded, options, bool(traces), _outcome_treedef(padded))
     if out is None:
-        out = jax.device_get(_core_jit(padded, options, bool(traces)))
+        out = jax.device_get(_core_jit(padded, options.traced(), bool(traces)))
     sol = Solution(problem, padded, out, options)
     if raise_on_unobservable:
         raise_if_unobservable(sol)
@@ -195,7 +195,7 @@ def solve_many(problems: Sequence[Problem], options: SolveOptions = SolveOptions
     for start in range(0, len(padded), width):
         chunk = padded[start:start + width]
         filled = chunk + [chunk[-1]] * (width - len(chunk))
-        batch = jax.device_get(_core_vmap_jit(stack_problems(filled), options, bool(traces)))
+        batch = jax.device_get(_core_vmap_jit(stack_problems(filled), options.traced(), bool(traces)))
         for i, pp in enumerate(chunk):
             member = jax.tree.map(lambda a, i=i: a[i], batch)
             out.append(Solution(problems[start + i], pp, member, options))

@@ -44,7 +44,11 @@ class Status(enum.IntEnum):
 
 
 class SolveOptions(eqx.Module):
-    """Solver settings (all static: a change recompiles).
+    """Solver settings.
+
+    The tolerances, the damping settings and ``max_iterations`` are arguments of the compiled solve
+    (:meth:`traced` turns them into arrays at the ``jit`` boundary): changing them re-uses the compiled
+    function. The PCG settings and ``check_observability`` change the program and are static.
 
     Attributes:
         max_iterations: LM iterations (accepted or not).
@@ -61,17 +65,26 @@ class SolveOptions(eqx.Module):
             block's largest flags an unobservable direction.
     """
 
-    max_iterations: int = eqx.field(static=True, default=100)
-    ftol: float = eqx.field(static=True, default=1e-14)
-    xtol: float = eqx.field(static=True, default=1e-10)
-    gtol: float = eqx.field(static=True, default=1e-10)
-    mu0: float = eqx.field(static=True, default=1e-4)
-    mu_max: float = eqx.field(static=True, default=1e32)
+    max_iterations: int = 100
+    ftol: float = 1e-14
+    xtol: float = 1e-10
+    gtol: float = 1e-10
+    mu0: float = 1e-4
+    mu_max: float = 1e32
     cg_threshold: int = eqx.field(static=True, default=2000)
     cg_max_iterations: int = eqx.field(static=True, default=500)
     cg_tol: float = eqx.field(static=True, default=1e-12)
     check_observability: bool = eqx.field(static=True, default=True)
-    rank_rtol: float = eqx.field(static=True, default=1e-10)
+    rank_rtol: float = 1e-10
+
+    def traced(self) -> SolveOptions:
+        """These options with the numeric settings as arrays: passed to a ``jit``-ed solve they are
+        arguments, not constants, so another ``max_iterations`` or tolerance does not recompile."""
+        return eqx.tree_at(
+            lambda o: (o.max_iterations, o.ftol, o.xtol, o.gtol, o.mu0, o.mu_max, o.rank_rtol), self,
+            (jnp.asarray(self.max_iterations, jnp.int32), *(jnp.asarray(x, jnp.float64) for x in (
+                self.ftol, self.xtol, self.gtol, self.mu0, self.mu_max, self.rank_rtol))),
+        )
 
 
 class Observability(eqx.Module):
