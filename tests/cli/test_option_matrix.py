@@ -339,11 +339,19 @@ KNOWN_GAPS = {
     ("camera_only", "reseed_views"): "re-seeding acts only on a view that started in the flipped planar-PnP minimum "
                                      "and whose re-started solve lowers the cost; the views here (and every synthetic "
                                      "set tried) start right, and the result does not record the views it checked",
-    ("stereo_rig", "reseed_views"): "as for camera_only",
 }
 
 
-@pytest.mark.parametrize("kind", list(KINDS))
+#: the two largest cells, whose walk compiles a whole-cell solve per structural option (1.5-2 min
+#: each on 2 cores with an empty compilation cache), and eye-to-hand (the eye-in-hand walk with the
+#: camera on the base: the same options and residual kinds): run with ``pytest -m slow
+#: tests/cli/test_option_matrix.py``. The default run walks the other six, which hold every residual
+#: kind between them (corners, tips and axes, contacts, pose measurements, robot poses).
+SLOW_KINDS = ("two_robots", "whole_cell", "eye_to_hand")
+
+
+@pytest.mark.parametrize(
+    "kind", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW_KINDS else k for k in KINDS])
 def test_each_option_has_an_effect_or_is_refused_by_name(kind, tmp_path):
     silent, wrong = [], []
     options = [o for o in OPTIONS if (kind, o) not in KNOWN_GAPS]

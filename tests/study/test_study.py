@@ -226,9 +226,19 @@ def test_tcp_reported_sigma_covers_the_errors():
 
 def test_opencv_estimator_equals_cv2_on_the_same_corners():
     """The ``opencv`` camera estimator is cv2.calibrateCameraExtended on the trial's corners (run here
-    independently: the same numbers to 1e-9 relative; OpenCV's threaded reductions are not bitwise
-    reproducible from call to call)."""
+    independently: the same numbers to 1e-9 relative). OpenCV runs on one thread in both: its threaded
+    reductions are not reproducible from call to call, and 6 views leave k3 weak enough that the
+    difference reached 2e-6 relative."""
     sc = load_scenario({"cell": "camera", "stations": {"strategy": "random", "count": 6}, "estimators": ["opencv"]})
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        _opencv_estimator_equals_cv2(sc)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _opencv_estimator_equals_cv2(sc):
     (row,) = _rows(run_study(sc, 1, seed=8, progress=False))
     d = simulate_trial(sc, 8, 0)
     P = d.observations.targets["board"]
