@@ -5,7 +5,8 @@ JAX's persistent compilation cache (:mod:`jcalib.solve.cache`) saves the XLA com
 process still traces the Python solve (seconds for a whole cell: the LM loop, every residual's
 linearisation) to find the cache entry. Here the traced program itself is kept: the first solve of a
 structure exports it (:mod:`jax.export`, StableHLO) next to the compilation cache, keyed by everything
-that determines the program — jcalib's source, JAX's version and backend, the solver options, and the
+that determines the program — jcalib's source, JAX's version and backend, the solver's static options
+(its tolerances and iteration limit are inputs of the program), and the
 problem's static structure (variable kinds, residual functions by their recipe, losses, chunking) and
 array shapes. A later process deserialises it (milliseconds) and its XLA compile hits the persistent
 cache.
@@ -132,11 +133,17 @@ _LOADED: dict[str, tuple] = {}
 
 
 def _export(core, static, in_tree, in_layout, options, traces, path: Path):
+    """Trace ``core`` once into a serialised program whose inputs are the problem's arrays and then the
+    options' numeric settings (``options = (static part, treedef, count)``)."""
     out_layout = []
+    o_static, o_tree, o_count = options
 
     def flat(f, i):
         xs = unpack((f, i), in_layout, jax.numpy)
-        outs = jax.tree.leaves(core(eqx.combine(jax.tree.unflatten(in_tree, xs), static), options, traces))
+        split = len(xs) - o_count
+        problem = eqx.combine(jax.tree.unflatten(in_tree, xs[:split]), static)
+        opts = eqx.combine(jax.tree.unflatten(o_tree, xs[split:]), o_static)
+        outs = jax.tree.leaves(core(problem, opts, traces))
         out_layout[:] = [(tuple(o.shape), str(o.dtype)) for o in outs]
         return pack(outs, jax.numpy)
 
@@ -173,7 +180,10 @@ def run(core, problem: Problem, options, traces: bool, out_treedef):
         return None
     dyn, static = eqx.partition(problem, eqx.is_array)
     leaves, in_tree = jax.tree.flatten(dyn)
-    key = structure_key(problem, options, traces, leaves, in_tree)
+    # the options' tolerances and iteration limit are inputs of the program, not part of its key
+    o_dyn, o_static = eqx.partition(options.traced(), eqx.is_array)
+    o_leaves, o_tree = jax.tree.flatten(o_dyn)
+    key = structure_key(problem, o_static, traces, leaves, in_tree)
     if key is None:
         return None
     entry = _LOADED.get(key)
@@ -181,11 +191,11 @@ def run(core, problem: Problem, options, traces: bool, out_treedef):
         path = folder / f"{key}.jax"
         loaded = _load(path) if path.is_file() else None
         if loaded is None:
-            in_layout = [(tuple(np.shape(x)), str(np.asarray(x).dtype)) for x in leaves]
-            loaded = _export(core, static, in_tree, in_layout, options, traces, path)
+            in_layout = [(tuple(np.shape(x)), str(np.asarray(x).dtype)) for x in [*leaves, *o_leaves]]
+            loaded = _export(core, static, in_tree, in_layout, (o_static, o_tree, len(o_leaves)), traces, path)
         exported, out_layout = loaded
         entry = (jax.jit(exported.call), out_layout)
         _LOADED[key] = entry
     fn, out_layout = entry
-    bufs = jax.device_get(fn(*pack([np.asarray(x) for x in leaves])))
+    bufs = jax.device_get(fn(*pack([np.asarray(x) for x in [*leaves, *o_leaves]])))
     return jax.tree.unflatten(out_treedef, unpack(bufs, out_layout))

@@ -98,3 +98,16 @@ def test_batch_compiles_once_for_members_of_different_sizes(traces):
     assert [len(r.station_ids) for r in results] == [10, 12, 14]
     assert len(results[1].outliers) == 2
     assert len(traces) == 1
+
+
+def test_solver_settings_do_not_retrace(traces):
+    """The iteration limit is an input of the compiled solve, not a constant of it: a calibration
+    stopped after 2 iterations and one run to convergence share one compilation (also through the
+    cross-process cache of traced solves, which the tests' JCALIB_CACHE_DIR turns on)."""
+    cell = load_cell(CELL)
+    obs = camera_obs(12, 6)
+    full = calibrate_cell(cell, obs, CalibrationOptions(outlier_threshold=None))
+    short = calibrate_cell(cell, obs, CalibrationOptions(outlier_threshold=None, max_iterations=2))
+    assert full.status == "converged" and full.iterations > 2
+    assert short.status == "max_iterations" and short.iterations == 2
+    assert len(traces) == 1
