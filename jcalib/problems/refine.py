@@ -46,6 +46,8 @@ MIN_REDUNDANCY = 5.0
 #: drive ``χ²_k / r_k`` to ~0 and that kind's weight to infinity, which buries every stated prior
 #: (the robot's pose noise) below the rank test's resolution and reports them as not observable.
 MIN_VARIANCE_FACTOR = 1e-6
+#: relative cost decrease a re-seeded solve must bring to replace the first one
+RESEED_MIN_DECREASE = 1e-6
 #: Views whose RMS exceeds this many times the median are re-seeded.
 RESEED_FACTOR = 3.0
 
@@ -209,7 +211,9 @@ class _Rounds:
             if s is None:
                 x.error = None  # the re-seeded start failed: keep the first solve
                 continue
-            if s.cost < x.sol.cost:
+            # a re-seeded start that lands in the same minimum differs from it by rounding only: it is
+            # neither taken nor reported (the flipped-view minimum it guards against costs far more)
+            if s.cost < x.sol.cost * (1.0 - RESEED_MIN_DECREASE):
                 x.sol, x.reseeded = s, [x.g.station_ids[k] for k in sorted(set(suspects[i]))]
 
     def reject(self) -> None:

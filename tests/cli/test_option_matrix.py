@@ -339,6 +339,8 @@ KNOWN_GAPS = {
     ("camera_only", "reseed_views"): "re-seeding acts only on a view that started in the flipped planar-PnP minimum "
                                      "and whose re-started solve lowers the cost; the views here (and every synthetic "
                                      "set tried) start right, and the result does not record the views it checked",
+    ("stereo_rig", "reseed_views"): "as for camera_only (a re-started solve that lands in the same minimum, lower "
+                                    "by rounding only, is not taken: RESEED_MIN_DECREASE)",
 }
 
 
