@@ -107,7 +107,8 @@ def test_solver_settings_do_not_retrace(traces):
     cell = load_cell(CELL)
     obs = camera_obs(12, 6)
     full = calibrate_cell(cell, obs, CalibrationOptions(outlier_threshold=None))
+    first = len(traces)  # 1, or 0 when another test worker exported this structure already
     short = calibrate_cell(cell, obs, CalibrationOptions(outlier_threshold=None, max_iterations=2))
     assert full.status == "converged" and full.iterations > 2
     assert short.status == "max_iterations" and short.iterations == 2
-    assert len(traces) == 1
+    assert first <= 1 and len(traces) == first
