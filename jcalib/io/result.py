@@ -31,7 +31,6 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -42,6 +41,21 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
+from jcalib.io.result_fields import (
+    FieldError,
+    check_entry_keys,
+    extra_keys,
+    field_array,
+    field_count,
+    field_covariance,
+    field_fail,
+    field_float,
+    field_json,
+    field_name,
+    field_transform,
+    float_list,
+    short_repr,
+)
 
 __all__ = [
     "CAMERA_MODEL_DIST_NAMES",
@@ -74,178 +88,6 @@ CAMERA_MODEL_DIST_NAMES: dict[str, tuple[str, ...]] = {
     "opencv14": _OPENCV_DIST[:14],
     "fisheye": ("k1", "k2", "k3", "k4"),
 }
-
-#: A rotation block is accepted when ``max |R^T R - I| <= _ORTHONORMAL_TOL`` (a float64 solver
-#: output is orthonormal to ~1e-15; a matrix printed to 7 decimals still passes).
-_ORTHONORMAL_TOL = 1e-6
-#: Covariances must be symmetric to this relative tolerance (of their largest diagonal entry) and
-#: have no eigenvalue below ``-_COV_TOL * largest eigenvalue`` (rounding of a float64 inverse).
-_COV_TOL = 1e-8
-
-
-# ----------------------------------------------------------------------------------------------
-# Validation helpers: every error names the key, the value received and what was expected.
-# ----------------------------------------------------------------------------------------------
-
-
-class _FieldError(BadInputError):
-    """A validation error at key path ``key`` ("" = the value itself); prefixes compose."""
-
-    def __init__(self, key: str, msg: str):
-        super().__init__(f"{key}: {msg}" if key else msg)
-        self.key, self.msg = key, msg
-
-    def under(self, prefix: str) -> _FieldError:
-        return _FieldError(f"{prefix}.{self.key}" if self.key else prefix, self.msg)
-
-
-def _fail(where: str, msg: str) -> _FieldError:
-    return _FieldError(where, msg)
-
-
-def _short(value: Any, limit: int = 120) -> str:
-    text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _array(
-    value: Any, shape: tuple[int, ...] | None, where: str, ndim: int | None = None
-) -> np.ndarray:
-    """A read-only float64 copy of ``value`` with the given shape, all finite."""
-    if isinstance(value, (str, bytes, Mapping)) or isinstance(value, bool):
-        raise _fail(
-            where, f"expected a numeric array of shape {shape or ('n',)}, got {_short(value)}"
-        )
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise _fail(
-            where, f"expected a numeric array of shape {shape or ('n',)}, got {_short(value)}"
-        ) from None
-    if arr.dtype == object:  # pragma: no cover - np.array(dtype=float64) never gives object
-        raise _fail(where, f"expected numbers, got {_short(value)}")
-    if shape is not None and arr.shape != shape:
-        raise _fail(where, f"expected shape {shape}, got shape {arr.shape}: {_short(value)}")
-    if ndim is not None and arr.ndim != ndim:
-        raise _fail(where, f"expected a {ndim}-d array, got shape {arr.shape}: {_short(value)}")
-    if not np.all(np.isfinite(arr)):
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise _fail(where, f"expected finite numbers, got {arr[bad]} at index {list(bad)}")
-    arr.setflags(write=False)
-    return arr
-
-
-def _finite_float(value: Any, where: str, minimum: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise _fail(where, f"expected a number, got {_short(value)}")
-    x = float(value)
-    if not math.isfinite(x):
-        raise _fail(where, f"expected a finite number, got {x} (NaN or infinity)")
-    if minimum is not None and x < minimum:
-        raise _fail(where, f"expected a number >= {minimum:g}, got {x}")
-    return x
-
-
-def _count(value: Any, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        if isinstance(value, (float, np.floating)) and float(value).is_integer() and value >= 0:
-            return int(value)
-        raise _fail(where, f"expected a non-negative integer, got {_short(value)}")
-    if value < 0:
-        raise _fail(where, f"expected a non-negative integer, got {value}")
-    return int(value)
-
-
-def _name(value: Any, where: str) -> str:
-    from jcalib.io.schema.base import check_name
-
-    if not isinstance(value, str) or not value or value != value.strip():
-        raise _fail(
-            where, f"expected a non-empty name without surrounding spaces, got {_short(value)}"
-        )
-    try:
-        return check_name(value)
-    except ValueError as err:
-        raise _fail(where, str(err)) from None
-
-
-def _json_value(value: Any, where: str) -> Any:
-    """A deep copy of a JSON value (dict with str keys, list, str, finite number, bool, None)."""
-    if value is None or isinstance(value, (bool, str)):
-        return value
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return _finite_float(value, where)
-    if isinstance(value, np.ndarray):
-        return _json_value(value.tolist(), where)
-    if isinstance(value, Mapping):
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise _fail(where, f"expected string keys, got {_short(k)}")
-            out[k] = _json_value(v, f"{where}.{k}")
-        return out
-    if isinstance(value, (list, tuple)):
-        return [_json_value(v, f"{where}[{i}]") for i, v in enumerate(value)]
-    raise _fail(
-        where, f"expected a JSON value (number, string, bool, list, mapping), got {_short(value)}"
-    )
-
-
-def _covariance(value: Any, n: int, where: str) -> np.ndarray:
-    cov = _array(value, (n, n), where)
-    scale = float(np.max(np.abs(np.diag(cov)))) if n else 0.0
-    asym = float(np.max(np.abs(cov - cov.T))) if n else 0.0
-    if asym > _COV_TOL * scale:
-        raise _fail(where, f"expected a symmetric matrix, got max |C - C^T| = {asym:.3g}")
-    if n and np.min(np.diag(cov)) < 0.0:
-        raise _fail(
-            where, f"expected non-negative variances on the diagonal, got {np.diag(cov).tolist()}"
-        )
-    if n:
-        eig = np.linalg.eigvalsh(0.5 * (cov + cov.T))
-        if eig[0] < -_COV_TOL * max(float(eig[-1]), 0.0) or (eig[-1] <= 0.0 and eig[0] < 0.0):
-            raise _fail(
-                where,
-                f"expected a positive semi-definite matrix, got smallest eigenvalue {eig[0]:.3g} "
-                f"(largest {eig[-1]:.3g})",
-            )
-    return cov
-
-
-def _transform_matrix(value: Any, where: str) -> np.ndarray:
-    T = _array(value, (4, 4), where)
-    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
-        raise _fail(where, f"expected the last row [0, 0, 0, 1], got {T[3].tolist()}")
-    R = T[:3, :3]
-    with np.errstate(over="ignore", invalid="ignore"):  # huge finite entries: err = inf, refused below
-        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-        det = float(np.linalg.det(R))
-    if not err <= _ORTHONORMAL_TOL or not det > 0.0:
-        raise _fail(
-            where,
-            f"expected a proper rotation in the 3x3 block (orthonormal, det +1), got "
-            f"max|R^T R - I| = {err:.3g} (tolerance {_ORTHONORMAL_TOL:g}) and det = {det:.6g}",
-        )
-    return T
-
-
-def _check_keys(entry: Any, required: tuple[str, ...]) -> None:
-    if not isinstance(entry, Mapping):
-        raise _fail("", f"expected a mapping, got {_short(entry)}")
-    for key in required:
-        if key not in entry:
-            raise _fail(key, f"missing (the entry has: {', '.join(map(str, entry)) or 'no keys'})")
-
-
-def _extra(entry: Mapping, known: tuple[str, ...]) -> dict[str, Any]:
-    return {k: _json_value(v, k) for k, v in entry.items() if k not in known}
-
-
-def _float_list(arr: np.ndarray) -> Any:
-    return np.asarray(arr, dtype=np.float64).tolist()
-
 
 # ----------------------------------------------------------------------------------------------
 # Entries
@@ -281,7 +123,7 @@ class CameraResult:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         if not isinstance(self.model, str) or self.model not in CAMERA_MODEL_DIST_NAMES:
-            raise _fail(
+            raise field_fail(
                 "model",
                 f"unknown camera model {self.model!r}; expected one of "
                 f"{', '.join(CAMERA_MODEL_DIST_NAMES)}",
@@ -294,12 +136,12 @@ class CameraResult:
                 isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s <= 0 for s in size
             )
         ):
-            raise _fail(
+            raise field_fail(
                 "image_size",
-                f"expected [width, height] as two positive integers, got {_short(size)}",
+                f"expected [width, height] as two positive integers, got {short_repr(size)}",
             )
         set_(self, "image_size", (int(size[0]), int(size[1])))
-        K = _array(self.K, (3, 3), "K")
+        K = field_array(self.K, (3, 3), "K")
         if (
             K[1, 0] != 0.0
             or K[2, 0] != 0.0
@@ -308,41 +150,41 @@ class CameraResult:
             or K[0, 0] <= 0
             or K[1, 1] <= 0
         ):
-            raise _fail(
+            raise field_fail(
                 "K",
                 f"expected [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}",
             )
         set_(self, "K", K)
         n_dist = len(CAMERA_MODEL_DIST_NAMES[self.model])
-        set_(self, "dist", _array(self.dist, (n_dist,), f"dist (model {self.model!r})"))
+        set_(self, "dist", field_array(self.dist, (n_dist,), f"dist (model {self.model!r})"))
         if self.skew is None:
             set_(self, "skew", bool(K[0, 1] != 0.0))
         elif not isinstance(self.skew, bool):
-            raise _fail("skew", f"expected true or false, got {_short(self.skew)}")
+            raise field_fail("skew", f"expected true or false, got {short_repr(self.skew)}")
         elif not self.skew and K[0, 1] != 0.0:
-            raise _fail("skew", f"is false but K[0][1] = {K[0, 1]} (the skew) is not 0")
+            raise field_fail("skew", f"is false but K[0][1] = {K[0, 1]} (the skew) is not 0")
         names = self.param_names
         if not isinstance(self.std, Mapping):
-            raise _fail(
+            raise field_fail(
                 "std",
-                f"expected a mapping of intrinsic name -> standard deviation, got {_short(self.std)}",
+                f"expected a mapping of intrinsic name -> standard deviation, got {short_repr(self.std)}",
             )
         std = {}
         for key, value in self.std.items():
             if key not in names:
-                raise _fail(
+                raise field_fail(
                     "std",
                     f"unknown intrinsic {key!r} for model {self.model!r}; expected names from {list(names)}",
                 )
-            std[key] = _finite_float(value, f"std.{key}", minimum=0.0)
+            std[key] = field_float(value, f"std.{key}", minimum=0.0)
         set_(self, "std", std)
         if self.covariance is not None:
             set_(
                 self,
                 "covariance",
-                _covariance(self.covariance, len(names), f"covariance (order {list(names)})"),
+                field_covariance(self.covariance, len(names), f"covariance (order {list(names)})"),
             )
-        set_(self, "extra", _json_value(dict(self.extra), "extra"))
+        set_(self, "extra", field_json(dict(self.extra), "extra"))
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -374,7 +216,7 @@ class CameraResult:
             cov = np.asarray(covariance, dtype=np.float64)
             names = tuple(model.param_names)
             if cov.shape != (len(names), len(names)):
-                raise _fail(
+                raise field_fail(
                     "covariance", f"expected shape {(len(names), len(names))}, got {cov.shape}"
                 )
             entry_std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
@@ -392,21 +234,21 @@ class CameraResult:
         out: dict[str, Any] = {
             "model": self.model,
             "image_size": list(self.image_size),
-            "K": _float_list(self.K),
-            "dist": _float_list(self.dist),
+            "K": float_list(self.K),
+            "dist": float_list(self.dist),
         }
         if self.skew:
             out["skew"] = True
         if self.std:
             out["std"] = {k: self.std[k] for k in self.param_names if k in self.std}
         if self.covariance is not None:
-            out["covariance"] = _float_list(self.covariance)
+            out["covariance"] = float_list(self.covariance)
         out.update(self.extra)
         return out
 
     @classmethod
     def from_dict(cls, data: Any) -> CameraResult:
-        _check_keys(data, ("model", "image_size", "K", "dist"))
+        check_entry_keys(data, ("model", "image_size", "K", "dist"))
         known = ("model", "image_size", "K", "dist", "std", "covariance", "skew")
         return cls(
             model=data["model"],
@@ -416,7 +258,7 @@ class CameraResult:
             std=data.get("std", {}),
             covariance=data.get("covariance"),
             skew=data.get("skew"),
-            extra=_extra(data, known),
+            extra=extra_keys(data, known),
         )
 
 
@@ -436,14 +278,14 @@ class TransformResult:
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "matrix", _transform_matrix(self.matrix, "matrix"))
+        object.__setattr__(self, "matrix", field_transform(self.matrix, "matrix"))
         if self.covariance is not None:
             object.__setattr__(
                 self,
                 "covariance",
-                _covariance(self.covariance, 6, "covariance (rx, ry, rz, tx, ty, tz)"),
+                field_covariance(self.covariance, 6, "covariance (rx, ry, rz, tx, ty, tz)"),
             )
-        object.__setattr__(self, "extra", _json_value(dict(self.extra), "extra"))
+        object.__setattr__(self, "extra", field_json(dict(self.extra), "extra"))
 
     @property
     def std(self) -> np.ndarray | None:
@@ -451,19 +293,19 @@ class TransformResult:
         return None if self.covariance is None else np.sqrt(np.diag(self.covariance))
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"matrix": _float_list(self.matrix)}
+        out: dict[str, Any] = {"matrix": float_list(self.matrix)}
         if self.covariance is not None:
-            out["covariance"] = _float_list(self.covariance)
+            out["covariance"] = float_list(self.covariance)
         out.update(self.extra)
         return out
 
     @classmethod
     def from_dict(cls, data: Any) -> TransformResult:
-        _check_keys(data, ("matrix",))
+        check_entry_keys(data, ("matrix",))
         return cls(
             matrix=data["matrix"],
             covariance=data.get("covariance"),
-            extra=_extra(data, ("matrix", "covariance")),
+            extra=extra_keys(data, ("matrix", "covariance")),
         )
 
 
@@ -484,27 +326,27 @@ class PointResult:
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _array(self.position, (3,), "position"))
-        _name(self.frame, "frame")
+        object.__setattr__(self, "position", field_array(self.position, (3,), "position"))
+        field_name(self.frame, "frame")
         if self.covariance is not None:
-            object.__setattr__(self, "covariance", _covariance(self.covariance, 3, "covariance"))
-        object.__setattr__(self, "extra", _json_value(dict(self.extra), "extra"))
+            object.__setattr__(self, "covariance", field_covariance(self.covariance, 3, "covariance"))
+        object.__setattr__(self, "extra", field_json(dict(self.extra), "extra"))
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"position": _float_list(self.position), "frame": self.frame}
+        out: dict[str, Any] = {"position": float_list(self.position), "frame": self.frame}
         if self.covariance is not None:
-            out["covariance"] = _float_list(self.covariance)
+            out["covariance"] = float_list(self.covariance)
         out.update(self.extra)
         return out
 
     @classmethod
     def from_dict(cls, data: Any) -> PointResult:
-        _check_keys(data, ("position", "frame"))
+        check_entry_keys(data, ("position", "frame"))
         return cls(
             position=data["position"],
             frame=data["frame"],
             covariance=data.get("covariance"),
-            extra=_extra(data, ("position", "frame", "covariance")),
+            extra=extra_keys(data, ("position", "frame", "covariance")),
         )
 
 
@@ -530,19 +372,19 @@ class Provenance:
         for key in ("input_hash", "jcalib_version", "created"):
             value = getattr(self, key)
             if value is not None and (not isinstance(value, str) or not value):
-                raise _fail(key, f"expected a non-empty string or null, got {_short(value)}")
+                raise field_fail(key, f"expected a non-empty string or null, got {short_repr(value)}")
         if self.created is not None:
             try:
                 _dt.datetime.fromisoformat(self.created)
             except ValueError:
-                raise _fail(
+                raise field_fail(
                     "created",
                     f"expected an ISO 8601 time like '2026-11-21T10:00:00Z', got {self.created!r}",
                 ) from None
         if not isinstance(self.options, Mapping):
-            raise _fail("options", f"expected a mapping, got {_short(self.options)}")
-        object.__setattr__(self, "options", _json_value(dict(self.options), "options"))
-        object.__setattr__(self, "extra", _json_value(dict(self.extra), "extra"))
+            raise field_fail("options", f"expected a mapping, got {short_repr(self.options)}")
+        object.__setattr__(self, "options", field_json(dict(self.options), "options"))
+        object.__setattr__(self, "extra", field_json(dict(self.extra), "extra"))
 
     @classmethod
     def now(
@@ -576,14 +418,14 @@ class Provenance:
 
     @classmethod
     def from_dict(cls, data: Any) -> Provenance:
-        _check_keys(data, ())
+        check_entry_keys(data, ())
         known = ("input_hash", "jcalib_version", "options", "created")
         return cls(
             input_hash=data.get("input_hash"),
             jcalib_version=data.get("jcalib_version"),
             options=data.get("options", {}),
             created=data.get("created"),
-            extra=_extra(data, known),
+            extra=extra_keys(data, known),
         )
 
 
@@ -611,9 +453,9 @@ def hash_inputs(*inputs: str | os.PathLike | bytes) -> str:
 # ----------------------------------------------------------------------------------------------
 
 _STAT_CHECKS = {
-    "rms_px": lambda v, w: _finite_float(v, w, minimum=0.0),
-    "sigma_px": lambda v, w: _finite_float(v, w, minimum=0.0),
-    "num_residuals": _count,
+    "rms_px": lambda v, w: field_float(v, w, minimum=0.0),
+    "sigma_px": lambda v, w: field_float(v, w, minimum=0.0),
+    "num_residuals": field_count,
 }
 
 _TOP_KEYS = ("schema", "cameras", "transforms", "points", "stats", "provenance")
@@ -621,12 +463,12 @@ _TOP_KEYS = ("schema", "cameras", "transforms", "points", "stats", "provenance")
 
 def _entries(value: Any, cls: type, where: str) -> dict[str, Any]:
     if not isinstance(value, Mapping):
-        raise _fail(where, f"expected a mapping of name -> {cls.__name__}, got {_short(value)}")
+        raise field_fail(where, f"expected a mapping of name -> {cls.__name__}, got {short_repr(value)}")
     out = {}
     for key, entry in value.items():
-        _name(key, f"{where} (a key)")
+        field_name(key, f"{where} (a key)")
         if not isinstance(entry, cls):
-            raise _fail(f"{where}.{key}", f"expected a {cls.__name__}, got {type(entry).__name__}")
+            raise field_fail(f"{where}.{key}", f"expected a {cls.__name__}, got {type(entry).__name__}")
         out[key] = entry
     return out
 
@@ -659,22 +501,22 @@ class ResultFile:
         set_(self, "transforms", _entries(self.transforms, TransformResult, "transforms"))
         set_(self, "points", _entries(self.points, PointResult, "points"))
         if not isinstance(self.stats, Mapping):
-            raise _fail("stats", f"expected a mapping, got {_short(self.stats)}")
+            raise field_fail("stats", f"expected a mapping, got {short_repr(self.stats)}")
         stats = {}
         for key, value in self.stats.items():
             check = _STAT_CHECKS.get(key)
             stats[key] = (
-                check(value, f"stats.{key}") if check else _json_value(value, f"stats.{key}")
+                check(value, f"stats.{key}") if check else field_json(value, f"stats.{key}")
             )
         set_(self, "stats", stats)
         if self.provenance is not None and not isinstance(self.provenance, Provenance):
-            raise _fail(
+            raise field_fail(
                 "provenance", f"expected a Provenance or None, got {type(self.provenance).__name__}"
             )
-        extra = _json_value(dict(self.extra), "extra")
+        extra = field_json(dict(self.extra), "extra")
         clash = sorted(set(extra) & set(_TOP_KEYS))
         if clash:
-            raise _fail("extra", f"keys {clash} are fields of the result, not extra keys")
+            raise field_fail("extra", f"keys {clash} are fields of the result, not extra keys")
         set_(self, "extra", extra)
 
     # ------------------------------------------------------------------ queries
@@ -765,29 +607,29 @@ class ResultFile:
         """
         try:
             return cls._from_dict(data)
-        except _FieldError as err:
+        except FieldError as err:
             raise BadInputError(f"{source}: {err}") from None
 
     @classmethod
     def _from_dict(cls, data: Any) -> ResultFile:
         if not isinstance(data, Mapping):
-            raise _fail(
-                "", f'a result must be a JSON object with "schema": "{SCHEMA}", got {_short(data)}'
+            raise field_fail(
+                "", f'a result must be a JSON object with "schema": "{SCHEMA}", got {short_repr(data)}'
             )
         schema = data.get("schema")
         if schema != SCHEMA:
-            raise _fail("schema", f"expected {SCHEMA!r}, got {schema!r}")
+            raise field_fail("schema", f"expected {SCHEMA!r}, got {schema!r}")
 
         def section(key: str, entry_cls: type) -> dict[str, Any]:
             value = data.get(key, {})
             if not isinstance(value, Mapping):
-                raise _fail(key, f"expected a mapping of name -> entry, got {_short(value)}")
+                raise field_fail(key, f"expected a mapping of name -> entry, got {short_repr(value)}")
             out = {}
             for name, entry in value.items():
-                _name(name, f"{key} (a key)")
+                field_name(name, f"{key} (a key)")
                 try:
                     out[name] = entry_cls.from_dict(entry)
-                except _FieldError as err:
+                except FieldError as err:
                     raise err.under(f"{key}.{name}") from None
             return out
 
@@ -798,7 +640,7 @@ class ResultFile:
         if data.get("provenance") is not None:
             try:
                 provenance = Provenance.from_dict(data["provenance"])
-            except _FieldError as err:
+            except FieldError as err:
                 raise err.under("provenance") from None
         return cls(
             cameras=cameras,

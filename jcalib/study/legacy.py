@@ -55,9 +55,10 @@ def _section(data: dict, key: str, defaults: dict) -> dict:
 
 
 def _stations(kind: str, sec: Any) -> dict:
-    sec = dict(sec or {})
+    sec = sec or {}
     if not isinstance(sec, dict):
         raise fail("scenario.stations", sec, "a mapping")
+    sec = dict(sec)
     strategy = sec.pop("strategy", _DEFAULT_STRATEGY[kind])
     if strategy not in _STRATEGIES[kind]:
         raise fail("scenario.stations.strategy", strategy, f"one of {list(_STRATEGIES[kind])} for cell {kind!r}")

@@ -52,7 +52,7 @@ def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float) -> n
     c = np.ascontiguousarray(corners, dtype=np.float32).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
     refined = cv2.cornerSubPix(smooth, c, (half, half), (-1, -1), criteria).reshape(-1, 2).astype(np.float64)
-    return _saddle_points(gray, refined, spacing_px)
+    return saddle_points(gray, refined, spacing_px)
 
 
 #: Saddle fit window: half width ``round(_SADDLE_F * spacing)`` clipped to [2, _SADDLE_MAX] px and a
@@ -74,7 +74,7 @@ def _bilinear(img: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     return top * (1.0 - fy) + bottom * fy
 
 
-def _saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, iterations: int = 12) -> np.ndarray:
+def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, iterations: int = 12) -> np.ndarray:
     """Stationary points of a quadratic fitted around each corner (see the module docstring)."""
     half = int(np.clip(np.round(_SADDLE_F * spacing_px), 2, _SADDLE_MAX))
     smooth = cv2.GaussianBlur(gray.f32, (0, 0), _SADDLE_S * half)

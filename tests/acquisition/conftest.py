@@ -24,14 +24,14 @@ def aravis_should_be_installed() -> bool:
 def aravis():
     """Skip (developer machine without root) or fail (CI / root) when Aravis 0.8 is unusable."""
     from jcalib.acquisition.cameras.aravis import INSTALL_HINT, aravis_available
-    from jcalib.acquisition.cameras.fake_gige import _load
+    from jcalib.acquisition.cameras.fake_gige import load_libraries
 
     problem = None
     if not aravis_available():
         problem = "Aravis 0.8 is not importable through PyGObject"
     else:
         try:
-            _load()
+            load_libraries()
         except Exception as e:  # DeviceError: libaravis-0.8.so.0 missing
             problem = str(e)
     if problem:

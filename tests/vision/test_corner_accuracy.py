@@ -12,7 +12,7 @@ from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.sim import RenderOptions, render_target_image, target_texture
 from jcalib.sim.scene import project_target, random_calibration_views
 from jcalib.vision import detect_target
-from jcalib.vision.chessboard import _saddle_points
+from jcalib.vision.chessboard import saddle_points
 
 BOARD = Checkerboard(cols=8, rows=6, square=0.025)
 
@@ -59,5 +59,5 @@ def test_saddle_fit_keeps_a_start_that_is_not_a_corner():
     img = np.zeros((60, 60), np.uint8)
     img[:, 30:] = 200  # one straight edge, no junction
     start = np.array([[30.2, 30.0], [10.0, 10.0]])
-    out = _saddle_points(to_gray(img), start, spacing_px=25.0)
+    out = saddle_points(to_gray(img), start, spacing_px=25.0)
     np.testing.assert_array_equal(out, start)

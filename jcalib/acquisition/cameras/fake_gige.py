@@ -56,7 +56,7 @@ PIXEL_FORMATS = {
 _lib = None
 
 
-def _load():
+def load_libraries():
     """Load libaravis / libgobject once and declare the C signatures we use."""
     global _lib
     if _lib is not None:
@@ -185,7 +185,7 @@ class FakeGigECamera:
 
     # The callback runs in Aravis' streaming thread; ctypes takes the GIL for it.
     def _fill(self, buf, _data, exposure_us, gain, pixel_format) -> None:
-        arv, _ = _load()
+        arv, _ = load_libraries()
         try:
             w, h = arv.arv_buffer_get_image_width(buf), arv.arv_buffer_get_image_height(buf)
             x, y = arv.arv_buffer_get_image_x(buf), arv.arv_buffer_get_image_y(buf)
@@ -216,7 +216,7 @@ class FakeGigECamera:
 
     def start(self) -> "FakeGigECamera":
         """Create the device and start serving."""
-        arv, _ = _load()
+        arv, _ = load_libraries()
         if self._gv is not None:
             return self
         if self.warm_up:  # compile / cache whatever the source needs before the device must answer
@@ -227,7 +227,7 @@ class FakeGigECamera:
         gv = arv.arv_gv_fake_camera_new(self.address.encode(), self.serial.encode())
         if not gv or not arv.arv_gv_fake_camera_is_running(gv):
             if gv:
-                _load()[1].g_object_unref(gv)
+                load_libraries()[1].g_object_unref(gv)
             self._release_address()
             raise DeviceError(
                 f"the fake GigE camera could not start on {self.address}: no local interface has that "
@@ -250,7 +250,7 @@ class FakeGigECamera:
 
     def _guard(self, fake: int, fds: dict[int, tuple[str, int]]) -> GvcpGuard:
         """Put :class:`GvcpGuard` in front of the fake's GVCP port (see the module docstring)."""
-        arv, _ = _load()
+        arv, _ = load_libraries()
 
         def read_memory(address: int, size: int) -> bytes:
             buf = ctypes.create_string_buffer(size)
@@ -267,7 +267,7 @@ class FakeGigECamera:
             raise BadInputError(f"loss_ratio: expected a fraction in [0, 1], got {ratio}")
         self._loss_ratio = float(ratio)
         if self._gv is not None:
-            _load()[1].g_object_set(self._gv, b"gvsp-lost-ratio", ctypes.c_double(self._loss_ratio), None)
+            load_libraries()[1].g_object_set(self._gv, b"gvsp-lost-ratio", ctypes.c_double(self._loss_ratio), None)
 
     def stop(self) -> None:
         """Stop serving and free the device (its threads are joined)."""
@@ -276,7 +276,7 @@ class FakeGigECamera:
             guard.stop()
         if self._gv is not None:
             gv, self._gv = self._gv, None
-            _load()[1].g_object_unref(gv)
+            load_libraries()[1].g_object_unref(gv)
         if guard is not None:
             guard.close_inner()
         self._release_address()
