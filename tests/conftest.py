@@ -68,3 +68,45 @@ def _release_compiled_code():
     """
     yield
     jax.clear_caches()
+
+
+#: A test still running after this many seconds is taken as hung (``$JCALIB_TEST_HANG_S``): the slowest
+#: test takes about a minute on 2 busy cores.
+HANG_S = float(os.environ.get("JCALIB_TEST_HANG_S", "600"))
+
+
+def _dump_and_stop(nodeid: str, capman) -> None:
+    """Write every thread's stack, native frames included (``py-spy``, with the notebook kernels and
+    other child processes), then end this worker: xdist reports the test as failed and goes on."""
+    import faulthandler
+    import shutil
+    import subprocess
+    import sys
+
+    if capman is not None:  # the stacks go to the terminal (with xdist: the worker's stderr), not to
+        capman.suspend_global_capture()  # a capture file that ends with the worker
+    sys.stderr.write(f"\n=== {nodeid}: still running after {HANG_S:.0f} s; stacks follow ===\n")
+    spy = shutil.which("py-spy") or shutil.which("py-spy", path=os.path.dirname(sys.executable))
+    if spy:
+        try:
+            out = subprocess.run([spy, "dump", "--native", "--subprocesses", "--pid", str(os.getpid())],
+                                 capture_output=True, text=True, timeout=120)
+            sys.stderr.write(out.stdout + out.stderr)
+        except (OSError, subprocess.SubprocessError) as e:
+            sys.stderr.write(f"py-spy failed: {e}\n")
+    faulthandler.dump_traceback(all_threads=True)
+    sys.stderr.flush()
+    os._exit(70)
+
+
+@pytest.fixture(autouse=True)
+def _hang_watchdog(request):
+    """Turns a hung test (a deadlock waits forever without using the CPU) into a failed one, with stacks."""
+    import threading
+
+    capman = request.config.pluginmanager.getplugin("capturemanager")
+    timer = threading.Timer(HANG_S, _dump_and_stop, args=(request.node.nodeid, capman))
+    timer.daemon = True
+    timer.start()
+    yield
+    timer.cancel()

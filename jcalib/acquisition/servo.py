@@ -35,6 +35,9 @@ from jcalib.acquisition.cameras.base import Camera
 from jcalib.acquisition.robots.base import Robot
 from jcalib.errors import BadInputError, DetectionError
 
+#: Shortest image motion (px) of a correction move that updates the image Jacobian (Broyden).
+BROYDEN_MIN_PX = 2.0
+
 __all__ = ["ServoResult", "ServoStep", "servo_tool_tip"]
 
 
@@ -216,7 +219,9 @@ def servo_tool_tip(
         nxt = translate(cur, d, "correction")
         iterations += 1
         moved = planar(cur, nxt)
-        if float(moved @ moved) > 1e-16:  # Broyden's rank-one update from the observed motion
+        # Broyden's rank-one update from the observed motion, when the motion is long enough that the
+        # detection noise and the robot's repeatability (~0.1 px each) do not set the secant
+        if float(np.linalg.norm(J @ moved)) > BROYDEN_MIN_PX:
             J = J + np.outer(nxt.pixel - cur.pixel - J @ moved, moved) / float(moved @ moved)
         cur = nxt
     return ServoResult(

@@ -16,7 +16,7 @@ import numpy as np
 
 from jcalib.geometry.se3 import log_se3
 from jcalib.geometry.cameras import AbstractCameraModel
-from jcalib.problems.build import Built, se3_matrix
+from jcalib.problems.build import CORNER_KINDS, Built, se3_matrix
 from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.refine import Refined, residuals
 from jcalib.problems.start import Start
@@ -40,7 +40,8 @@ class Calibration:
         station_ids: the used stations; ``flange_poses``: robot -> ``{"station_ids", "measured"
             (n, 4, 4), "estimated" (n, 4, 4)}``.
         T_cam_target: station id -> camera id -> ``(4, 4)`` target pose at the estimate, for every view.
-        view_rms_px: ``(camera, station id)`` -> RMS of the view's inlier corners.
+        view_rms_px: ``(camera, station id)`` -> RMS of the view's inlier corners; view_noise: ``(camera,
+            station id)`` -> the view's noise factor on its kind's σ² (:mod:`jcalib.problems.refine`).
         residuals: factor group -> ``(n, m)`` final residuals of its observations (kind's unit);
             weights: factor group -> ``(n,)`` (0 = rejected).
         rms: kind (``corner``, ``tip``, ``axis``, ``contact``, ``pose_rotation``, ``pose_translation``)
@@ -69,6 +70,7 @@ class Calibration:
     flange_poses: dict[str, dict]
     T_cam_target: dict[str, dict[str, np.ndarray]]
     view_rms_px: dict[tuple[str, str], float]
+    view_noise: dict[tuple[str, str], float]
     residuals: dict[str, np.ndarray]
     weights: dict[str, np.ndarray]
     rms: dict[str, float]
@@ -98,7 +100,7 @@ class Calibration:
     @property
     def rms_px(self) -> float:
         """RMS of the inlier corners' reprojection error norms (pixels, OpenCV's RMS), nan without corners."""
-        return self.rms.get("corner", float("nan"))
+        return self.rms.get("corner", self.rms.get("corner_mean", float("nan")))
 
     @property
     def reference_camera(self) -> str:
@@ -223,12 +225,16 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     # per-view target poses, RMS, residual statistics
     T_cam_target: dict[str, dict[str, np.ndarray]] = {}
     view_rms: dict[tuple[str, str], float] = {}
+    view_noise: dict[tuple[str, str], float] = {}
     rms: dict[str, float] = {}
     sq: dict[str, list] = {}
     for gr in built.groups:
         w = r.weights[gr.name] > 0
         sq.setdefault(gr.kind, []).append(np.sum(res[gr.name][w] ** 2, axis=1))
-        if gr.kind != "corner":
+        if gr.name in r.views:
+            for k, f in zip(gr.stations, r.views[gr.name]):
+                view_noise[(gr.key[0], g.station_ids[int(k)])] = float(f)
+        if gr.kind not in CORNER_KINDS:
             continue
         c, t = gr.key
         per = np.sum(res[gr.name] ** 2, axis=1) * w
@@ -263,7 +269,7 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         cameras=cameras, intrinsics_covariance=intr_cov, transforms=transforms, transform_covariance=tcov,
         calibrated=dict(built.calibrated), tool_orientation=tool_orientation, points=points,
         point_covariance=point_cov, frame=g.frame, station_ids=list(g.station_ids), flange_poses=flange,
-        T_cam_target=T_cam_target, view_rms_px=view_rms, residuals=res, weights=r.weights, rms=rms,
+        T_cam_target=T_cam_target, view_rms_px=view_rms, view_noise=view_noise, residuals=res, weights=r.weights, rms=rms,
         sigma_px=float(np.sqrt(corner_factor)) * built.sigma["corner"], outliers=r.outliers,
         reseeded_views=r.reseeded, variance_components=r.components, robot=robot, warnings=warnings,
         start={n: start.known[n] for n in built.transforms if n in start.known},

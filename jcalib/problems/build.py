@@ -40,8 +40,11 @@ from jcalib.residuals.reprojection import reprojection, tool_axis
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable
 
 #: Residual kinds and their unit.
-KINDS = {"corner": "px", "tip": "px", "axis": "px", "contact": "m", "pose_rotation": "rad",
+KINDS = {"corner": "px", "corner_mean": "px", "tip": "px", "axis": "px", "contact": "m", "pose_rotation": "rad",
          "pose_translation": "m"}
+
+#: Kinds of target corners: one image each, or the mean of a static scene's repeated images.
+CORNER_KINDS = ("corner", "corner_mean")
 
 #: Length along the tool axis (m) of the segment whose projection is the imaged axis line.
 AXIS_LENGTH_M = 0.05
@@ -106,15 +109,17 @@ class Built:
     priors: list[str] = field(default_factory=list)
     pose_sqrt_info: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def with_weights(self, weights: dict[str, np.ndarray], scale: dict[str, float] | None = None) -> Problem:
-        """The problem with per-observation weights (0 = rejected) and per-kind σ factors."""
+    def with_weights(self, weights: dict[str, np.ndarray], scale: dict[str, float] | None = None,
+                     views: dict[str, np.ndarray] | None = None) -> Problem:
+        """The problem with per-observation weights (0 = rejected), per-kind variance factors and
+        per-view variance factors (``views``: group -> ``(n,)`` factor of each observation's view)."""
         by_name = {gr.name: gr for gr in self.groups}
         factors = []
         for f in self.problem.factors:
             gr = by_name.get(f.name)
             if gr is not None:
                 w = np.zeros(gr.size)
-                w[gr.pad] = weights[gr.name]
+                w[gr.pad] = weights[gr.name] / np.sqrt(views[gr.name]) if views and gr.name in views else weights[gr.name]
                 sigma = self.sigma[gr.kind] * (1.0 if scale is None else float(np.sqrt(scale.get(gr.kind, 1.0))))
                 f = eqx.tree_at(lambda x: (x.sqrt_weight, x.sigma), f, (w, np.asarray(sigma, np.float64)))
             factors.append(f)
@@ -122,6 +127,14 @@ class Built:
 
     def unit_weights(self) -> dict[str, np.ndarray]:
         return {gr.name: np.ones(gr.stations.shape[0]) for gr in self.groups}
+
+    def view_factors(self, station_ids: list[str], factors: dict[str, float]) -> dict[str, np.ndarray]:
+        """Group -> ``(n,)`` per-observation factors from ``{"<camera>/<station id>": factor}`` (1 if absent)."""
+        out = {}
+        for gr in self.groups:
+            if gr.kind == "corner":
+                out[gr.name] = np.array([factors.get(f"{gr.key[0]}/{station_ids[int(k)]}", 1.0) for k in gr.stations])
+        return out
 
 
 def loss_of(options):
@@ -328,7 +341,8 @@ class _Builder:
                             (points, pixels, self.aspect(c, runs.size)), sigma=self.o.sigma_px, loss=loss, chunk=chunk,
                             jacobian=jac, sqrt_weight=_ones_at(runs.size, pad))
             stations = np.repeat(np.asarray(p.views), counts)
-            self.factor(Group(name, "corner", (c, t), stations, np.concatenate(p.point_index), pad, runs.size, True),
+            kind = "corner" if p.images == 1 else "corner_mean"
+            self.factor(Group(name, kind, (c, t), stations, np.concatenate(p.point_index), pad, runs.size, True),
                         f, args)
 
     def tips_and_axes(self) -> None:
@@ -437,7 +451,7 @@ def build(g: Graph, start: Start, options, pose_model: dict[str, bool], priors: 
     b.eliminate()
     order = [n for n in b.variables if n in b.per_station] + [n for n in b.variables if n not in b.per_station]
     problem = Problem([b.variables[n] for n in order], b.factors)
-    sigma = {"corner": options.sigma_px, "tip": options.tip_sigma_px, "axis": options.axis_sigma_px,
+    sigma = {"corner": options.sigma_px, "corner_mean": options.sigma_px, "tip": options.tip_sigma_px, "axis": options.axis_sigma_px,
              "contact": options.contact_sigma_m, "pose_rotation": float(np.radians(options.pose_sigma_deg)),
              "pose_translation": options.pose_sigma_m}
     return Built(problem, b.groups, sigma, b.flange_entry, b.free_entry, b.transforms, pose_model, b.calibrated,

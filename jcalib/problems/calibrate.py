@@ -22,7 +22,7 @@ from jcalib.io.cell import CellSpec, cell_to_dict
 from jcalib.io.observations import Observations
 from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TransformResult, hash_inputs
 from jcalib.problems.assemble import Calibration, assemble
-from jcalib.problems.build import build, se3_params, sqrt_info
+from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
 from jcalib.problems.options import CalibrationOptions, check_applicable
 from jcalib.problems.refine import refine
@@ -266,17 +266,18 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
     rejected = {(o["of"], str(o["station"]), int(o["point_index"])) for o in file.stats.get("outliers") or []}
     weights = built.unit_weights()
     for gr in built.groups:
-        who = "/".join(gr.key) if gr.kind != "corner" else gr.key[0]
+        who = "/".join(gr.key) if gr.kind not in CORNER_KINDS else gr.key[0]
         hit = [(who, g.station_ids[int(k)], int(i)) in rejected for k, i in zip(gr.stations, gr.index)]
         weights[gr.name] = np.where(hit, 0.0, 1.0)
     components = {k: float(v) for k, v in (file.stats.get("variance_components") or {}).items()}
     traced = uses_components(built, options)
     scale = {**dict.fromkeys({gr.kind for gr in built.groups}, 1.0), **components} if traced else None
-    sol = solve(built.with_weights(weights, scale), x0=x0 or None,
+    views = built.view_factors(g.station_ids, file.stats.get("view_noise_factor") or {}) if traced else {}
+    sol = solve(built.with_weights(weights, scale, views or None), x0=x0 or None,
                 options=SolveOptions(max_iterations=options.max_iterations), traces=traced)
     outliers = [(who, sid, idx) for (who, sid, idx) in sorted(rejected)]
     noise = "stated" if traced and components else options.noise
-    return assemble(g, s, built, Refined(sol, weights, outliers, [], components, noise))
+    return assemble(g, s, built, Refined(sol, weights, outliers, [], components, noise, views))
 
 
 def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra_stats: dict | None = None) -> ResultFile:
@@ -313,6 +314,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         stats["variance_components"] = {k: float(v) for k, v in cal.variance_components.items()}
     if cal.view_rms_px:
         stats["view_rms_px"] = {f"{c}/{s}": v for (c, s), v in cal.view_rms_px.items()}
+    if cal.view_noise:
+        stats["view_noise_factor"] = {f"{c}/{s}": v for (c, s), v in cal.view_noise.items()}
     if cal.graph is not None and cal.graph.has_robot:
         stats["robot_pose_model"] = cal.pose_model
         stats["start"] = dict(cal.start_method)

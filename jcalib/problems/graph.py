@@ -43,6 +43,7 @@ class Pair:
     points: list[np.ndarray] = field(default_factory=list)  # (n, 3) per view, target frame, m
     pixels: list[np.ndarray] = field(default_factory=list)  # (n, 2) per view
     point_index: list[np.ndarray] = field(default_factory=list)
+    images: int = 1  # images averaged into each view (> 1: a static scene, see _static_view)
 
 
 @dataclass
@@ -348,7 +349,9 @@ def _static_view(p: Pair) -> Pair:
     They are not independent evidence about the geometry: the robot does not move one relative to
     the other, so only the sensor noise differs between the images (detection biases repeat). Each
     point seen in every image enters once, at its mean pixel; counting every image would shrink the
-    reported σ of that camera's pose by the square root of the number of stations.
+    reported σ of that camera's pose by the square root of the number of stations. How much the mean
+    is better than one image (sensor noise averages out, detection biases do not) is the data's to say:
+    these corners are their own residual kind (``corner_mean``, :mod:`jcalib.problems.refine`).
     """
     common = set(p.point_index[0].tolist())
     for idx in p.point_index[1:]:
@@ -362,4 +365,4 @@ def _static_view(p: Pair) -> Pair:
         rows.append(np.asarray(pix, np.float64)[[where[int(v)] for v in keep]])
     first = {int(v): i for i, v in enumerate(p.point_index[0].tolist())}
     points = np.asarray(p.points[0])[[first[int(v)] for v in keep]]
-    return Pair(p.camera, p.target, p.views[:1], [points], [np.mean(rows, axis=0)], [keep])
+    return Pair(p.camera, p.target, p.views[:1], [points], [np.mean(rows, axis=0)], [keep], images=len(rows))

@@ -15,10 +15,21 @@ per member; a single calibration is a list of one.
 3. **Variance components**: corners, tips, axis points, contacts and pose measurements come from
    different sensors; one σ̂² of all residuals would let the most numerous kind set the noise of the
    others, and would rescale stated priors (the robot's pose noise, a previous result). Each kind
-   ``k`` gets its own factor ``f_k = χ²_k / r_k`` (Helmert), ``r_k = m_k − Σ_g tr(H_g H⁻¹)`` its
-   redundancy, re-solved until every factor is within 1 % of 1; stated priors keep their σ. A kind
+   ``k`` gets its own factor ``f_k = χ²_k / (r_k − 2)`` (Helmert's ``χ²_k / r_k``, with
+   ``r_k = m_k − Σ_g tr(H_g H⁻¹)`` its redundancy, times ``r_k / (r_k − 2)``: an error scaled by a σ
+   estimated from ``r_k`` degrees of freedom follows Student's t, whose variance that is; it matters
+   for a kind with few residuals, such as 7 tool tips), re-solved until every factor is within 1 % of
+   1; stated priors keep their σ. A kind
    with too little redundancy (:data:`MIN_REDUNDANCY`) keeps its stated σ; when no kind can estimate
    its own, one factor σ̂² of all residuals scales the covariance.
+4. **View noise**: the images of one camera are not equally sharp (a tilted or distant board is
+   blurred and foreshortened: its corners are noisier), and the tilted views are the ones that
+   determine focal length and hand-eye. Under one σ for all corners the covariance of exactly those
+   unknowns comes out too small. Each view therefore gets its own factor on its kind's σ² (with the
+   kind factors, in the same iterations): ``f_v = (χ²_v + ν₀) / (r_v + ν₀)``, its χ² against the kind's
+   σ over its share ``r_v`` of the kind's redundancy, shrunk towards 1 by :data:`VIEW_PRIOR_DOF`
+   pseudo-observations (a view of a few corners keeps about the kind's σ), normalised to a
+   redundancy-weighted mean of 1 per kind.
 """
 
 from __future__ import annotations
@@ -28,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jcalib.errors import JcalibError, NotObservableError
-from jcalib.problems.build import Built, se3_matrix, se3_params
+from jcalib.problems.build import CORNER_KINDS, Built, se3_matrix, se3_params
 from jcalib.problems.graph import Graph
 from jcalib.problems.start import Start, pnp_poses
 from jcalib.solve import Solution, SolveOptions, Status, batch_width, bucket_size, solve, solve_many
@@ -46,6 +57,9 @@ MIN_REDUNDANCY = 5.0
 #: drive ``χ²_k / r_k`` to ~0 and that kind's weight to infinity, which buries every stated prior
 #: (the robot's pose noise) below the rank test's resolution and reports them as not observable.
 MIN_VARIANCE_FACTOR = 1e-6
+#: Pseudo-degrees of freedom that pull a view's noise factor towards its kind's (a 54-corner view has
+#: ~100 of its own).
+VIEW_PRIOR_DOF = 20.0
 #: relative cost decrease a re-seeded solve must bring to replace the first one
 RESEED_MIN_DECREASE = 1e-6
 #: Views whose RMS exceeds this many times the median are re-seeded.
@@ -61,6 +75,8 @@ class Refined:
         outliers: ``(camera/tool, station id, point index or -1)`` of rejected measurements.
         reseeded: station ids whose start pose was replaced by the other PnP candidate.
         components: kind -> variance factor on its stated σ² (empty: one factor σ̂² for all).
+        views: corner group -> ``(n,)`` noise factor of each observation's view, on its kind's σ² (empty:
+            all 1).
         cov_noise: ``"stated"`` (the σ carry the factors) or ``"a_posteriori"`` (scale by σ̂²).
     """
 
@@ -70,6 +86,7 @@ class Refined:
     reseeded: list[str] = field(default_factory=list)
     components: dict[str, float] = field(default_factory=dict)
     cov_noise: str = "a_posteriori"
+    views: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -86,6 +103,7 @@ class Member:
     outliers: list = field(default_factory=list)
     reseeded: list = field(default_factory=list)
     components: dict = field(default_factory=dict)
+    views: dict = field(default_factory=dict)
 
 
 def residuals(built: Built, sol: Solution) -> dict[str, np.ndarray]:
@@ -118,7 +136,7 @@ class _Rounds:
             for j, (i, x0) in enumerate(zip(idx, x0s)):
                 x = self.m[i]
                 try:
-                    out[j] = solve(x.built.with_weights(x.weights, x.scale or None), x0=x0, options=self.so,
+                    out[j] = solve(x.built.with_weights(x.weights, x.scale or None, x.views or None), x0=x0, options=self.so,
                                    traces=self.traces[i])
                 except JcalibError as err:
                     x.error = err
@@ -130,7 +148,7 @@ class _Rounds:
             problems = []
             for j in js:
                 x = self.m[idx[j]]
-                p = x.built.with_weights(x.weights, x.scale or None)
+                p = x.built.with_weights(x.weights, x.scale or None, x.views or None)
                 problems.append(p if x0s[j] is None else p.with_values(x0s[j]))
             fill, width = self._shape_fillers((traces, kind), {idx[j] for j in js})
             try:
@@ -169,7 +187,7 @@ class _Rounds:
         for i in sorted({i for _, i in biggest.values()} - taking):
             x = self.m[i]
             if x.sol is not None:
-                fill.append(x.built.with_weights(x.weights, x.scale or None).with_values(x.sol.values))
+                fill.append(x.built.with_weights(x.weights, x.scale or None, x.views or None).with_values(x.sol.values))
         return fill, batch_width(len(group))
 
     def live(self) -> list[int]:
@@ -233,7 +251,7 @@ class _Rounds:
         for i in self.live():
             x = self.m[i]
             for gr in x.built.groups:
-                who = "/".join(gr.key) if gr.kind != "corner" else gr.key[0]
+                who = "/".join(gr.key) if gr.kind not in CORNER_KINDS else gr.key[0]
                 x.outliers += [(who, x.g.station_ids[int(gr.stations[j])], int(gr.index[j]))
                                for j in np.flatnonzero(x.weights[gr.name] == 0)]
 
@@ -255,7 +273,11 @@ class _Rounds:
                 for k, f in use.items():
                     new = max(x.scale[k] * f, MIN_VARIANCE_FACTOR)
                     step[k], x.scale[k] = new / x.scale[k], new
-                todo.append((i, all(abs(v - 1.0) < 0.01 for v in step.values())))
+                views = _view_update(x)
+                moved = max([0.0] + [float(np.max(np.abs(views[n] / x.views[n] - 1.0))) if n in x.views
+                                     else float(np.max(np.abs(views[n] - 1.0))) for n in views])
+                x.views = views
+                todo.append((i, all(abs(v - 1.0) < 0.01 for v in step.values()) and moved < 0.01))
             if not todo:
                 break
             idx = [i for i, _ in todo]
@@ -322,7 +344,7 @@ def _outlier_weights(x: Member, options) -> dict[str, np.ndarray]:
 
 
 def _component_update(x: Member) -> dict[str, float]:
-    """Kind -> ``χ²_k / r_k`` for the kinds with enough redundancy (Helmert's estimator)."""
+    """Kind -> ``χ²_k / (r_k − 2)`` for the kinds with enough redundancy (module docstring, round 3)."""
     sol, built = x.sol, x.built
     use = {}
     for k in _kinds(built):
@@ -331,8 +353,35 @@ def _component_update(x: Member) -> dict[str, float]:
         chi2 = sum(sol.chi2[n] for n in names)
         redundancy = count - sum(sol.hat[n] for n in names)
         if redundancy >= max(MIN_REDUNDANCY, 0.25 * count) and chi2 > 0.0:
-            use[k] = chi2 / redundancy
+            use[k] = chi2 / (redundancy - 2.0)
     return use
+
+
+def _view_update(x: Member) -> dict[str, np.ndarray]:
+    """Corner group -> ``(n,)`` new view factors (module docstring, round 4); empty when the kind
+    estimates no factor of its own or has a single view."""
+    sol, built = x.sol, x.built
+    groups = [gr for gr in built.groups if gr.kind == "corner" and gr.kind in x.scale]
+    count = sum(sol.count[gr.name] for gr in groups)
+    if not groups or count <= 0:
+        return {}
+    share = (count - sum(sol.hat[gr.name] for gr in groups)) / count  # redundancy per residual
+    sigma2 = built.sigma["corner"] ** 2 * x.scale["corner"]
+    out, chi2, red = {}, {}, {}
+    for gr in groups:
+        res = sol.residuals[gr.name][gr.pad]
+        inlier = x.weights[gr.name] > 0
+        z2 = np.sum(res * res, axis=1) / sigma2 * inlier
+        k = gr.stations
+        chi2[gr.name] = np.bincount(k, weights=z2)
+        red[gr.name] = share * res.shape[1] * np.bincount(k, weights=inlier.astype(float))
+    if sum(int(np.count_nonzero(r)) for r in red.values()) < 2:
+        return {}
+    factor = {n: (chi2[n] + VIEW_PRIOR_DOF) / (red[n] + VIEW_PRIOR_DOF) for n in chi2}
+    mean = sum(float(np.sum(factor[n] * red[n])) for n in factor) / sum(float(np.sum(red[n])) for n in red)
+    for gr in groups:
+        out[gr.name] = factor[gr.name][gr.stations] / mean
+    return out
 
 
 def refine_many(members: list[Member], options, batched: bool = False) -> list[Refined | JcalibError]:
@@ -346,7 +395,7 @@ def refine_many(members: list[Member], options, batched: bool = False) -> list[R
             out.append(x.error)
             continue
         noise = "stated" if traced and x.components else options.noise
-        out.append(Refined(x.sol, x.weights, x.outliers, x.reseeded, x.components, noise))
+        out.append(Refined(x.sol, x.weights, x.outliers, x.reseeded, x.components, noise, x.views))
     return out
 
 

@@ -11,11 +11,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from jcalib.problems.build import CORNER_KINDS
+
 __all__ = ["GroupStatistics", "RadialTest", "ResidualDiagnostics", "group_statistics", "radial_structure",
            "residual_diagnostics"]
 
 #: Display unit and scale of each residual kind (the solve's units: px, m, rad).
-_UNITS = {"corner": ("px", 1.0), "tip": ("px", 1.0), "axis": ("px", 1.0), "contact": ("mm", 1e3),
+_UNITS = {"corner": ("px", 1.0), "corner_mean": ("px", 1.0), "tip": ("px", 1.0), "axis": ("px", 1.0), "contact": ("mm", 1e3),
           "pose_rotation": ("deg", float(np.degrees(1.0))), "pose_translation": ("mm", 1e3)}
 
 
@@ -100,7 +102,7 @@ def residual_diagnostics(cal) -> dict[str, ResidualDiagnostics]:
     sigma = cal.sigma_px if cal.sigma_px == cal.sigma_px else None
     parts: dict[str, list] = {}
     for gr in built.groups:
-        if gr.kind != "corner":
+        if gr.kind not in CORNER_KINDS:
             continue
         c, _ = gr.key
         pair = g.pairs[gr.key]

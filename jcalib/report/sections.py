@@ -52,6 +52,11 @@ def statistics(stats: Mapping[str, Any]) -> str:
         rows.append([esc("re-seeded views"), esc(", ".join(map(str, stats["reseeded_views"]))), ""])
     if "view_rms_px" in stats:
         rows.append([esc("views"), esc(len(stats["view_rms_px"])), ""])
+    views = stats.get("view_noise_factor") or {}
+    if views:  # each view's σ relative to its kind's (jcalib.problems.refine, round 4)
+        worst = max(views, key=views.get)
+        rows.append([esc("view noise σ / kind σ (min – max, noisiest view)"),
+                     esc(f"{min(views.values()) ** 0.5:.2f} – {views[worst] ** 0.5:.2f} ({worst})"), ""])
     return table(["statistic", "value", "unit"], rows, {1})
 
 

@@ -243,6 +243,8 @@ def test_kill_9_at_random_instants_loses_nothing(tmp_path):
         for cam, rel in s["images"].items():
             img = cv2.imread(str(session / rel), cv2.IMREAD_UNCHANGED)
             assert img is not None and img.shape == ((48, 64) if cam == "cam0" else (24, 32))
-            xyz = np.frombuffer(img[0, :12].tobytes(), "<i4") / 1e5  # image belongs to its pose
-            np.testing.assert_allclose(xyz, np.array(s["T_base_flange"])[:3, 3], atol=2e-5)
+            xyz = np.frombuffer(img[0, :12].tobytes(), "<i4") / 1e5  # image belongs to its pose:
+            # the true flange position, 10 um steps, is off the reported one by the simulated
+            # repeatability (sigma 13 um per axis: 6 sigma); stations are centimetres apart
+            np.testing.assert_allclose(xyz, np.array(s["T_base_flange"])[:3, 3], atol=1e-5 + 6 * 1.3e-5)
     assert not list(session.rglob("*.tmp"))

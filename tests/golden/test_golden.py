@@ -21,6 +21,18 @@ Where the one path deliberately differs from a family, the case carries its tole
   compared at full precision (``*_no_outliers``).
 - ``vce_pairs``: pose pairs estimate σ_rot, σ_trans by variance components to 1 % (the family iterated
   to 1e-6): 8e-5 rel.
+
+Three later changes of the estimator move these cases further (measured, worst unknown):
+
+- ``t_variance``: a kind's variance factor is ``χ² / (r − 2)``, the variance of Student's t with the
+  ``r`` degrees of freedom its σ was estimated from (was ``χ² / r``): TCP tips from one camera (r ≈ 5)
+  σ +6 %, pose pairs (r ≈ 115) σ +0.9 %, cells' tips up to +29 %.
+- ``view_noise``: with variance components, each view of a camera gets its own noise factor (blurred,
+  tilted views are noisier): hand-eye with the pose model 0.27 σ / 1.7 %, Huber 0.21 σ / 1 %, cells
+  0.18 σ.
+- ``corner_mean``: the mean corners of a static scene (camera and target on one holder, repeated
+  images) are their own kind with their own variance factor (the family weighed the mean as one
+  image, ~1/√n too weakly): the second robot's camera of ``cell_two_robots`` 0.67 σ / 20 %.
 """
 
 from __future__ import annotations
@@ -41,15 +53,15 @@ REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 #: case -> (estimate tolerance in σ, σ tolerance relative); see the module docstring for the reasons.
 EXACT = (1e-5, 1e-5)
 TOLERANCES = {
-    "cell_synthetic": (1e-2, 1e-2),  # vce_resolved
-    "cell_two_robots": (1e-2, 1e-2),  # vce_resolved
-    "handeye_eye_in_hand_pose_model": (0.5, 1e-2),  # vce_pose_model
-    "handeye_huber": (0.5, 1e-2),  # vce_pose_model
+    "cell_synthetic": (0.3, 0.35),  # vce_resolved, view_noise, t_variance
+    "cell_two_robots": (1.0, 0.3),  # vce_resolved, view_noise, corner_mean
+    "handeye_eye_in_hand_pose_model": (0.5, 0.03),  # vce_pose_model, view_noise
+    "handeye_huber": (0.5, 0.02),  # vce_pose_model, view_noise
     "camera_opencv_left": (3.0, 0.3),  # outlier_rule
     "camera_mrcal_figueroa": (25.0, 0.8),  # outlier_rule
-    "tcp_two_cameras_axis": (0.3, 0.1),  # vce_tcp
-    "tcp_one_camera_free_pose": (1e-2, 1e-2),  # vce_tcp
-    "pairs_camodocal": (1e-3, 1e-3),  # vce_pairs
+    "tcp_two_cameras_axis": (0.3, 0.1),  # vce_tcp, t_variance
+    "tcp_one_camera_free_pose": (1e-2, 0.1),  # vce_tcp, t_variance
+    "pairs_camodocal": (1e-3, 0.015),  # vce_pairs, t_variance
 }
 
 

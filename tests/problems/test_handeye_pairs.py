@@ -140,7 +140,10 @@ def test_noisy_estimate_within_a_few_sigma(mode):
     assert 0.6 < res.noise.translation_m / SIGMA_T_M < 1.4
     assert res.noise.source == "estimated" and res.noise.converged
     assert abs(res.noise.redundancy_rotation + res.noise.redundancy_translation - (6 * N_STATIONS - 12)) < 1e-6
-    assert abs(res.sigma2 - 1.0) < 1e-4
+    # each kind's factor is χ²_k / (r_k - 2) (Student's t variance): the residuals' χ² per redundancy
+    # of the whole solve is then (r - 4) / r, r = 6 N - 12, at the converged components
+    r = 6 * N_STATIONS - 12
+    assert abs(res.sigma2 - (r - 4) / r) < 1e-4
     assert res.station_residuals.shape == (N_STATIONS, 6) and res.station_chi2.shape == (N_STATIONS,)
 
 

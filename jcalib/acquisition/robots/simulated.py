@@ -8,11 +8,12 @@ interface (no sockets), for benchmarks and notebooks.
 Model of a motion: the target is checked like a controller does (inverse kinematics within the joint
 limits; for a linear move, every point of the straight path), then the joints travel for
 ``max_j |dq_j| / v_j`` (joint move) or ``max(length / speed, angle / rot_speed)`` (linear move), scaled
-by ``time_scale``. The reached pose is the target times a random error of the size of the robot's
-repeatability; after arrival the joints ring down (a decaying oscillation of ``settle_amplitude_rad``
-over ``settle_time_s``), so a client that grabs before the robot settled sees a moving arm.
-Reported poses come from the joints through the same kinematics, so they equal the true pose:
-the robot's kinematic error is not modelled (add it in the frame source's ground truth if needed).
+by ``time_scale``. The joints reach the target's; after arrival they ring down (a decaying oscillation
+of ``settle_amplitude_rad`` over ``settle_time_s``), so a client that grabs before the robot settled
+sees a moving arm. Reported poses come from the joints (the encoders), as a real controller's do;
+the flange itself is off that pose by a random error of the size of the robot's repeatability, drawn
+per move (backlash and elasticity the motor encoders do not see): the true pose, which a frame source
+renders, is the reported one times that error. The robot's kinematic error is not modelled.
 """
 
 from __future__ import annotations
@@ -58,9 +59,10 @@ class SimulatedController:
 
     Args:
         model: reach / joint limits / kinematics (:func:`~jcalib.acquisition.robots.model.default_model`).
-        repeatability_m: 1-sigma position error of a reached pose per axis, m (ISO 9283 repeatability
-            of a 16 kg robot is about 0.04 mm, i.e. sigma ~0.013 mm).
-        repeatability_rad: 1-sigma orientation error per axis, rad.
+        repeatability_m: 1-sigma position error of a reached pose per axis, in the flange frame, m
+            (ISO 9283 repeatability of a 16 kg robot is about 0.04 mm, i.e. sigma ~0.013 mm); the
+            reported pose does not contain it.
+        repeatability_rad: 1-sigma orientation error per axis, in the flange frame, rad.
         linear_speed_m_s: TCP speed of linear moves, m/s.
         rotation_speed_rad_s: orientation speed of linear moves, rad/s.
         speed_fraction: fraction of the maximum joint speeds used by joint moves.
@@ -106,6 +108,7 @@ class SimulatedController:
         q = np.asarray(self.model.home_rad, dtype=np.float64)
         self._traj = _Trajectory(time.monotonic() - 1e9, 0.0, q[None, :])
         self._ring_dir = np.zeros_like(q)
+        self._T_error = np.eye(4)  # reported flange -> true flange, drawn per move
         self.num_moves = 0
 
     # --- state ---------------------------------------------------------------------------------
@@ -136,8 +139,10 @@ class SimulatedController:
             return self._joints_at(time.monotonic())[1]
 
     def true_T_base_flange(self) -> np.ndarray:
-        """(4, 4) true flange pose in the robot base (m): what a frame source renders."""
-        return self.model.forward(self.joints_rad())
+        """(4, 4) true flange pose in the robot base (m): what a frame source renders (the reported
+        pose times the repeatability error of the last move)."""
+        with self._lock:
+            return self.model.forward(self._joints_at(time.monotonic())[0]) @ self._T_error
 
     def T_base_tool(self) -> np.ndarray:
         """(4, 4) pose of the active tool in the active base, m (flange in robot base for 0/0)."""
@@ -176,17 +181,15 @@ class SimulatedController:
             now = time.monotonic()
             q0, _ = self._joints_at(now)
             T_flange_target = self.bases[self.base] @ T_base_tool @ invert(self.tools[self.tool])
-            noise = make_pose(
+            T_error = make_pose(
                 exp_so3(self._rng.normal(0.0, self.repeatability_rad, 3)),
                 self._rng.normal(0.0, self.repeatability_m, 3),
             )
-            T_reached = T_flange_target @ noise
             ik = self.model.inverse(T_flange_target, q0)
             if not ik.ok:
                 raise UnreachableError(f"target unreachable: {ik.reason}", ik.reason)
             if kind == "joint":
-                ik_reached = self.model.inverse(T_reached, ik.joints_rad)
-                q1 = ik_reached.joints_rad if ik_reached.ok else ik.joints_rad
+                q1 = ik.joints_rad
                 path = np.stack([q0, q1])
                 dq = np.abs(q1 - q0)
                 duration = float(np.max(dq / (self.speed_fraction * self.model.joint_speed_rad_s)))
@@ -196,7 +199,7 @@ class SimulatedController:
                 n = int(np.clip(np.ceil(max(dist / 0.01, ang / 0.05)), 1, 200))
                 path = [q0]
                 for i in range(1, n + 1):
-                    Ti = interpolate_pose(T0, T_reached if i == n else T_flange_target, i / n)
+                    Ti = interpolate_pose(T0, T_flange_target, i / n)
                     ik = self.model.inverse(Ti, path[-1])
                     if not ik.ok:
                         raise UnreachableError(
@@ -217,6 +220,7 @@ class SimulatedController:
             ring = self._rng.normal(size=path.shape[1])
             self._ring_dir = ring / np.linalg.norm(ring)
             self._traj = _Trajectory(now, duration, path)
+            self._T_error = T_error
             self.num_moves += 1
             return duration
 
