@@ -40,8 +40,8 @@ from jcalib.residuals.reprojection import reprojection, tool_axis
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable
 
 #: Residual kinds and their unit.
-KINDS = {"corner": "px", "corner_mean": "px", "tip": "px", "axis": "px", "contact": "m", "pose_rotation": "rad",
-         "pose_translation": "m"}
+KINDS = {"corner": "px", "corner_mean": "px", "tip": "px", "axis": "px", "contact": "m",
+         "pose_rotation": "rad", "pose_translation": "m"}
 
 #: Kinds of target corners: one image each, or the mean of a static scene's repeated images.
 CORNER_KINDS = ("corner", "corner_mean")
@@ -119,7 +119,9 @@ class Built:
             gr = by_name.get(f.name)
             if gr is not None:
                 w = np.zeros(gr.size)
-                w[gr.pad] = weights[gr.name] / np.sqrt(views[gr.name]) if views and gr.name in views else weights[gr.name]
+                w[gr.pad] = weights[gr.name]
+                if views and gr.name in views:
+                    w[gr.pad] /= np.sqrt(views[gr.name])
                 sigma = self.sigma[gr.kind] * (1.0 if scale is None else float(np.sqrt(scale.get(gr.kind, 1.0))))
                 f = eqx.tree_at(lambda x: (x.sqrt_weight, x.sigma), f, (w, np.asarray(sigma, np.float64)))
             factors.append(f)
@@ -133,7 +135,8 @@ class Built:
         out = {}
         for gr in self.groups:
             if gr.kind == "corner":
-                out[gr.name] = np.array([factors.get(f"{gr.key[0]}/{station_ids[int(k)]}", 1.0) for k in gr.stations])
+                out[gr.name] = np.array([factors.get(f"{gr.key[0]}/{station_ids[int(k)]}", 1.0)
+                                         for k in gr.stations])
         return out
 
 
@@ -451,8 +454,8 @@ def build(g: Graph, start: Start, options, pose_model: dict[str, bool], priors: 
     b.eliminate()
     order = [n for n in b.variables if n in b.per_station] + [n for n in b.variables if n not in b.per_station]
     problem = Problem([b.variables[n] for n in order], b.factors)
-    sigma = {"corner": options.sigma_px, "corner_mean": options.sigma_px, "tip": options.tip_sigma_px, "axis": options.axis_sigma_px,
-             "contact": options.contact_sigma_m, "pose_rotation": float(np.radians(options.pose_sigma_deg)),
+    sigma = {"corner": options.sigma_px, "corner_mean": options.sigma_px, "tip": options.tip_sigma_px,
+             "axis": options.axis_sigma_px, "contact": options.contact_sigma_m, "pose_rotation": float(np.radians(options.pose_sigma_deg)),
              "pose_translation": options.pose_sigma_m}
     return Built(problem, b.groups, sigma, b.flange_entry, b.free_entry, b.transforms, pose_model, b.calibrated,
                  sorted(set(b.used_priors)), b.pose_sqrt_info)

@@ -136,8 +136,8 @@ class _Rounds:
             for j, (i, x0) in enumerate(zip(idx, x0s)):
                 x = self.m[i]
                 try:
-                    out[j] = solve(x.built.with_weights(x.weights, x.scale or None, x.views or None), x0=x0, options=self.so,
-                                   traces=self.traces[i])
+                    out[j] = solve(x.built.with_weights(x.weights, x.scale or None, x.views or None), x0=x0,
+                                   options=self.so, traces=self.traces[i])
                 except JcalibError as err:
                     x.error = err
             return out
@@ -187,7 +187,8 @@ class _Rounds:
         for i in sorted({i for _, i in biggest.values()} - taking):
             x = self.m[i]
             if x.sol is not None:
-                fill.append(x.built.with_weights(x.weights, x.scale or None, x.views or None).with_values(x.sol.values))
+                p = x.built.with_weights(x.weights, x.scale or None, x.views or None)
+                fill.append(p.with_values(x.sol.values))
         return fill, batch_width(len(group))
 
     def live(self) -> list[int]:
@@ -273,7 +274,7 @@ class _Rounds:
                 for k, f in use.items():
                     new = max(x.scale[k] * f, MIN_VARIANCE_FACTOR)
                     step[k], x.scale[k] = new / x.scale[k], new
-                views = _view_update(x)
+                views = _view_update(x) if "corner" in use else {}
                 moved = max([0.0] + [float(np.max(np.abs(views[n] / x.views[n] - 1.0))) if n in x.views
                                      else float(np.max(np.abs(views[n] - 1.0))) for n in views])
                 x.views = views
@@ -358,10 +359,9 @@ def _component_update(x: Member) -> dict[str, float]:
 
 
 def _view_update(x: Member) -> dict[str, np.ndarray]:
-    """Corner group -> ``(n,)`` new view factors (module docstring, round 4); empty when the kind
-    estimates no factor of its own or has a single view."""
+    """Corner group -> ``(n,)`` new view factors (module docstring, round 4); empty with a single view."""
     sol, built = x.sol, x.built
-    groups = [gr for gr in built.groups if gr.kind == "corner" and gr.kind in x.scale]
+    groups = [gr for gr in built.groups if gr.kind == "corner"]
     count = sum(sol.count[gr.name] for gr in groups)
     if not groups or count <= 0:
         return {}
