@@ -71,7 +71,7 @@ def _release_compiled_code():
 
 
 #: A test still running after this many seconds is taken as hung (``$JCALIB_TEST_HANG_S``): the slowest
-#: test takes about a minute on 2 busy cores.
+#: test (the TCP row of the option matrix) takes about two minutes on 2 busy cores with an empty cache.
 HANG_S = float(os.environ.get("JCALIB_TEST_HANG_S", "600"))
 
 
