@@ -434,11 +434,28 @@ def matvec(system: System, x_s, x_e):
 
 
 def _block_inverse(V):
-    """Inverse of SPD blocks ``(num, d, d)`` via Cholesky (symmetric result)."""
+    """Inverse of SPD blocks ``(num, d, d)`` via Cholesky (symmetric result; nan where a block is not
+    positive definite).
+
+    Written out element by element (``d`` is small and static) instead of calling LAPACK: XLA:CPU runs
+    independent batched LAPACK calls (one per eliminated kind) at once on its intra-op pool, and each
+    waits for sub-tasks it queued on that same pool, so on a 2-thread pool two of them deadlock
+    (captured: both ``tf_XLAEigen`` threads in ``lapack_dtrsm_ffi`` → ``ParallelBatchMap`` waiting,
+    the caller in ``device_get``).
+    """
     d = V.shape[-1]
-    L = jnp.linalg.cholesky(V)
-    eye = jnp.broadcast_to(jnp.eye(d, dtype=V.dtype), V.shape)
-    Linv = jax.vmap(lambda l, e: jsl.solve_triangular(l, e, lower=True))(L, eye)
+    zero = jnp.zeros_like(V[:, 0, 0])
+    L = [[None] * d for _ in range(d)]
+    for j in range(d):
+        L[j][j] = jnp.sqrt(V[:, j, j] - sum((L[j][k] ** 2 for k in range(j)), zero))
+        for i in range(j + 1, d):
+            L[i][j] = (V[:, i, j] - sum((L[i][k] * L[j][k] for k in range(j)), zero)) / L[j][j]
+    M = [[None] * d for _ in range(d)]  # M = L⁻¹ (lower triangular)
+    for i in range(d):
+        M[i][i] = 1.0 / L[i][i]
+        for j in range(i):
+            M[i][j] = -sum((L[i][k] * M[k][j] for k in range(j, i)), zero) / L[i][i]
+    Linv = jnp.stack([jnp.stack([M[i][j] if j <= i else zero for j in range(d)], axis=-1) for i in range(d)], axis=-2)
     return jnp.einsum("nji,njk->nik", Linv, Linv)
 
 
