@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.geometry import lie_kernels as _k
+from jcalib.geometry import lie_kernels as kernels
 
 __all__ = [
     "GIMBAL_LOCK_TOL",
@@ -171,7 +171,7 @@ def _transform_in(matrix: Any, name: str, xp):
 def _quat_in(q: Any, name: str, xp):
     arr = _as_array(q, name, (4,), xp)
     _check_quat(arr, name)
-    return _k.quat_normalize(arr, xp)
+    return kernels.quat_normalize(arr, xp)
 
 
 def _homogeneous(rot, trans, xp):
@@ -196,13 +196,13 @@ def _broadcast_pair(a, na: int, b, nb: int, xp):
 def quat_to_matrix(q):
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions ``q (..., 4)`` in ``wxyz`` order."""
     xp = _xp(q)
-    return _k.quat_to_matrix(_quat_in(q, "q", xp), xp)
+    return kernels.quat_to_matrix(_quat_in(q, "q", xp), xp)
 
 
 def matrix_to_quat(rotation):
     """Unit quaternions ``(..., 4)`` ``wxyz``, ``w >= 0``, of rotation matrices ``(..., 3, 3)``."""
     xp = _xp(rotation)
-    return _k.matrix_to_quat(_rotation_in(rotation, "rotation", xp), xp)
+    return kernels.matrix_to_quat(_rotation_in(rotation, "rotation", xp), xp)
 
 
 def quat_wxyz_to_xyzw(q):
@@ -222,13 +222,13 @@ def quat_xyzw_to_wxyz(q):
 def rvec_to_matrix(rvec):
     """Rotation matrices ``(..., 3, 3)`` of OpenCV rotation vectors ``(..., 3)`` (rad)."""
     xp = _xp(rvec)
-    return _k.quat_to_matrix(_k.so3_exp(_as_array(rvec, "rvec", (3,), xp), xp), xp)
+    return kernels.quat_to_matrix(kernels.so3_exp(_as_array(rvec, "rvec", (3,), xp), xp), xp)
 
 
 def matrix_to_rvec(rotation):
     """OpenCV rotation vectors ``(..., 3)`` (rad, angle in [0, pi]) of rotations ``(..., 3, 3)``."""
     xp = _xp(rotation)
-    return _k.so3_log(_k.matrix_to_quat(_rotation_in(rotation, "rotation", xp), xp), xp)
+    return kernels.so3_log(kernels.matrix_to_quat(_rotation_in(rotation, "rotation", xp), xp), xp)
 
 
 def rvec_tvec_to_matrix(rvec, tvec):
@@ -240,14 +240,14 @@ def rvec_tvec_to_matrix(rvec, tvec):
     r = _as_array(rvec, "rvec", (3,), xp)
     t = _as_array(tvec, "tvec", (3,), xp)
     r, t = _broadcast_pair(r, 1, t, 1, xp)
-    return _homogeneous(_k.quat_to_matrix(_k.so3_exp(r, xp), xp), t, xp)
+    return _homogeneous(kernels.quat_to_matrix(kernels.so3_exp(r, xp), xp), t, xp)
 
 
 def matrix_to_rvec_tvec(matrix):
     """OpenCV ``(rvec (..., 3) rad, tvec (..., 3) m)`` of 4x4 transforms ``(..., 4, 4)``."""
     xp = _xp(matrix)
     m = _transform_in(matrix, "matrix", xp)
-    return _k.so3_log(_k.matrix_to_quat(m[..., :3, :3], xp), xp), m[..., :3, 3]
+    return kernels.so3_log(kernels.matrix_to_quat(m[..., :3, :3], xp), xp), m[..., :3, 3]
 
 
 def pose_to_matrix(pose):
@@ -255,14 +255,14 @@ def pose_to_matrix(pose):
     xp = _xp(pose)
     p = _as_array(pose, "pose", (7,), xp)
     _check_quat(p[..., :4], "pose (quaternion part)")
-    return _homogeneous(_k.quat_to_matrix(p[..., :4], xp), p[..., 4:], xp)
+    return _homogeneous(kernels.quat_to_matrix(p[..., :4], xp), p[..., 4:], xp)
 
 
 def matrix_to_pose(matrix):
     """jcalib poses ``(..., 7)`` (``wxyz`` with ``w >= 0``, then ``xyz`` m) of 4x4 transforms."""
     xp = _xp(matrix)
     m = _transform_in(matrix, "matrix", xp)
-    return xp.concatenate([_k.matrix_to_quat(m[..., :3, :3], xp), m[..., :3, 3]], axis=-1)
+    return xp.concatenate([kernels.matrix_to_quat(m[..., :3, :3], xp), m[..., :3, 3]], axis=-1)
 
 
 def ros_to_matrix(position, quat_xyzw):
@@ -272,14 +272,14 @@ def ros_to_matrix(position, quat_xyzw):
     q = _quat_in(quat_xyzw, "quat_xyzw", xp)
     q = xp.concatenate([q[..., 3:], q[..., :3]], axis=-1)
     p, q = _broadcast_pair(p, 1, q, 1, xp)
-    return _homogeneous(_k.quat_to_matrix(q, xp), p, xp)
+    return _homogeneous(kernels.quat_to_matrix(q, xp), p, xp)
 
 
 def matrix_to_ros(matrix):
     """ROS ``(position (..., 3) m, quaternion (..., 4) xyzw with w >= 0)`` of 4x4 transforms."""
     xp = _xp(matrix)
     m = _transform_in(matrix, "matrix", xp)
-    q = _k.matrix_to_quat(m[..., :3, :3], xp)
+    q = kernels.matrix_to_quat(m[..., :3, :3], xp)
     return m[..., :3, 3], xp.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
@@ -295,7 +295,7 @@ def abb_to_matrix(trans_mm, quat):
     t = _as_array(trans_mm, "trans_mm", (3,), xp) * 1e-3
     q = _quat_in(quat, "quat", xp)
     t, q = _broadcast_pair(t, 1, q, 1, xp)
-    return _homogeneous(_k.quat_to_matrix(q, xp), t, xp)
+    return _homogeneous(kernels.quat_to_matrix(q, xp), t, xp)
 
 
 def matrix_to_abb(matrix):
@@ -303,7 +303,7 @@ def matrix_to_abb(matrix):
     ``q1 = w >= 0``."""
     xp = _xp(matrix)
     m = _transform_in(matrix, "matrix", xp)
-    return m[..., :3, 3] * 1e3, _k.matrix_to_quat(m[..., :3, :3], xp)
+    return m[..., :3, 3] * 1e3, kernels.matrix_to_quat(m[..., :3, :3], xp)
 
 
 def kuka_to_matrix(xyzabc):

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 from jaxlie import SE3, SO3
 
 from jcalib.errors import BadInputError
-from jcalib.geometry import lie_kernels as _k
+from jcalib.geometry import lie_kernels as kernels
 
 __all__ = [
     "SE3",
@@ -82,10 +82,10 @@ translation (m), right perturbation ``T . Exp(delta)``."""
 
 # jcalib.study.estimators reaches these kernels as ``lie._se3_*``; the algebra itself lives in
 # jcalib.geometry.lie_kernels. Remove once it uses jcalib.geometry.se3 (tests/test_layout.py lists it).
-_se3_from_matrix = _k.se3_from_matrix
-_se3_log = _k.se3_log
-_se3_compose = _k.se3_compose
-_se3_inverse = _k.se3_inverse
+_se3_from_matrix = kernels.se3_from_matrix
+_se3_log = kernels.se3_log
+_se3_compose = kernels.se3_compose
+_se3_inverse = kernels.se3_inverse
 
 # ----------------------------------------------------------------------------------------------
 # Public JAX API
@@ -116,34 +116,34 @@ def _broadcast_leading(a: jax.Array, na: int, b: jax.Array, nb: int) -> tuple[ja
 
 def quat_normalize(q) -> jax.Array:
     """Scale quaternions ``(..., 4)`` to unit norm (the sign is kept)."""
-    return _k.quat_normalize(_f64(q, "q", (4,)), jnp)
+    return kernels.quat_normalize(_f64(q, "q", (4,)), jnp)
 
 
 def quat_normalize_sign(q) -> jax.Array:
     """Flip quaternions ``(..., 4)`` (``wxyz``) so that ``w >= 0``; the rotation is unchanged."""
-    return _k.quat_normalize_sign(_f64(q, "q", (4,)), jnp)
+    return kernels.quat_normalize_sign(_f64(q, "q", (4,)), jnp)
 
 
 def quat_multiply(p, q) -> jax.Array:
     """Hamilton product ``p * q`` of quaternions ``(..., 4)`` (``wxyz``): rotation ``R(p) R(q)``."""
     p, q = _broadcast_leading(_f64(p, "p", (4,)), 1, _f64(q, "q", (4,)), 1)
-    return _k.quat_multiply(p, q, jnp)
+    return kernels.quat_multiply(p, q, jnp)
 
 
 def quat_inverse(q) -> jax.Array:
     """Inverse of unit quaternions ``(..., 4)`` (the conjugate)."""
-    return _k.quat_conjugate(_f64(q, "q", (4,)), jnp)
+    return kernels.quat_conjugate(_f64(q, "q", (4,)), jnp)
 
 
 def quat_rotate(q, p) -> jax.Array:
     """Rotate points ``p (..., 3)`` by unit quaternions ``q (..., 4)``: ``R(q) p``."""
     q, p = _broadcast_leading(_f64(q, "q", (4,)), 1, _f64(p, "p", (3,)), 1)
-    return _k.quat_rotate(q, p, jnp)
+    return kernels.quat_rotate(q, p, jnp)
 
 
 def so3_to_matrix(q) -> jax.Array:
     """Rotation matrices ``(..., 3, 3)`` of quaternions ``(..., 4)`` ``wxyz`` (normalised first)."""
-    return _k.quat_to_matrix(_f64(q, "q", (4,)), jnp)
+    return kernels.quat_to_matrix(_f64(q, "q", (4,)), jnp)
 
 
 def so3_from_matrix(rotation) -> jax.Array:
@@ -153,7 +153,7 @@ def so3_from_matrix(rotation) -> jax.Array:
     orthonormal (see ``conversions.matrix_to_quat`` for a checked version); a slightly
     non-orthonormal matrix gives the nearby unit quaternion.
     """
-    return _k.matrix_to_quat(_f64(rotation, "rotation", (3, 3)), jnp)
+    return kernels.matrix_to_quat(_f64(rotation, "rotation", (3, 3)), jnp)
 
 
 def so3_exp(omega) -> jax.Array:
@@ -162,7 +162,7 @@ def so3_exp(omega) -> jax.Array:
     ``w = cos(theta/2) >= 0`` for ``|omega| <= pi`` (larger vectors give ``w < 0``, the same rotation
     as the sign-normalised quaternion).
     """
-    return _k.so3_exp(_f64(omega, "omega", (3,)), jnp)
+    return kernels.so3_exp(_f64(omega, "omega", (3,)), jnp)
 
 
 def so3_log(q) -> jax.Array:
@@ -171,30 +171,30 @@ def so3_log(q) -> jax.Array:
     Quaternions are normalised and sign-normalised first, so ``q`` and ``-q`` give the same vector.
     At exactly pi the sign of the returned axis follows the quaternion's vector part.
     """
-    return _k.so3_log(_f64(q, "q", (4,)), jnp)
+    return kernels.so3_log(_f64(q, "q", (4,)), jnp)
 
 
 def so3_from_rvec(rvec) -> jax.Array:
     """Quaternions ``(..., 4)`` ``wxyz``, ``w >= 0``, of OpenCV rotation vectors ``(..., 3)`` (rad)."""
-    return _k.quat_normalize_sign(_k.so3_exp(_f64(rvec, "rvec", (3,)), jnp), jnp)
+    return kernels.quat_normalize_sign(kernels.so3_exp(_f64(rvec, "rvec", (3,)), jnp), jnp)
 
 
 def so3_to_rvec(q) -> jax.Array:
     """OpenCV rotation vectors ``(..., 3)`` (axis * angle, rad, angle in [0, pi]) of quaternions."""
-    return _k.so3_log(_f64(q, "q", (4,)), jnp)
+    return kernels.so3_log(_f64(q, "q", (4,)), jnp)
 
 
 def so3_retract(q, omega) -> jax.Array:
     """Right retraction of SO(3): ``q * Exp(omega)`` (unit quaternion out), omega ``(..., 3)`` rad."""
     q, omega = _broadcast_leading(_f64(q, "q", (4,)), 1, _f64(omega, "omega", (3,)), 1)
-    return _k.quat_normalize(_k.quat_multiply(q, _k.so3_exp(omega, jnp), jnp), jnp)
+    return kernels.quat_normalize(kernels.quat_multiply(q, kernels.so3_exp(omega, jnp), jnp), jnp)
 
 
 def so3_local(q_a, q_b) -> jax.Array:
     """Inverse of :func:`so3_retract`: ``Log(q_a^-1 * q_b)`` ``(..., 3)`` rad, so that
     ``so3_retract(q_a, so3_local(q_a, q_b)) == q_b`` (up to sign)."""
     q_a, q_b = _broadcast_leading(_f64(q_a, "q_a", (4,)), 1, _f64(q_b, "q_b", (4,)), 1)
-    return _k.so3_log(_k.quat_multiply(_k.quat_conjugate(q_a, jnp), q_b, jnp), jnp)
+    return kernels.so3_log(kernels.quat_multiply(kernels.quat_conjugate(q_a, jnp), q_b, jnp), jnp)
 
 
 def se3_identity(batch_shape: tuple[int, ...] = ()) -> jax.Array:
@@ -205,7 +205,7 @@ def se3_identity(batch_shape: tuple[int, ...] = ()) -> jax.Array:
 
 def se3_to_matrix(pose) -> jax.Array:
     """4x4 homogeneous matrices ``(..., 4, 4)`` (m) of poses ``(..., 7)`` (``wxyz`` + ``xyz`` m)."""
-    return _k.se3_to_matrix(_f64(pose, "pose", (7,)), jnp)
+    return kernels.se3_to_matrix(_f64(pose, "pose", (7,)), jnp)
 
 
 def se3_from_matrix(matrix) -> jax.Array:
@@ -214,7 +214,7 @@ def se3_from_matrix(matrix) -> jax.Array:
     The bottom row is not read; the rotation block is assumed orthonormal (use
     ``conversions.matrix_to_pose`` for checked input).
     """
-    return _k.se3_from_matrix(_f64(matrix, "matrix", (4, 4)), jnp)
+    return kernels.se3_from_matrix(_f64(matrix, "matrix", (4, 4)), jnp)
 
 
 def se3_from_rvec_tvec(rvec, tvec) -> jax.Array:
@@ -223,25 +223,25 @@ def se3_from_rvec_tvec(rvec, tvec) -> jax.Array:
     ``T_cam_target = se3_from_rvec_tvec(*cv2.solvePnP(...)[1:])`` maps target points to the camera.
     """
     rvec, tvec = _broadcast_leading(_f64(rvec, "rvec", (3,)), 1, _f64(tvec, "tvec", (3,)), 1)
-    q = _k.quat_normalize_sign(_k.so3_exp(rvec, jnp), jnp)
+    q = kernels.quat_normalize_sign(kernels.so3_exp(rvec, jnp), jnp)
     return jnp.concatenate([q, tvec], axis=-1)
 
 
 def se3_to_rvec_tvec(pose) -> tuple[jax.Array, jax.Array]:
     """OpenCV ``(rvec (..., 3) rad, tvec (..., 3) m)`` of poses ``(..., 7)``; ``|rvec| <= pi``."""
     pose = _f64(pose, "pose", (7,))
-    return _k.so3_log(pose[..., :4], jnp), pose[..., 4:]
+    return kernels.so3_log(pose[..., :4], jnp), pose[..., 4:]
 
 
 def se3_compose(T_a_b, T_b_c) -> jax.Array:
     """Composition ``T_a_c = T_a_b . T_b_c`` of poses ``(..., 7)`` (leading axes broadcast)."""
     a, b = _broadcast_leading(_f64(T_a_b, "T_a_b", (7,)), 1, _f64(T_b_c, "T_b_c", (7,)), 1)
-    return _k.se3_compose(a, b, jnp)
+    return kernels.se3_compose(a, b, jnp)
 
 
 def se3_inverse(T_a_b) -> jax.Array:
     """Inverse ``T_b_a`` of unit-quaternion poses ``(..., 7)``."""
-    return _k.se3_inverse(_f64(T_a_b, "T_a_b", (7,)), jnp)
+    return kernels.se3_inverse(_f64(T_a_b, "T_a_b", (7,)), jnp)
 
 
 def se3_apply(T_a_b, p_b) -> jax.Array:
@@ -251,17 +251,17 @@ def se3_apply(T_a_b, p_b) -> jax.Array:
     points ``(N, 3)`` for ``(V, N, 3)``.
     """
     pose, p = _broadcast_leading(_f64(T_a_b, "T_a_b", (7,)), 1, _f64(p_b, "p_b", (3,)), 1)
-    return _k.quat_rotate(pose[..., :4], p, jnp) + pose[..., 4:]
+    return kernels.quat_rotate(pose[..., :4], p, jnp) + pose[..., 4:]
 
 
 def se3_exp(delta) -> jax.Array:
     """Exponential map of SE(3): tangent ``(omega, v) (..., 6)`` (rad, m) to poses ``(..., 7)``."""
-    return _k.se3_exp(_f64(delta, "delta", (6,)), jnp)
+    return kernels.se3_exp(_f64(delta, "delta", (6,)), jnp)
 
 
 def se3_log(pose) -> jax.Array:
     """Logarithm of SE(3): poses ``(..., 7)`` to tangent ``(omega, v) (..., 6)``, ``|omega| <= pi``."""
-    return _k.se3_log(_f64(pose, "pose", (7,)), jnp)
+    return kernels.se3_log(_f64(pose, "pose", (7,)), jnp)
 
 
 def retract(T, delta) -> jax.Array:
@@ -276,8 +276,8 @@ def retract(T, delta) -> jax.Array:
         poses ``(..., 7)`` with unit quaternions.
     """
     T, delta = _broadcast_leading(_f64(T, "T", (7,)), 1, _f64(delta, "delta", (6,)), 1)
-    out = _k.se3_compose(T, _k.se3_exp(delta, jnp), jnp)
-    return jnp.concatenate([_k.quat_normalize(out[..., :4], jnp), out[..., 4:]], axis=-1)
+    out = kernels.se3_compose(T, kernels.se3_exp(delta, jnp), jnp)
+    return jnp.concatenate([kernels.quat_normalize(out[..., :4], jnp), out[..., 4:]], axis=-1)
 
 
 def local(T, U) -> jax.Array:
@@ -286,7 +286,7 @@ def local(T, U) -> jax.Array:
     ``retract(T, local(T, U)) == U`` whenever the relative rotation is below pi.
     """
     T, U = _broadcast_leading(_f64(T, "T", (7,)), 1, _f64(U, "U", (7,)), 1)
-    return _k.se3_log(_k.se3_compose(_k.se3_inverse(T, jnp), U, jnp), jnp)
+    return kernels.se3_log(kernels.se3_compose(kernels.se3_inverse(T, jnp), U, jnp), jnp)
 
 
 def se3_adjoint(T_a_b) -> jax.Array:
@@ -296,8 +296,8 @@ def se3_adjoint(T_a_b) -> jax.Array:
     frame *b*) is ``Ad S Ad^T`` as a left perturbation (tangent in frame *a*).
     """
     pose = _f64(T_a_b, "T_a_b", (7,))
-    r = _k.quat_to_matrix(pose[..., :4], jnp)
-    tx = _k.skew(pose[..., 4:], jnp)
+    r = kernels.quat_to_matrix(pose[..., :4], jnp)
+    tx = kernels.skew(pose[..., 4:], jnp)
     top = jnp.concatenate([r, jnp.zeros_like(r)], axis=-1)
     bottom = jnp.concatenate([jnp.einsum("...ij,...jk->...ik", tx, r), r], axis=-1)
     return jnp.concatenate([top, bottom], axis=-2)
@@ -310,9 +310,9 @@ def _rotation_quat(x: jax.Array, name: str) -> jax.Array:
     if shape[-1:] == (7,):
         return x[..., :4]
     if shape[-2:] == (3, 3):
-        return _k.matrix_to_quat(x, jnp)
+        return kernels.matrix_to_quat(x, jnp)
     if shape[-2:] == (4, 4):
-        return _k.matrix_to_quat(x[..., :3, :3], jnp)
+        return kernels.matrix_to_quat(x[..., :3, :3], jnp)
     raise BadInputError(
         f"{name}: expected quaternions (..., 4), poses (..., 7), rotations (..., 3, 3) or "
         f"transforms (..., 4, 4), got shape {shape}"
@@ -330,8 +330,9 @@ def rotation_angle_between(a, b) -> jax.Array:
     qa = _rotation_quat(jnp.asarray(a, dtype=jnp.float64), "a")
     qb = _rotation_quat(jnp.asarray(b, dtype=jnp.float64), "b")
     qa, qb = _broadcast_leading(qa, 1, qb, 1)
-    d = _k.quat_multiply(_k.quat_conjugate(_k.quat_normalize(qa, jnp), jnp), _k.quat_normalize(qb, jnp), jnp)
-    n_sq = _k.dot(d[..., 1:], d[..., 1:], jnp)
+    qa_inv = kernels.quat_conjugate(kernels.quat_normalize(qa, jnp), jnp)
+    d = kernels.quat_multiply(qa_inv, kernels.quat_normalize(qb, jnp), jnp)
+    n_sq = kernels.dot(d[..., 1:], d[..., 1:], jnp)
     positive = n_sq > 0.0
     n = jnp.where(positive, jnp.sqrt(jnp.where(positive, n_sq, 1.0)), 0.0)
     return 2.0 * jnp.arctan2(n, jnp.abs(d[..., 0]))
