@@ -434,29 +434,39 @@ def matvec(system: System, x_s, x_e):
 
 
 def _block_inverse(V):
-    """Inverse of SPD blocks ``(num, d, d)`` via Cholesky (symmetric result; nan where a block is not
-    positive definite).
+    """Inverse of SPD blocks ``(num, d, d)`` (symmetric result; nan where a block is not positive
+    definite).
 
-    Written out element by element (``d`` is small and static) instead of calling LAPACK: XLA:CPU runs
-    independent batched LAPACK calls (one per eliminated kind) at once on its intra-op pool, and each
-    waits for sub-tasks it queued on that same pool, so on a 2-thread pool two of them deadlock
-    (captured: both ``tf_XLAEigen`` threads in ``lapack_dtrsm_ffi`` → ``ParallelBatchMap`` waiting,
-    the caller in ``device_get``).
+    Gauss–Jordan elimination without pivoting (stable for SPD matrices, whose pivots are all
+    positive), ``d`` rank-one updates of the whole batch, instead of LAPACK: XLA:CPU runs independent
+    batched LAPACK calls (one per eliminated kind) at once on its intra-op pool, and each waits for
+    sub-tasks it queued on that same pool, so on a 2-thread pool two of them deadlock (captured: both
+    ``tf_XLAEigen`` threads in ``lapack_dtrsm_ffi`` → ``ParallelBatchMap`` waiting, the caller in
+    ``device_get``). ``d`` updates keep the compiled program small (an element-wise Cholesky is
+    ``O(d³)`` scalar operations).
     """
     d = V.shape[-1]
-    zero = jnp.zeros_like(V[:, 0, 0])
-    L = [[None] * d for _ in range(d)]
-    for j in range(d):
-        L[j][j] = jnp.sqrt(V[:, j, j] - sum((L[j][k] ** 2 for k in range(j)), zero))
-        for i in range(j + 1, d):
-            L[i][j] = (V[:, i, j] - sum((L[i][k] * L[j][k] for k in range(j)), zero)) / L[j][j]
-    M = [[None] * d for _ in range(d)]  # M = L⁻¹ (lower triangular)
-    for i in range(d):
-        M[i][i] = 1.0 / L[i][i]
-        for j in range(i):
-            M[i][j] = -sum((L[i][k] * M[k][j] for k in range(j, i)), zero) / L[i][i]
-    Linv = jnp.stack([jnp.stack([M[i][j] if j <= i else zero for j in range(d)], axis=-1) for i in range(d)], axis=-2)
-    return jnp.einsum("nji,njk->nik", Linv, Linv)
+    A = V
+    positive = jnp.ones(V.shape[:1], dtype=bool)
+    for k in range(d):
+        pivot = A[:, k, k]
+        positive = positive & (pivot > 0.0)
+        inv_pivot = 1.0 / jnp.where(pivot > 0.0, pivot, 1.0)
+        row = A[:, k, :] * inv_pivot[:, None]
+        col = A[:, :, k]
+        in_row = (np.arange(d) == k)[None, :, None]  # replaced, not corrected: a correction of a
+        in_col = (np.arange(d) == k)[None, None, :]  # large entry would leave its rounding error behind
+        A = jnp.where(
+            in_row & in_col,
+            inv_pivot[:, None, None],
+            jnp.where(
+                in_row,
+                row[:, None, :],
+                jnp.where(in_col, -(col * inv_pivot[:, None])[:, :, None], A - col[:, :, None] * row[:, None, :]),
+            ),
+        )
+    A = 0.5 * (A + jnp.swapaxes(A, -1, -2))
+    return jnp.where(positive[:, None, None], A, jnp.nan)
 
 
 def reduced_system(system: System, damp_s, damp_e):
@@ -480,7 +490,7 @@ def _block_jacobi(S, layout: Layout):
         if not layout.eliminate[k]:
             N, d = layout.nums[k], layout.dims[k]
             idxs.append(layout.offsets[k] + np.arange(N * d).reshape(N, d))
-    invs = [jnp.linalg.inv(S[i[:, :, None], i[:, None, :]]) for i in idxs]
+    invs = [_block_inverse(S[i[:, :, None], i[:, None, :]]) for i in idxs]
 
     def apply(x):
         out = jnp.zeros_like(x)

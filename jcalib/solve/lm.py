@@ -129,6 +129,18 @@ class RawSolution(eqx.Module):
     groups: tuple | None = None
 
 
+def _after(x, previous):
+    """``x``, computed only once ``previous`` is: one batched LAPACK call at a time.
+
+    XLA:CPU runs independent operations at once on its intra-op pool, and a batched LAPACK call
+    waits there for sub-tasks it queued on that same pool; two of them at once can deadlock a
+    2-thread pool (seen with batched ``trsm``, see :func:`jcalib.solve.linear.reduced_system`).
+    """
+    if previous is None:
+        return x
+    return jax.lax.optimization_barrier((x, previous))[0]
+
+
 def _scaled_eigh(M):
     """Eigen-decomposition of ``M`` after Jacobi scaling (unit diagonal where ``diag > 0``)."""
     dg = jnp.diagonal(M, axis1=-2, axis2=-1)
@@ -143,8 +155,9 @@ def observability(system: linear.System, layout: linear.Layout, options: SolveOp
     """Rank analysis of the eliminated blocks ``V_i`` and of the Schur complement."""
     deficient = jnp.zeros((), bool)
     ev_e, evec_e = [], []
+    w = None
     for V in system.V:
-        w, U = _scaled_eigh(V)
+        w, U = _scaled_eigh(_after(V, w))
         ev_e.append(w)
         evec_e.append(U)
         bad = w < options.rank_rtol * jnp.max(w, axis=-1, keepdims=True)
@@ -155,7 +168,7 @@ def observability(system: linear.System, layout: linear.Layout, options: SolveOp
         # is already reported by the block analysis above).
         damp_e = tuple(1e-300 + jnp.zeros(V.shape[:-1], V.dtype) for V in system.V)
         S, _ = linear.reduced_system(system, None, damp_e)
-        w_s, U_s = _scaled_eigh(S)
+        w_s, U_s = _scaled_eigh(_after(S, w))
         deficient = deficient | jnp.any(w_s < options.rank_rtol * jnp.max(w_s)) | ~jnp.all(jnp.isfinite(w_s))
     else:
         w_s = jnp.ones((n,), jnp.float64)
