@@ -36,6 +36,8 @@ __all__ = [
     "CircleGrid",
     "Target",
     "target_from_spec",
+    "warp_bow",
+    "warped_points",
 ]
 
 # OpenCV predefined dictionaries: name -> (marker side in bits, number of markers).
@@ -366,3 +368,26 @@ def target_from_spec(spec: dict) -> Target:
         )
     return cls(**{k: spec[k] for k in required + optional if k in spec and spec[k] is not None})
 
+
+def warp_bow(points: np.ndarray, all_points: np.ndarray) -> np.ndarray:
+    """``(n, 2)`` ``(1 − xr², 1 − yr²)`` of target ``points (n, 3)``: the shape functions of a board's
+    warp (mrcal's parabolic ``calobject_warp``), ``z = c0 (1 − xr²) + c1 (1 − yr²)`` in the target frame.
+
+    ``xr, yr`` are the points' x, y normalised to ``[−1, 1]`` over the extent of the target's
+    ``all_points (N, 3)`` (for a grid board: its first and last corner, as mrcal). A direction without
+    extent gets 0 (no warp along it).
+    """
+    points, all_points = np.asarray(points, np.float64), np.asarray(all_points, np.float64)
+    lo, hi = all_points[:, :2].min(axis=0), all_points[:, :2].max(axis=0)
+    span = hi - lo
+    ok = span > 0.0
+    r = np.where(ok, 2.0 * (points[:, :2] - lo) / np.where(ok, span, 1.0) - 1.0, 1.0)
+    return 1.0 - r * r
+
+
+def warped_points(points: np.ndarray, warp) -> np.ndarray:
+    """``(N, 3)`` a target's ``points`` on a board bent by ``warp = (c0, c1)`` m (:func:`warp_bow`)."""
+    points = np.asarray(points, np.float64)
+    out = points.copy()
+    out[:, 2] += warp_bow(points, points) @ np.asarray(warp, np.float64)
+    return out

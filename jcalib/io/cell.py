@@ -82,6 +82,7 @@ class TargetSpec:
     params: dict[str, Any]
     pose: np.ndarray | None = None
     robot: str | None = None
+    warp: bool = False
 
     def geometry(self):
         """The target's geometry object (:mod:`jcalib.geometry.targets`)."""
@@ -265,8 +266,9 @@ def _parse_target(name: str, entry: Any, where: str) -> TargetSpec:
     if mount not in TARGET_MOUNTS:
         raise _fail(where, f"unknown mount {mount!r}; use one of {', '.join(TARGET_MOUNTS)}")
     pose = _pose(entry["pose"], where + ".pose") if "pose" in entry else None
-    params = {k: v for k, v in entry.items() if k not in ("type", "mount", "pose", "robot")}
-    spec = TargetSpec(name=name, type=ttype, mount=mount, params=params, pose=pose, robot=_robot_ref(entry, where))
+    params = {k: v for k, v in entry.items() if k not in ("type", "mount", "pose", "robot", "warp")}
+    spec = TargetSpec(name=name, type=ttype, mount=mount, params=params, pose=pose, robot=_robot_ref(entry, where),
+                      warp=bool(entry.get("warp", False)))
     if ttype == "points":  # the points come with the observations (observations.targets.<id>.points)
         if params:
             raise _fail(where, f"a target of type points takes no grid fields, got {sorted(params)}; its points are "

@@ -15,6 +15,10 @@ Units and conventions (the file states them, readers rely on them):
   ``T_true = T . Exp(delta)``, ``delta = (rx, ry, rz, tx, ty, tz)`` in radians and metres,
   expressed in frame *b* (:mod:`jcalib.geometry.lie`).
 - points: ``position`` (3,) in metres in the named ``frame``; ``covariance`` 3x3 in m².
+- targets: ``warp_m`` (2,) ``(c0, c1)``, a board's estimated non-flatness in metres, mrcal's parabolic
+  definition ``z = c0 (1 − xr²) + c1 (1 − yr²)`` (``xr, yr`` in ``[−1, 1]`` over the extent of the target's
+  points, x along its columns); ``warp_std_m`` (2,) and ``warp_covariance`` 2x2 in m². Only targets
+  whose warp was estimated (``warp: true``) are listed.
 - stats: ``rms_px``, ``num_residuals``, ``sigma_px`` and any further finite JSON values.
 - provenance: ``input_hash``, ``jcalib_version``, ``options``, ``created`` (ISO 8601).
 
@@ -65,6 +69,7 @@ __all__ = [
     "PointResult",
     "Provenance",
     "ResultFile",
+    "TargetResult",
     "TransformResult",
     "hash_inputs",
     "load_result",
@@ -350,6 +355,57 @@ class PointResult:
         )
 
 
+#: How a warp is defined (written next to it, so the file is readable without this code).
+WARP_DEFINITION = ("z = c0 (1 - xr^2) + c1 (1 - yr^2) in the target frame, xr and yr in [-1, 1] over the "
+                   "extent of the target's points (x along its columns, y along its rows); mrcal's calobject_warp")
+
+
+@dataclass(frozen=True, eq=False)
+class TargetResult:
+    """What was estimated about a target itself: its warp (board non-flatness).
+
+    Attributes:
+        warp_m: ``(2,)`` ``(c0, c1)``, metres (:data:`WARP_DEFINITION`).
+        warp_covariance: optional ``(2, 2)``, m².
+        extra: further JSON keys, kept as they are.
+    """
+
+    warp_m: np.ndarray
+    warp_covariance: np.ndarray | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "warp_m", field_array(self.warp_m, (2,), "warp_m"))
+        if self.warp_covariance is not None:
+            object.__setattr__(self, "warp_covariance", field_covariance(self.warp_covariance, 2, "warp_covariance"))
+        object.__setattr__(self, "extra", field_json(dict(self.extra), "extra"))
+
+    @property
+    def warp_std_m(self) -> np.ndarray | None:
+        """``(2,)`` standard deviations of ``warp_m``, or None without a covariance."""
+        if self.warp_covariance is None:
+            return None
+        return np.sqrt(np.maximum(np.diag(self.warp_covariance), 0.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"warp_m": float_list(self.warp_m)}
+        if self.warp_covariance is not None:
+            out["warp_std_m"] = float_list(self.warp_std_m)
+            out["warp_covariance"] = float_list(self.warp_covariance)
+        out["warp_definition"] = WARP_DEFINITION
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> TargetResult:
+        check_entry_keys(data, ("warp_m",))
+        return cls(
+            warp_m=data["warp_m"],
+            warp_covariance=data.get("warp_covariance"),
+            extra=extra_keys(data, ("warp_m", "warp_std_m", "warp_covariance", "warp_definition")),
+        )
+
+
 @dataclass(frozen=True, eq=False)
 class Provenance:
     """Where a result came from.
@@ -458,7 +514,7 @@ _STAT_CHECKS = {
     "num_residuals": field_count,
 }
 
-_TOP_KEYS = ("schema", "cameras", "transforms", "points", "stats", "provenance")
+_TOP_KEYS = ("schema", "cameras", "transforms", "points", "targets", "stats", "provenance")
 
 
 def _entries(value: Any, cls: type, where: str) -> dict[str, Any]:
@@ -482,6 +538,7 @@ class ResultFile:
         transforms: ``T_a_b`` name -> :class:`TransformResult` (a TCP is ``T_flange_<tool>``, a
             fixed camera ``T_base_<camera>``, a fixed target ``T_base_<target>``).
         points: point name -> :class:`PointResult`.
+        targets: target id -> :class:`TargetResult` (targets whose warp was estimated).
         stats: ``rms_px`` (pixels), ``num_residuals``, ``sigma_px`` (a-posteriori noise, pixels),
             and any further JSON values (all finite).
         provenance: :class:`Provenance`, or None when unknown.
@@ -491,6 +548,7 @@ class ResultFile:
     cameras: Mapping[str, CameraResult] = field(default_factory=dict)
     transforms: Mapping[str, TransformResult] = field(default_factory=dict)
     points: Mapping[str, PointResult] = field(default_factory=dict)
+    targets: Mapping[str, TargetResult] = field(default_factory=dict)
     stats: Mapping[str, Any] = field(default_factory=dict)
     provenance: Provenance | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
@@ -500,6 +558,7 @@ class ResultFile:
         set_(self, "cameras", _entries(self.cameras, CameraResult, "cameras"))
         set_(self, "transforms", _entries(self.transforms, TransformResult, "transforms"))
         set_(self, "points", _entries(self.points, PointResult, "points"))
+        set_(self, "targets", _entries(self.targets, TargetResult, "targets"))
         if not isinstance(self.stats, Mapping):
             raise field_fail("stats", f"expected a mapping, got {short_repr(self.stats)}")
         stats = {}
@@ -590,8 +649,10 @@ class ResultFile:
             "cameras": {n: c.to_dict() for n, c in self.cameras.items()},
             "transforms": {n: t.to_dict() for n, t in self.transforms.items()},
             "points": {n: p.to_dict() for n, p in self.points.items()},
-            "stats": dict(self.stats),
         }
+        if self.targets:
+            out["targets"] = {n: t.to_dict() for n, t in self.targets.items()}
+        out["stats"] = dict(self.stats)
         if self.provenance is not None:
             out["provenance"] = self.provenance.to_dict()
         out.update(self.extra)
@@ -636,6 +697,7 @@ class ResultFile:
         cameras = section("cameras", CameraResult)
         transforms = section("transforms", TransformResult)
         points = section("points", PointResult)
+        targets = section("targets", TargetResult)
         provenance = None
         if data.get("provenance") is not None:
             try:
@@ -646,6 +708,7 @@ class ResultFile:
             cameras=cameras,
             transforms=transforms,
             points=points,
+            targets=targets,
             stats=data.get("stats", {}),
             provenance=provenance,
             extra={k: v for k, v in data.items() if k not in _TOP_KEYS},

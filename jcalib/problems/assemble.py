@@ -36,6 +36,9 @@ class Calibration:
             right-perturbation covariance (rx..tz); ``calibrated``: name -> estimated coordinates;
             ``tool_orientation``: tool -> ``"calibrated"``, ``"given"`` or ``"not calibrated"``.
         points, point_covariance: cell point -> ``(3,)`` in ``frame``, ``(3, 3)``.
+        warps, warp_covariance: target -> ``(2,)`` board warp ``(c0, c1)`` (m, mrcal's parabolic
+            definition, :func:`jcalib.residuals.reprojection.warped_reprojection`), ``(2, 2)`` m², for the
+            targets whose warp was estimated.
         frame: ``"base"``, ``"world"`` or the reference camera of a rig.
         station_ids: the used stations; ``flange_poses``: robot -> ``{"station_ids", "measured"
             (n, 4, 4), "estimated" (n, 4, 4)}``.
@@ -65,6 +68,8 @@ class Calibration:
     tool_orientation: dict[str, str]
     points: dict[str, np.ndarray]
     point_covariance: dict[str, np.ndarray]
+    warps: dict[str, np.ndarray]
+    warp_covariance: dict[str, np.ndarray]
     frame: str
     station_ids: list[str]
     flange_poses: dict[str, dict]
@@ -204,8 +209,11 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
             tool_orientation[tool.name] = "given" if given_orientation(tool) is not None else "not calibrated"
     points = {n: vals[f"point:{n}"][0].copy() for n in cell.points}
     point_cov = {n: sol.covariance(f"point:{n}", noise=noise) for n in cell.points}
+    warps = {t: vals[f"warp:{t}"][0].copy() for t in built.warps}
+    warp_cov = {t: sol.covariance(f"warp:{t}", noise=noise) for t in built.warps}
 
     joint_names = [(c, f"intrinsics:{c}") for c in cameras] + [(n, n) for n in built.transforms]
+    joint_names += [(f"warp:{t}", f"warp:{t}") for t in built.warps]
     joint_names = [(a, b) for a, b in joint_names if not sol.layout.eliminate[sol.layout.kind(b)]]
     M = sol.joint_covariance([b for _, b in joint_names], noise=noise)
     dims = [sol.layout.dims[sol.layout.kind(b)] for _, b in joint_names]
@@ -268,7 +276,7 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     return Calibration(
         cameras=cameras, intrinsics_covariance=intr_cov, transforms=transforms, transform_covariance=tcov,
         calibrated=dict(built.calibrated), tool_orientation=tool_orientation, points=points,
-        point_covariance=point_cov, frame=g.frame, station_ids=list(g.station_ids), flange_poses=flange,
+        point_covariance=point_cov, warps=warps, warp_covariance=warp_cov, frame=g.frame, station_ids=list(g.station_ids), flange_poses=flange,
         T_cam_target=T_cam_target, view_rms_px=view_rms, view_noise=view_noise, residuals=res, weights=r.weights,
         rms=rms,
         sigma_px=float(np.sqrt(corner_factor)) * built.sigma["corner"], outliers=r.outliers,

@@ -32,11 +32,12 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.geometry import conversions
+from jcalib.geometry.targets import warp_bow
 from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.start import Start
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
 from jcalib.residuals.pose import axis_translation_prior, contact, pose_measurement
-from jcalib.residuals.reprojection import reprojection, tool_axis
+from jcalib.residuals.reprojection import reprojection, tool_axis, warped_reprojection
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable
 
 #: Residual kinds and their unit.
@@ -96,6 +97,8 @@ class Built:
         calibrated: transform name -> tangent coordinates estimated (``rx``..``tz``).
         priors: names that carried a prior from a previous result.
         pose_sqrt_info: robot -> ``(6, 6)`` square-root information of one flange-pose correction.
+        warps: targets whose warp (``warp:<target>``, :func:`jcalib.residuals.reprojection.warped_reprojection`)
+            is estimated.
     """
 
     problem: Problem
@@ -108,6 +111,7 @@ class Built:
     calibrated: dict[str, list[str]]
     priors: list[str] = field(default_factory=list)
     pose_sqrt_info: dict[str, np.ndarray] = field(default_factory=dict)
+    warps: list[str] = field(default_factory=list)
 
     def with_weights(self, weights: dict[str, np.ndarray], scale: dict[str, float] | None = None,
                      views: dict[str, np.ndarray] | None = None) -> Problem:
@@ -173,6 +177,7 @@ class _Builder:
         self.calibrated: dict[str, list[str]] = {}
         self.transforms: list[str] = []
         self.pose_sqrt_info: dict[str, np.ndarray] = {}
+        self.warps: list[str] = []
 
     # ------------------------------------------------------------------------- variables
 
@@ -256,6 +261,11 @@ class _Builder:
                 held = g.held_base(r)
                 self.calibrated[name] = [] if held else ["rx", "ry", "rz", "tx", "ty", "tz"]
                 self.add(name, SE3(), se3_params(s.known[name]), fixed=held)
+        for t in sorted({t for _, t in g.pairs}):
+            if cell.targets[t].warp:
+                self.warps.append(t)
+                self.add(f"warp:{t}", Euclidean(2), np.zeros((1, 2)), key=f"warp:{t}", coord_names=["c0", "c1"],
+                         entry_label=f"{t} warp")
         for point, spec in cell.points.items():
             fixed = spec.position is not None or point in cell.fixed
             if point in cell.fixed and spec.position is None:
@@ -338,10 +348,17 @@ class _Builder:
             points, pixels = pts[fill], pix[fill]
             points[pad], pixels[pad] = pts, pix
             runs = np.repeat(np.asarray(p.views, np.int32), chunk)
-            fn, jac = reprojection(*self.camera_config(c), chain)
             name = f"corners:{c}/{t}"
-            f = FactorGroup(name, fn, (f"intrinsics:{c}",) + args, (np.zeros_like(runs),) + self.indices(args, runs),
-                            (points, pixels, self.aspect(c, runs.size)), sigma=self.o.sigma_px, loss=loss, chunk=chunk,
+            arguments = (f"intrinsics:{c}",) + args
+            indices = (np.zeros_like(runs),) + self.indices(args, runs)
+            obs = (points, pixels, self.aspect(c, runs.size))
+            if t in self.warps:
+                fn, jac = warped_reprojection(*self.camera_config(c), chain)
+                arguments, indices = arguments + (f"warp:{t}",), indices + (np.zeros_like(runs),)
+                obs = obs + (warp_bow(points, np.asarray(g.obs.targets[t], np.float64)),)
+            else:
+                fn, jac = reprojection(*self.camera_config(c), chain)
+            f = FactorGroup(name, fn, arguments, indices, obs, sigma=self.o.sigma_px, loss=loss, chunk=chunk,
                             jacobian=jac, sqrt_weight=_ones_at(runs.size, pad))
             stations = np.repeat(np.asarray(p.views), counts)
             kind = "corner" if p.images == 1 else "corner_mean"
@@ -458,7 +475,7 @@ def build(g: Graph, start: Start, options, pose_model: dict[str, bool], priors: 
              "axis": options.axis_sigma_px, "contact": options.contact_sigma_m, "pose_rotation": float(np.radians(options.pose_sigma_deg)),
              "pose_translation": options.pose_sigma_m}
     return Built(problem, b.groups, sigma, b.flange_entry, b.free_entry, b.transforms, pose_model, b.calibrated,
-                 sorted(set(b.used_priors)), b.pose_sqrt_info)
+                 sorted(set(b.used_priors)), b.pose_sqrt_info, b.warps)
 
 
 def _check_fixed_names(g: Graph) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 from jcalib.errors import BadInputError
 from jcalib.io.cell import CellSpec, cell_to_dict
 from jcalib.io.observations import Observations
-from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TransformResult, hash_inputs
+from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TargetResult, TransformResult, hash_inputs
 from jcalib.problems.assemble import Calibration, assemble
 from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
@@ -263,6 +263,12 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
         saved = file.cameras.get(c)
         if saved is not None and tuple(saved.param_names) == tuple(model.param_names):
             x0[f"intrinsics:{c}"] = np.asarray(saved.params, np.float64)[None, :]
+    for t in built.warps:
+        saved = file.targets.get(t)
+        if saved is None:
+            raise BadInputError(f"result: the cell estimates target '{t}''s warp (warp: true), but the result has no "
+                                f"targets.{t}.warp_m; give the cell spec the result was computed from")
+        x0[f"warp:{t}"] = np.asarray(saved.warp_m, np.float64)[None, :]
     rejected = {(o["of"], str(o["station"]), int(o["point_index"])) for o in file.stats.get("outliers") or []}
     weights = built.unit_weights()
     for gr in built.groups:
@@ -294,6 +300,7 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         transforms[n] = TransformResult(T, cal.transform_covariance[n], extra)
     frame = cal.frame if cal.graph is None or cal.graph.has_robot else cal.frame
     points = {n: PointResult(p, frame, cal.point_covariance[n]) for n, p in cal.points.items()}
+    targets = {t: TargetResult(w, cal.warp_covariance[t]) for t, w in cal.warps.items()}
     stats: dict[str, Any] = {
         "num_residuals": cal.num_residuals,
         "iterations": cal.iterations,
@@ -349,9 +356,10 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
     if jc and jc["names"]:
         extra["joint_covariance"] = {"names": list(jc["names"]), "dims": [int(d) for d in jc["dims"]],
                                      "matrix": np.asarray(jc["matrix"]).tolist(),
-                                     "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, tz"}
+                                     "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, "
+                                              "tz; warp:<target>: c0, c1"}
     if cal.T_cam_target:
         extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
     provenance = Provenance.now(input_hash=hash_, options=asdict(options))
-    return ResultFile(cameras=cameras, transforms=transforms, points=points, stats=stats, provenance=provenance,
-                      extra=extra)
+    return ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
+                      provenance=provenance, extra=extra)

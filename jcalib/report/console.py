@@ -73,12 +73,26 @@ def points_table(result: ResultFile) -> Table | None:
     return table
 
 
+def targets_table(result: ResultFile) -> Table | None:
+    """One row per target whose warp was estimated: ``c0, c1`` (mm) with σ."""
+    if not result.targets:
+        return None
+    table = Table(title="Target warp (z = c0 (1 − xr²) + c1 (1 − yr²))")
+    for col in ("target", "c0, c1 [mm]", "σ [mm]"):
+        table.add_column(col)
+    for name, target in result.targets.items():
+        std = target.warp_std_m
+        table.add_row(name, " ".join(f"{v:.4f}" for v in target.warp_m * 1e3),
+                      "–" if std is None else " ".join(f"{v:.4f}" for v in std * 1e3))
+    return table
+
+
 def print_result(result: ResultFile, console: Console | None = None, truth=None) -> None:
     """Print the result's tables and fit statistics."""
     console = console or Console()
     if result.cameras:
         console.print(intrinsics_table(result, truth))
-    for t in (transforms_table(result), points_table(result)):
+    for t in (transforms_table(result), points_table(result), targets_table(result)):
         if t is not None:
             console.print(t)
     s = result.stats

@@ -119,6 +119,7 @@ def render_report(
         sections.warnings(warnings),
         "<h2>Summary</h2>", sections.statistics(file.stats), sections.intrinsics(file), sections.transforms(file),
         sections.points(file),
+        sections.targets(file),
         "<h2>Per-view reprojection error</h2>", sections.view_rms(file.stats),
         "<h2>Task-space uncertainty</h2>", sections.INCLUDES, sections.task_space(file),
         sections.tcps(file, reference, robot_of), "<h3>Projection uncertainty</h3>",

@@ -53,6 +53,7 @@ __all__ = [
     "point_unknown",
     "result_file",
     "transform_unknown",
+    "warp_unknown",
 ]
 
 #: Optional top-level key of a result file with the joint covariance of the shared unknowns
@@ -111,6 +112,15 @@ def transform_unknown(transform: str, coord: str, role: str = "pose") -> Unknown
 
 def point_unknown(point: str, coord: str) -> Unknown:
     return Unknown(f"point {point}", coord, "mm", 1000.0, "point")
+
+
+#: The coordinates of a board warp (``warp:<target>``), in covariance order.
+WARP_COORDS = ("c0", "c1")
+
+
+def warp_unknown(target: str, coord: str) -> Unknown:
+    """A board warp coefficient (``c0`` along the target's x, ``c1`` along its y), displayed in mm."""
+    return Unknown(f"warp:{target}", coord, "mm", 1000.0, "target")
 
 
 # ------------------------------------------------------------------------------------ the model
@@ -297,6 +307,10 @@ def linear_model(cal, options=None) -> LinearModel:
         var = f"point:{p}"
         if shared(var):
             add(var, np.eye(3), lambda j, p=p: point_unknown(p, "xyz"[j]))
+    for t in cal.warps:
+        var = f"warp:{t}"
+        if shared(var):
+            add(var, np.eye(2), lambda j, t=t: warp_unknown(t, WARP_COORDS[j]))
     names = [b.variable for b in blocks]
     B = scipy.linalg.block_diag(*[b.basis for b in blocks]) if blocks else np.zeros((0, 0))
     keep = np.concatenate([b.free for b in blocks]) if blocks else np.zeros(0, bool)
@@ -387,6 +401,13 @@ def _check_restored(cal, file: ResultFile) -> None:
             z = np.where(std > 0, d / np.where(std > 0, std, 1.0), np.where(d > 1e-9, np.inf, 0))
             if z.max() > worst:
                 worst, where = float(z.max()), f"{n} {TANGENT[int(np.argmax(z))]}"
+    for t, target in file.targets.items():
+        if t in cal.warps:
+            std = np.sqrt(np.maximum(np.diag(cal.warp_covariance[t]), 0.0))
+            d = np.abs(cal.warps[t] - target.warp_m)
+            z = np.where(std > 0, d / np.where(std > 0, std, 1.0), np.where(d > 1e-12, np.inf, 0))
+            if z.max() > worst:
+                worst, where = float(z.max()), f"{t} warp {WARP_COORDS[int(np.argmax(z))]}"
     if worst > RESTORE_TOLERANCE_SIGMA:
         raise BadInputError(
             f"observations, cell: re-solving the result with them moves {where} by {worst:.3g} σ from the result's "
@@ -425,7 +446,8 @@ def joint_covariance(file: ResultFile) -> tuple[tuple[Unknown, ...], np.ndarray]
         if "dims" in data:  # block form: one name per block (a camera's intrinsics or a transform), its dimension
             full = []
             for n, d in zip(names, data["dims"], strict=True):
-                coords = file.cameras[n].param_names if n in file.cameras else TANGENT
+                coords = (file.cameras[n].param_names if n in file.cameras
+                          else WARP_COORDS if n.startswith("warp:") else TANGENT)
                 if len(coords) != int(d):
                     raise ValueError(f"block {n!r} has {d} coordinates, expected {len(coords)}")
                 full += [f"{n}.{c}" for c in coords]
@@ -438,7 +460,10 @@ def joint_covariance(file: ResultFile) -> tuple[tuple[Unknown, ...], np.ndarray]
     unknowns = []
     for n in names:
         block, _, coord = n.rpartition(".")
-        unknowns.append(transform_unknown(block, coord) if coord in TANGENT else intrinsic_unknown(block, coord))
+        if block.startswith("warp:") and coord in WARP_COORDS:
+            unknowns.append(warp_unknown(block[5:], coord))
+        else:
+            unknowns.append(transform_unknown(block, coord) if coord in TANGENT else intrinsic_unknown(block, coord))
     return tuple(unknowns), C
 
 

@@ -114,6 +114,23 @@ def points(file: ResultFile) -> str:
     return "<h3>Points</h3>" + table(["point", "frame", "position [mm]", "σ [mm]"], rows, {2, 3})
 
 
+def targets(file: ResultFile) -> str:
+    """Board warps (non-flatness) estimated for targets with ``warp: true``."""
+    if not file.targets:
+        return ""
+    rows = []
+    for name, target in file.targets.items():
+        std = target.warp_std_m
+        c = target.warp_m
+        rows.append([f"<code>{esc(name)}</code>", vec(c * 1e3, ".4f"), "–" if std is None else vec(std * 1e3, ".4f"),
+                     f"{(c[0] + c[1]) * 1e3:.4f}"])
+    return ("<h3>Target warp</h3>"
+            + note("Board non-flatness, mrcal's parabolic definition: z = c0 (1 − xr²) + c1 (1 − yr²) in the target "
+                   "frame, xr and yr in [−1, 1] over the extent of its points (x along its columns); the centre "
+                   "moves by c0 + c1, the corners not at all.")
+            + table(["target", "c0, c1 [mm]", "σ [mm]", "centre [mm]"], rows, {1, 2, 3}))
+
+
 def view_rms(stats: Mapping[str, Any]) -> str:
     from jcalib.report import plots
 

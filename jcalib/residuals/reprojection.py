@@ -60,6 +60,44 @@ def reprojection(model_cls: type, image_size: tuple[int, int], skew: bool, chain
 
 
 @functools.cache
+def warped_reprojection(model_cls: type, image_size: tuple[int, int], skew: bool, chain: Chain):
+    """``(fn, jacobian)`` of a target corner's reprojection on a warped (non-flat) board.
+
+    The board's warp (mrcal's parabolic definition, ``calobject_warp``) moves each corner along the
+    target's z: ``z = c0 (1 − xr²) + c1 (1 − yr²)``, ``xr, yr`` the corner's position normalised to
+    ``[−1, 1]`` over the extent of the target's points. ``fn(intrinsics, *poses, warp, obs)`` with
+    ``warp = (c0, c1)`` metres and ``obs = (p (3,), pixel (2,), aspect (2,), bow (2,))``,
+    ``bow = (1 − xr², 1 − yr²)`` precomputed per corner. ``jacobian`` as :func:`reprojection`'s,
+    with ``∂/∂warp = J_cam · L e_z · bowᵀ`` (``L`` the chain's rotation).
+    """
+
+    def warped(p, warp, bow):
+        return p.at[2].add(jnp.dot(warp, bow))
+
+    def fn(intrinsics, *rest):
+        *poses, warp, obs = rest
+        p, pixel, aspect, bow = obs
+        model = _model(model_cls, image_size, skew, intrinsics, aspect)
+        return model.project(chain_apply(poses, chain, warped(p, warp, bow))) - pixel
+
+    def project(p_cam, intrinsics, obs):
+        _, pixel, aspect, _ = obs
+        r = _model(model_cls, image_size, skew, intrinsics, aspect).project(p_cam) - pixel
+        return r, r
+
+    def jacobian(intrinsics, *rest):
+        *poses, warp, obs = rest
+        bow = obs[3]
+        p_cam, blocks, left = chain_jacobian(poses, chain, warped(obs[0], warp, bow))
+        (J_cam, J_intr), r = jax.jacrev(project, argnums=(0, 1), has_aux=True)(p_cam, intrinsics, obs)
+        J_warp = (J_cam @ left[:, 2])[:, None] * bow[None, :]
+        return r, (J_intr, *[J_cam @ b for b in blocks], J_warp)
+
+    fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("warped_reprojection", model_cls, image_size, skew, chain)
+    return fn, jacobian
+
+
+@functools.cache
 def tool_axis(model_cls: type, image_size: tuple[int, int], skew: bool, chain: Chain):
     """Signed distance (pixels, (1,)) of an observed point of the imaged tool axis from the image of the
     tool's z axis (the line through the tool frame's origin, its tip, along its z), lens distortion

@@ -64,6 +64,7 @@ def synthetic_cell(
     robot_m: float = 1e-4,
     robot_deg: float = 0.01,
     truth: dict | None = None,
+    board_warp=None,
 ) -> tuple[dict, dict, dict]:
     """A synthetic demo cell: flange camera ``cam0``, fixed camera ``cam1`` (intrinsics known from a lab
     calibration and held fixed), a 9x6 checkerboard ``board`` fixed on the table, a tool ``needle`` whose
@@ -79,16 +80,20 @@ def synthetic_cell(
         truth: override true transforms (``T_flange_cam0``, ``T_base_cam1``, ``T_base_board``,
             ``T_flange_needle``, (4, 4) m) and intrinsics (``cam0``, ``cam1`` param vectors), e.g. to
             simulate a bumped camera or a moved TCP with the same geometry.
+        board_warp: ``(c0, c1)`` m, a bent board (:func:`jcalib.geometry.targets.warp_bow`): the cameras
+            see its corners there; the observations keep the flat design (the cell does not estimate
+            the warp unless its target says ``warp: true``).
 
     Returns:
         ``(cell dict, observations dict, truth dict)``.
     """
-    from jcalib.geometry.targets import Checkerboard
+    from jcalib.geometry.targets import Checkerboard, warped_points
 
     rng = np.random.default_rng(seed)
     geo = np.random.default_rng(12345)  # the cell's layout is the same for every seed
     board = Checkerboard(cols=9, rows=6, square=0.03)
     pts = np.asarray(board.points, np.float64)
+    seen = pts if board_warp is None else warped_points(pts, board_warp)
     centre_t = pts.mean(axis=0)
     T_base_board = make_pose(rotation((1, 0, 0), np.pi), [0.7, -0.1, 0.0])  # printed face (-z) up
     centre = T_base_board[:3, :3] @ centre_t + T_base_board[:3, 3]
@@ -131,7 +136,7 @@ def synthetic_cell(
                 ("cam0", invert(T_bf @ true["T_flange_cam0"]) @ true["T_base_board"]),
                 ("cam1", invert(true["T_base_cam1"]) @ true["T_base_board"]),
             ):
-                u, ok = project(cam, T_cam_board, pts)
+                u, ok = project(cam, T_cam_board, seen)
                 idx = np.flatnonzero(ok)
                 if idx.size >= MIN_POINTS_PER_VIEW:
                     px = u[idx] + sigma_px * rng.normal(size=(idx.size, 2))

@@ -32,6 +32,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.geometry.se3 import exp_so3, invert, make_pose
+from jcalib.geometry.targets import warped_points
 from jcalib.io.cell import CellSpec, load_cell
 from jcalib.sim.render import camera_image_size
 
@@ -52,7 +53,10 @@ class CellTruth:
         bases: robot -> ``T_world_<robot>`` (several robots; identity for the one whose base is the
             world frame). Empty with one robot or none.
         points: cell point -> ``(3,)`` position in the cell's frame.
-        target_points: target id -> ``(N, 3)`` its points in its own frame.
+        target_points: target id -> ``(N, 3)`` its points in its own frame, as designed (the
+            observations carry these).
+        target_warp: target id -> ``(2,)`` true warp ``(c0, c1)`` m of a bent board
+            (:func:`jcalib.geometry.targets.warp_bow`): its points are seen there. Flat if absent.
         frame: the cell's frame name (``base``, ``world`` or the rig's reference camera).
     """
 
@@ -62,6 +66,7 @@ class CellTruth:
     frame: str
     bases: Mapping[str, np.ndarray] = field(default_factory=dict)
     points: Mapping[str, np.ndarray] = field(default_factory=dict)
+    target_warp: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def transform(self, name: str) -> np.ndarray | None:
         """The true value of a transform the builder reports (``T_flange_cam0``, ``T_base_board``,
@@ -261,6 +266,8 @@ def simulate_observations(
             W_c = where.get(cam.name)
             for tgt in cell.targets.values():
                 P = np.asarray(truth.target_points[tgt.name], np.float64)
+                if tgt.name in truth.target_warp:
+                    P = warped_points(P, truth.target_warp[tgt.name])
                 pix_noise = rng.normal(size=(len(P), 2))
                 lost = rng.random() < noise.dropout_rate
                 pose_noise = rng.normal(size=6)
