@@ -223,6 +223,28 @@ def export(
 
 
 @app.command()
+def convert(
+    result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
+    to: Annotated[str, typer.Option("--to", help="Target lens model: pinhole, opencv4, opencv5, opencv8, opencv12, "
+                                                 "opencv14 or fisheye.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Result JSON to write, with the camera converted.")],
+    camera: Annotated[Optional[str], typer.Option(help="Camera id (needed when the result has several).")] = None,
+    region: Annotated[
+        Optional[str], typer.Option(help="x0,y0,x1,y1 pixels to fit over (default: the whole image).")] = None,
+    fix: Annotated[
+        Optional[str], typer.Option(help="Coefficients of the target held at 0, e.g. k4,k5,k6.")] = None,
+) -> None:
+    """Convert a calibrated camera into another lens model over an image region, e.g. a fisheye into
+    OpenCV's opencv8 for software that reads only that; prints the approximation error (px) and writes
+    the result with the converted camera (its σ propagated from the source's)."""
+    check_outputs({"-o": out}, [result])
+    enable_compilation_cache()
+    from jcalib.app.convert import run_convert
+
+    run_convert(result, to, out, camera, region, fix)
+
+
+@app.command()
 def report(
     result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
     out: Annotated[Path, typer.Option("--out", "-o", help="HTML file to write.")],
@@ -498,6 +520,16 @@ def _register_study() -> None:
 
 
 _register_study()
+
+
+def _register_compare() -> None:
+    from jcalib.app.compare import compare_command, cross_validate_command
+
+    app.command("compare")(compare_command)
+    app.command("cross-validate")(cross_validate_command)
+
+
+_register_compare()
 
 
 def _printable(text: str) -> str:
