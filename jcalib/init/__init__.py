@@ -1,5 +1,6 @@
 """Closed-form initialisers: they only start the joint solve, never finish it."""
 
+from jcalib.init.fisheye import FisheyeInit, fisheye_init
 from jcalib.init.frames import FrameResult, frame_from_points, frame_from_three_points
 from jcalib.init.handeye import HAND_EYE_METHODS, HandEyeInit, solve_hand_eye
 from jcalib.init.handeye_motion import MotionDiagnostics, analyse_motion, check_observable
@@ -23,6 +24,7 @@ __all__ = [
     "HAND_EYE_METHODS",
     "ROBOT_WORLD_METHODS",
     "AnalyticTCPResult",
+    "FisheyeInit",
     "FrameResult",
     "HandEyeInit",
     "MotionDiagnostics",
@@ -40,6 +42,7 @@ __all__ = [
     "compose_pose_chains",
     "estimate_homographies",
     "estimate_homography",
+    "fisheye_init",
     "frame_from_points",
     "frame_from_three_points",
     "pivot_calibration",

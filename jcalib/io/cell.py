@@ -31,7 +31,7 @@ from jcalib.io.schema.cell import validate_cell_document
 from jcalib.io.schema.reading import read_document
 
 SCHEMA = "jcalib.cell/1"
-CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye")
+CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined")
 CAMERA_MOUNTS = ("flange", "base", "world", "free")
 TARGET_MOUNTS = ("flange", "base", "world", "free")
 #: Names a robot cannot take (frame names).

@@ -60,6 +60,7 @@ from jcalib.io.result_fields import (
     float_list,
     short_repr,
 )
+from jcalib.io.schema.lens import LENS_DIST_NAMES
 
 __all__ = [
     "CAMERA_MODEL_DIST_NAMES",
@@ -80,19 +81,8 @@ SCHEMA = "jcalib.result/1"
 #: Order (and units: rad, m) of the tangent vector a transform covariance is expressed in.
 TRANSFORM_TANGENT_ORDER = ("rx", "ry", "rz", "tx", "ty", "tz")
 
-_OPENCV_DIST = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
-
 #: Distortion coefficient names of each camera model, in OpenCV's order (``len`` = ``len(dist)``).
-#: Mirrors :mod:`jcalib.geometry.cameras` (kept here so reading a result needs no JAX).
-CAMERA_MODEL_DIST_NAMES: dict[str, tuple[str, ...]] = {
-    "pinhole": (),
-    "opencv4": _OPENCV_DIST[:4],
-    "opencv5": _OPENCV_DIST[:5],
-    "opencv8": _OPENCV_DIST[:8],
-    "opencv12": _OPENCV_DIST[:12],
-    "opencv14": _OPENCV_DIST[:14],
-    "fisheye": ("k1", "k2", "k3", "k4"),
-}
+CAMERA_MODEL_DIST_NAMES: dict[str, tuple[str, ...]] = LENS_DIST_NAMES
 
 # ----------------------------------------------------------------------------------------------
 # Entries

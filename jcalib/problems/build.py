@@ -152,6 +152,14 @@ def loss_of(options):
     return TrivialLoss()
 
 
+#: σ of each value of a splined lens model's spline (stereographic units, about 0.1·f pixels) in the
+#: prior that regularises it towards an ideal stereographic lens. The data determine every spline value
+#: near observed corners far more precisely (pixel noise / f); the prior decides only what they do not:
+#: control points no corner reaches, and the directions in which the spline, the core (fx, fy, cx, cy)
+#: and the camera frame's rotation can stand in for one another (it picks the smallest spline).
+SPLINE_PRIOR_SIGMA = 0.1
+
+
 def sqrt_info(cov: np.ndarray) -> np.ndarray:
     """Pseudo-inverse square root ``S`` (``SᵀS = Σ⁺``) of a covariance; zero rows where Σ has no variance."""
     cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
@@ -229,9 +237,15 @@ class _Builder:
             if cam.name not in s.models:
                 continue  # a pose sensor: no intrinsics
             model = s.models[cam.name]
-            self.add(f"intrinsics:{cam.name}", Euclidean(len(model.param_names)),
-                     np.asarray(model.params, np.float64)[None, :], fixed=s.fixed_masks[cam.name][None, :],
-                     key=cam.name, coord_names=list(model.param_names), entry_label=cam.name)
+            params = np.asarray(model.params, np.float64)
+            kw = {}
+            if model.name == "splined":  # the spline's regularisation (see SPLINE_PRIOR_SIGMA)
+                spline = np.arange(params.size) >= 5
+                kw = dict(prior_mean=np.where(spline, 0.0, params),
+                          prior_sqrt_info=np.diag(np.where(spline, 1.0 / SPLINE_PRIOR_SIGMA, 0.0)))
+            self.add(f"intrinsics:{cam.name}", Euclidean(len(model.param_names)), params[None, :],
+                     fixed=s.fixed_masks[cam.name][None, :], key=cam.name, coord_names=list(model.param_names),
+                     entry_label=cam.name, **kw)
         for spec in list(cell.cameras.values()) + list(cell.targets.values()):
             name = g.mount_name(spec)
             if name is None or name in self.variables:

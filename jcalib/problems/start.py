@@ -23,8 +23,10 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import AbstractCameraModel, camera_model_from_name
+from jcalib.geometry.cameras.splined import fov_covering
 from jcalib.geometry.se3 import invert, make_pose, rotvec
 from jcalib.init import planar_pnp, zhang_init
+from jcalib.init.fisheye import bearing_pose, fisheye_bearings, fisheye_init
 from jcalib.init.handeye import HandEyeInit, average_poses, relative_motions, solve_hand_eye
 from jcalib.init.handeye_motion import (
     MotionDiagnostics,
@@ -87,6 +89,8 @@ def intrinsics_fixed_mask(model: AbstractCameraModel, fix) -> np.ndarray:
     mask = np.array([n in fix for n in names])
     if "aspect" in fix:
         mask[names.index("fy")] = True
+    if "fov_x_deg" in names:  # a splined model's extent is configuration, set by the start
+        mask[names.index("fov_x_deg")] = True
     return mask
 
 
@@ -109,13 +113,26 @@ def initial_model(name: str, model_name: str, image_size, skew: bool, fix, K0, d
         principal_point = None
         if "cx" in fix and "cy" in fix:
             principal_point = ((image_size[0] - 1) / 2, (image_size[1] - 1) / 2)
-        # Cheap Zhang (single pass on the raw homographies): the joint solve does the distortion,
-        # and the re-seed check catches a view that starts in the flipped minimum.
-        z = zhang_init([p[:, :2] for p in points], pixels, skew=skew,
-                       aspect_ratio=1.0 if "aspect" in fix else None, principal_point=principal_point,
-                       image_size=image_size, estimate_distortion=False, distortion_iterations=0,
-                       refine_homographies=False, view_names=[f"{name} view {i}" for i in range(len(points))])
-        K, dist_given, zhang_poses = z.K, np.zeros(0), z.T_cam_target
+        view_names = [f"{name} view {i}" for i in range(len(points))]
+        if model_name in ("fisheye", "splined"):
+            # Zhang's pinhole homographies do not exist through a fisheye: its own closed form (the
+            # equidistant lens, fx = fy, k1..k4 = 0) and the view poses that go with it (a splined
+            # model, meant for wide-angle lenses, starts the same way: near the axis its stereographic
+            # core and the equidistant lens agree).
+            try:
+                fe = fisheye_init([p[:, :2] for p in points], pixels, image_size, principal_point=principal_point,
+                                  view_names=view_names)
+            except NotObservableError as err:
+                raise NotObservableError(f"camera '{name}': {err}", [f"{name} {u}" for u in err.unknowns]) from None
+            K, dist_given, zhang_poses = fe.K, np.zeros(0), fe.T_cam_target
+        else:
+            # Cheap Zhang (single pass on the raw homographies): the joint solve does the distortion,
+            # and the re-seed check catches a view that starts in the flipped minimum.
+            z = zhang_init([p[:, :2] for p in points], pixels, skew=skew,
+                           aspect_ratio=1.0 if "aspect" in fix else None, principal_point=principal_point,
+                           image_size=image_size, estimate_distortion=False, distortion_iterations=0,
+                           refine_homographies=False, view_names=view_names)
+            K, dist_given, zhang_poses = z.K, np.zeros(0), z.T_cam_target
     template = camera_model_from_name(model_name, image_size, skew=skew)
     names = template.param_names
     values = dict(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
@@ -124,32 +141,55 @@ def initial_model(name: str, model_name: str, image_size, skew: bool, fix, K0, d
     dist_names = [n for n in names if n not in ("fx", "fy", "cx", "cy", "skew", "alpha")]
     for n, value in zip(dist_names, dist_given):
         values[n] = value
+    if model_name == "splined" and not len(dist_given):  # the spline's extent covers the image, from the start
+        values["fov_x_deg"] = fov_covering((K[0, 0], K[1, 1]), (K[0, 2], K[1, 2]), image_size)
     model = template.with_params(np.array([values.get(n, 0.0) for n in names], np.float64))
-    if zhang_poses is not None and model_name != "fisheye":
+    if zhang_poses is not None:  # (the fisheye's and splined model's start poses are the fisheye closed form's)
         return model, list(zhang_poses)
     return model, pnp_poses(model, points, pixels)
 
 
 def rays(model: AbstractCameraModel, pixels: np.ndarray) -> np.ndarray:
     """``(n, 3)`` viewing directions ``(x, y, 1)`` of pixels in the camera frame, by OpenCV's
-    undistortion (a start needs no more, and it compiles nothing)."""
+    undistortion (a start needs no more, and it compiles nothing); for the fisheye unit bearing
+    vectors instead (:func:`jcalib.init.fisheye.fisheye_bearings`): its rays reach 90° from the axis
+    and beyond, where ``(x, y, 1)`` does not exist and ``cv2.fisheye.undistortPoints`` clamps them."""
     import cv2
 
+    if model.name == "splined":  # not an OpenCV model: its own unprojection
+        d = np.asarray(model.unproject(np.asarray(pixels, np.float64).reshape(-1, 2)))
+        return d / d[:, 2:3]
     K, dist = model.to_opencv()
-    pix = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
     if model.name == "fisheye":
-        xy = cv2.fisheye.undistortPoints(pix, K, dist)
-    else:
-        xy = cv2.undistortPointsIter(pix, K, dist if dist.size else None, None, None,
-                                     (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
+        return fisheye_bearings(K, dist, pixels)[0]
+    pix = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
+    xy = cv2.undistortPointsIter(pix, K, dist if dist.size else None, None, None,
+                                 (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
     xy = xy.reshape(-1, 2)
     return np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
+
+
+#: A fisheye view's planar PnP uses its points within this angle of the optical axis (their
+#: ``(x/z, y/z)`` stay well conditioned); a view with fewer than 6 of them starts from all its bearings.
+FISHEYE_PNP_MAX_ANGLE_DEG = 75.0
 
 
 def pnp_poses(model: AbstractCameraModel, points: list[np.ndarray], pixels: list[np.ndarray], second: bool = False):
     """Planar PnP of every view with ``model`` (the better candidate, or the other one)."""
     out = []
     if model.name == "fisheye":
+        cos_max = np.cos(np.radians(FISHEYE_PNP_MAX_ANGLE_DEG))
+        for pts, pix in zip(points, pixels):
+            pts, b = np.asarray(pts, np.float64), rays(model, pix)
+            near = b[:, 2] > cos_max
+            xy = pts[near, :2]
+            spread = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False) if len(xy) >= 6 else (0.0, 0.0)
+            if spread[1] > 1e-6 * spread[0]:
+                out.append(planar_pnp(pts[near], b[near, :2] / b[near, 2:], np.eye(3)).T_cam_target[int(second)])
+            else:  # a view at the rim: the pose of its bearing homography (one candidate)
+                out.append(bearing_pose(pts[:, :2], b))
+        return out
+    if model.name == "splined":
         for pts, pix in zip(points, pixels):
             out.append(planar_pnp(pts, rays(model, pix)[:, :2], np.eye(3)).T_cam_target[int(second)])
         return out

@@ -26,6 +26,8 @@ __all__ = ["CharucoFound", "find_charuco", "CORNER_TOLERANCE"]
 
 #: Largest distance of a ChArUco corner from the prediction of the markers around it, in squares.
 CORNER_TOLERANCE = 0.15
+#: Detected corners (the corner itself included) whose local homography gives a corner's image scale.
+LOCAL_NEIGHBOURS = 9
 
 
 @dataclass(frozen=True)
@@ -182,29 +184,56 @@ def find_charuco(gray: GrayImage, target, *, retry: bool = True) -> CharucoFound
                         dropped_markers, int(np.sum(~ok)))  # fmt: skip
 
 
+def _local_scales(xy: np.ndarray, pixels: np.ndarray, neighbours: int = LOCAL_NEIGHBOURS) -> np.ndarray:
+    """(n,) image length per board length (px/m) at each corner, the smaller of the two board axes:
+    from a homography fitted to the corner and its nearest detected neighbours on the board; NaN where
+    they are fewer than 5 or collinear.
+
+    Local on purpose: through a wide-angle or fisheye lens one homography of the whole board misstates
+    the scale near the rim (by 15 % and more on rendered 180° fisheye views), and a white gap taken too
+    wide lets the refinement window reach the marker edges (corners moved by 1-1.5 px, measured).
+    """
+    out = np.full(len(xy), np.nan)
+    for j in range(len(xy)):
+        near = np.argsort(np.linalg.norm(xy - xy[j], axis=1), kind="stable")[:neighbours]
+        if len(near) < 5:
+            continue
+        centred = xy[near] - xy[near].mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False)
+        if sv[1] <= 1e-6 * sv[0]:
+            continue
+        H, _ = cv2.findHomography(xy[near], pixels[near], 0)
+        if H is None or not np.all(np.isfinite(H)):
+            continue
+        w = H[2] @ [xy[j, 0], xy[j, 1], 1.0]
+        if abs(w) < 1e-12:
+            continue
+        p = (H[:2] @ [xy[j, 0], xy[j, 1], 1.0]) / w
+        J = (H[:2, :2] - np.outer(p, H[2, :2])) / w  # d(pixel)/d(board xy) at the corner
+        if np.all(np.isfinite(J)):
+            out[j] = np.min(np.linalg.norm(J, axis=0))
+    return out
+
+
 def _refine(gray: GrayImage, target, ids: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """jcalib's sub-pixel step on OpenCV's interpolated corners, where the white gap allows it."""
     if len(ids) < 4:
         return pixels
-    # Window: stay inside the white gap between the corner and the neighbouring markers.
+    # Window: stay inside the white gap between the corner and the neighbouring markers, measured where
+    # it is narrowest in the image (local scales: see _local_scales).
     xy = target.points[ids, :2]
-    H, _ = cv2.findHomography(xy, pixels, 0)
-    if H is None:
+    scale = _local_scales(xy, pixels)
+    if not np.any(np.isfinite(scale)):
         return pixels
+    min_scale = float(np.nanmin(scale))
     gap_m = 0.5 * (target.square - target.marker)
-    d = 1e-3 * target.square
-    p0 = _apply(H, xy)
-    scale = np.minimum(
-        np.linalg.norm(_apply(H, xy + [d, 0.0]) - p0, axis=1),
-        np.linalg.norm(_apply(H, xy + [0.0, d]) - p0, axis=1),
-    ) / d
-    gap_px = float(np.min(scale)) * gap_m
+    gap_px = min_scale * gap_m
     # refine_corners' half window is 0.35 * spacing and its smoothing reaches ~window/2 further:
     # both must stay inside the white gap, or marker edges bias the corner. Where the gap is
     # too narrow (small board in the image), OpenCV's own refinement is kept (measured better).
     half = 0.6 * gap_px
     if half >= 3.0:
-        spacing = min(half / 0.35, float(np.min(scale)) * target.square)
+        spacing = min(half / 0.35, min_scale * target.square)
         refined = refine_corners(gray, pixels, spacing_px=spacing)
         ok = np.linalg.norm(refined - pixels, axis=1) < 2.0
         pixels = np.where(ok[:, None], refined, pixels)

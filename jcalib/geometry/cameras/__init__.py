@@ -10,6 +10,7 @@ from jcalib.geometry.cameras.fisheye import Fisheye
 from jcalib.geometry.cameras.opencv import OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14
 from jcalib.geometry.cameras.perspective import AbstractPerspectiveModel
 from jcalib.geometry.cameras.pinhole import Pinhole
+from jcalib.geometry.cameras.splined import SplinedStereographic
 
 __all__ = [
     "CAMERA_MODELS",
@@ -22,6 +23,7 @@ __all__ = [
     "OpenCV12",
     "OpenCV14",
     "Pinhole",
+    "SplinedStereographic",
     "camera_from_opencv",
     "camera_model_from_name",
 ]

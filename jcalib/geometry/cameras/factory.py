@@ -13,11 +13,12 @@ from jcalib.geometry.cameras.base import (
 from jcalib.geometry.cameras.fisheye import Fisheye
 from jcalib.geometry.cameras.opencv import OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14
 from jcalib.geometry.cameras.pinhole import Pinhole
+from jcalib.geometry.cameras.splined import SPLINED_DIST_NAMES, SplinedStereographic, fov_covering
 
 #: Model classes by name (the ``model`` key of the cell spec and result files).
 CAMERA_MODELS: dict[str, type[AbstractCameraModel]] = {
     cls.name: cls
-    for cls in (Pinhole, OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14, Fisheye)
+    for cls in (Pinhole, OpenCV4, OpenCV5, OpenCV8, OpenCV12, OpenCV14, Fisheye, SplinedStereographic)
 }
 
 #: OpenCV ``dist`` lengths and the perspective model each one selects.
@@ -82,7 +83,8 @@ def camera_from_opencv(
 
     The model is picked by the length of ``dist``: 0 (or None) → ``pinhole``, 4, 5, 8, 12, 14 →
     ``opencv4`` … ``opencv14``; with ``fisheye=True`` ``dist`` is cv2.fisheye's ``D`` (4 values)
-    and the model is ``fisheye``. A nonzero ``K[0][1]`` gives a model with a skew parameter
+    and the model is ``fisheye``. A ``dist`` of a result file's ``splined`` camera (``fov_x_deg`` and
+    the spline values, :data:`~jcalib.geometry.cameras.splined.SPLINED_DIST_NAMES`) gives that model. A nonzero ``K[0][1]`` gives a model with a skew parameter
     (``skew = K[0][1]`` in pixels; fisheye: ``alpha = K[0][1] / fx``).
 
     Args:
@@ -107,6 +109,10 @@ def camera_from_opencv(
             )
         alpha = K[0, 1] / K[0, 0] if has_skew else None
         return Fisheye(size, focal, pp, d, alpha=alpha)
+    if d.size == len(SPLINED_DIST_NAMES):
+        if has_skew:
+            raise BadInputError("a splined camera has no skew: K[0][1] must be 0")
+        return SplinedStereographic.from_params(size, np.concatenate([[focal[0], focal[1], pp[0], pp[1]], d]))
     cls = _BY_DIST_LENGTH.get(d.size)
     if cls is None:
         raise BadInputError(
@@ -126,8 +132,8 @@ def camera_model_from_name(name: str, image_size, params=None, skew: bool = Fals
     """A camera model by name, from a flat parameter vector or with default values.
 
     Args:
-        name: ``pinhole``, ``opencv4``, ``opencv5``, ``opencv8``, ``opencv12``, ``opencv14`` or
-            ``fisheye``.
+        name: ``pinhole``, ``opencv4``, ``opencv5``, ``opencv8``, ``opencv12``, ``opencv14``,
+            ``fisheye`` or ``splined``.
         image_size: ``(width, height)``, pixels.
         params: shape ``(n,)`` in the order of the model's ``param_names`` (may be traced; values
             are checked only when concrete), or None for defaults: ``fx = fy = max(width,
@@ -147,15 +153,14 @@ def camera_model_from_name(name: str, image_size, params=None, skew: bool = Fals
         )
     size = check_image_size(image_size)
     if params is None:
-        n_dist = 4 if cls is Fisheye else cls.num_coeffs
         f = float(max(size))
-        params = np.concatenate(
-            [
-                [f, f, (size[0] - 1) / 2.0, (size[1] - 1) / 2.0],
-                [0.0] * int(skew),
-                [0.0] * n_dist,
-            ]
-        )
+        core = [f, f, (size[0] - 1) / 2.0, (size[1] - 1) / 2.0]
+        if cls is SplinedStereographic:
+            spline = [fov_covering(core[:2], core[2:], size)] + [0.0] * (len(SPLINED_DIST_NAMES) - 1)
+            params = np.concatenate([core, spline])
+        else:
+            n_dist = 4 if cls is Fisheye else cls.num_coeffs
+            params = np.concatenate([core, [0.0] * int(skew), [0.0] * n_dist])
     model = cls.from_params(size, params, skew=bool(skew))
     if is_concrete(params):
         values = np.asarray(model.params)

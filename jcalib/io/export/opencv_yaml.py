@@ -30,7 +30,10 @@ from jcalib.io.atomic import write_text_atomic
 from jcalib.io.export._common import checked_export, comment_text, exact_float, pick_camera, provenance_lines
 from jcalib.io.result import CameraResult, ResultFile, load_result
 
-__all__ = ["opencv_yaml", "write_opencv_yaml"]
+__all__ = ["OPENCV_MODELS", "opencv_yaml", "write_opencv_yaml"]
+
+#: Lens models an OpenCV reader represents (``fisheye``: cv2.fisheye's ``D``).
+OPENCV_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye")
 
 
 def _matrix(key: str, values: np.ndarray) -> list[str]:
@@ -46,6 +49,10 @@ def _matrix(key: str, values: np.ndarray) -> list[str]:
 
 
 def _camera(name: str, cam: CameraResult, suffix: str) -> list[str]:
+    if cam.model not in OPENCV_MODELS:
+        raise BadInputError(
+            f"camera '{name}' has the {cam.model} lens model, which OpenCV cannot read; convert it first, e.g. "
+            "jcalib convert RESULT --to opencv8 --fix k4,k5,k6 -o CONVERTED (prints the approximation error)")
     dist = cam.dist if cam.dist.size else np.zeros(5)
     return [
         f'camera_name{suffix}: "{name}"',

@@ -65,7 +65,8 @@ def ros_distortion(model: str, dist: np.ndarray) -> tuple[str, np.ndarray]:
                 "with opencv8, or export to OpenCV YAML instead"
             )
         return "rational_polynomial", dist[:8]
-    raise BadInputError(f"camera model {model!r} has no ROS distortion model")  # pragma: no cover
+    raise BadInputError(f"camera model {model!r} has no ROS distortion model; convert it first, e.g. jcalib convert "
+                        "RESULT --to opencv8 --fix k4,k5,k6 -o CONVERTED (prints the approximation error)")
 
 
 def _matrix(key: str, values: np.ndarray) -> list[str]:

@@ -32,22 +32,14 @@ from jcalib.io.schema.common import (
     pose_problem,
     rotation_problem,
 )
+from jcalib.io.schema.lens import LENS_DIST_NAMES
 
 __all__ = ["CAMERA_MODELS", "DIST_NAMES", "CellDocument", "fixable_names", "validate_cell_document"]
 
 SCHEMA = "jcalib.cell/1"
-CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye")
-_OPENCV = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined")
 #: Distortion names of each model, in OpenCV's order (``len`` = the length ``dist`` must have).
-DIST_NAMES = {
-    "pinhole": (),
-    "opencv4": _OPENCV[:4],
-    "opencv5": _OPENCV[:5],
-    "opencv8": _OPENCV[:8],
-    "opencv12": _OPENCV[:12],
-    "opencv14": _OPENCV[:14],
-    "fisheye": ("k1", "k2", "k3", "k4"),
-}
+DIST_NAMES = LENS_DIST_NAMES
 Mount = Literal["flange", "base", "world", "free"]
 #: Grid fields of each target type (required, optional).
 TARGET_FIELDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -123,7 +115,7 @@ class Intrinsics(Closed):
 
 
 class Camera(Closed):
-    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye"]
+    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined"]
     mount: Mount = "free"
     skew: bool = False
     fix: list[str] | None = None

@@ -23,7 +23,7 @@ SCHEMA = "jcalib.result/1"
 
 
 class CameraEntry(Open):
-    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye"]
+    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined"]
     image_size: Annotated[list[Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE_PX)]], Field(min_length=2, max_length=2)]
     K: Mat3
     dist: list[Num]
