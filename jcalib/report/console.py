@@ -20,7 +20,14 @@ def intrinsics_table(result: ResultFile, truth: dict[str, dict[str, float]] | No
         table.add_column("truth", justify="right")
         table.add_column("error / σ", justify="right")
     for name, cam in result.cameras.items():
-        for pname, value in zip(cam.param_names, cam.params):
+        names, values = list(cam.param_names), list(cam.params)
+        if cam.model == "splined":  # 416 spline values: the core, the extent and one summary row
+            spline = np.asarray(values[5:])
+            stds = np.asarray([cam.std.get(n, np.nan) for n in names[5:]])
+            table.add_row(name, "spline", f"{len(spline)} values, max |·| {np.max(np.abs(spline)):.3g}",
+                          f"{np.nanmin(stds):.2g}–{np.nanmax(stds):.2g}" if np.any(np.isfinite(stds)) else "–", "")
+            names, values = names[:5], values[:5]
+        for pname, value in zip(names, values):
             std = cam.std.get(pname)
             unit = "px" if pname in _PIXEL_PARAMS else ""
             fixed = std is not None and std == 0.0

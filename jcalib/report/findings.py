@@ -190,16 +190,17 @@ def cross_validation_section(cell, observations, options, enabled: bool) -> str:
     except (BadInputError, NotObservableError) as err:
         return note(f"Cross-validation not possible: {esc(err)}")
     out = [note(f"Calibrated separately on the even ({len(cv.stations[0])}) and odd ({len(cv.stations[1])}) stations. "
-                "Each pixel's ray from half A is projected by half B after the best-fit common rotation (a camera-frame "
-                "rotation is not a lens difference). A difference much larger than expected means the σ are too small "
-                "(model error); comparable means they are honest.")]
+                "Each pixel's ray from half A is projected by half B after the rotation that best aligns their camera "
+                "frames (a camera-frame rotation is not a lens difference), and the difference is tested against the "
+                "one the two halves' covariances predict (χ² per point and over the image). A difference much larger "
+                "than predicted means the σ are too small (model error, a camera that changed); comparable means they "
+                "are honest.")]
     for name, (u, v, diff, expected) in cv.maps.items():
+        c = cv.comparisons[name]
         cam = cv.results[0].file.cameras[name]
         png = plots.cross_validation_png(name, u, v, diff, expected, cam.image_size)
-        ratio = float(np.nanmedian(diff) / np.nanmedian(expected)) if np.any(np.isfinite(expected)) else float("nan")
         out.append(figure(png, f"cross-validation of {name}",
-                          f"<code>{esc(name)}</code>: difference median {np.nanmedian(diff):.3g} px, max "
-                          f"{np.nanmax(diff):.3g} px; expected median {np.nanmedian(expected):.3g} px (ratio {ratio:.2f})."))
+                          f"<code>{esc(name)}</code>: {esc(c.message)}"))
     rows = [[f"<code>{esc(n)}</code>", fmt(t["rotation_deg"], 3), fmt(t.get("rotation_sigma_deg", float("nan")), 3),
              fmt(t["translation_mm"], 3), fmt(t.get("translation_sigma_mm", float("nan")), 3)]
             for n, t in cv.transforms.items()]

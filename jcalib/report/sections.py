@@ -64,10 +64,19 @@ def intrinsics(file: ResultFile) -> str:
     out = []
     for name, cam in file.cameras.items():
         rows = []
-        for pname, value in zip(cam.param_names, cam.params):
+        names, values = list(cam.param_names), list(cam.params)
+        if cam.model == "splined":  # the core and the extent, then the spline's 416 values in one row
+            spline = np.asarray(values[5:])
+            stds = np.asarray([cam.std.get(n, np.nan) for n in names[5:]])
+            names, values = names[:5], values[:5]
+        for pname, value in zip(names, values):
             std = cam.std.get(pname)
             s = "–" if std is None else ("fixed" if std == 0.0 else fmt(std, 3))
             rows.append([esc(pname), fmt(value, 8), s, "px" if pname in _PIXEL_PARAMS else "–"])
+        if cam.model == "splined":
+            rows.append(["spline", f"{len(spline)} values (stereographic units), max |·| {fmt(np.max(np.abs(spline)), 3)}",
+                         f"{fmt(np.nanmin(stds), 3)}–{fmt(np.nanmax(stds), 3)}" if np.any(np.isfinite(stds)) else "–",
+                         "–"])
         w, h = cam.image_size
         out.append(f"<h3>Camera <code>{esc(name)}</code>: model <code>{esc(cam.model)}</code>, image {w} x {h} px</h3>"
                    + table(["parameter", "value", "σ", "unit"], rows, {1, 2}))

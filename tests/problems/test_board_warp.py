@@ -1,7 +1,6 @@
 """Board warp (``warp: true``): mrcal's parabolic definition, exact recovery from noise-free corners,
 σ consistent by Monte Carlo, a bowed board in a hand-eye cell, and the result file / report."""
 
-import copy
 import json
 
 import numpy as np
@@ -91,22 +90,18 @@ def test_warp_sigma_is_consistent_by_monte_carlo():
 
 def test_bowed_board_in_a_hand_eye_cell():
     """Nearly noise-free synthetic hand-eye cell whose board sags 0.5 mm: with the warp estimated the
-    hand-eye and the flange camera's intrinsics come out right; taken as flat they do not."""
+    warp, the hand-eye and the flange camera's intrinsics come out right (taken as flat, the same data
+    leave about 0.2° and 0.4 mm of hand-eye error and 0.7 px of fx: the noise-free row of
+    ``benchmarks/bench_board_warp.py``)."""
     warp = np.array([0.0003, 0.0002])
     cell, obs, true = synthetic_cell(3, num_tool_stations=8, sigma_px=1e-4, tip_sigma_px=1e-4, robot_m=1e-7,
                                      robot_deg=1e-6, board_warp=warp)
-    o = parse_observations(obs)
-    err = {}
-    for estimate in (False, True):
-        c = copy.deepcopy(cell)
-        c["targets"]["board"]["warp"] = estimate
-        cal = calibrate_cell(parse_cell(c), o)
-        e = log_se3(invert(true["T_flange_cam0"]) @ cal.transforms["T_flange_cam0"])
-        err[estimate] = (np.linalg.norm(e[:3]), np.linalg.norm(e[3:]), abs(cal.cameras["cam0"].params[0] - true["cam0"][0]))
-        if estimate:
-            np.testing.assert_allclose(cal.warps["board"], warp, atol=2e-6)
-    flat, warped = np.array(err[False]), np.array(err[True])
-    assert np.all(warped < 0.1 * flat), (flat, warped)
+    cell["targets"]["board"]["warp"] = True
+    cal = calibrate_cell(parse_cell(cell), parse_observations(obs))
+    np.testing.assert_allclose(cal.warps["board"], warp, atol=2e-6)
+    e = log_se3(invert(true["T_flange_cam0"]) @ cal.transforms["T_flange_cam0"])
+    assert np.degrees(np.linalg.norm(e[:3])) < 0.005 and np.linalg.norm(e[3:]) < 2e-5, e
+    assert abs(cal.cameras["cam0"].params[0] - true["cam0"][0]) < 0.05
 
 
 @pytest.fixture(scope="module")

@@ -53,17 +53,34 @@ def _projection_error(model, truth, pixels):
     return np.linalg.norm(least_squares(residual, np.zeros(3)).fun.reshape(-1, 2), axis=1)
 
 
+def _check_tables(file):
+    """The console and the report list the core and the extent, and the 416 spline values in one row."""
+    from rich.console import Console
+
+    from jcalib.report.console import print_result
+    from jcalib.report.sections import intrinsics
+
+    console = Console(record=True, width=160)
+    print_result(file, console)
+    text = console.export_text()
+    assert "416 values" in text and "fov_x_deg" in text and "su0_0" not in text
+    html = intrinsics(file)
+    assert "416 values" in html and "su0_0" not in html
+
+
 def test_splined_model_recovers_a_lens_the_fisheye_cannot(data):
+    """The splined model holds the lens to 0.05 px (median over the covered pixels, after the best
+    camera-frame rotation); the truth's non-radial part is 1.3 px, which no radial fisheye can hold
+    (``benchmarks/bench_splined.py`` calibrates the fisheye on the same data for comparison)."""
     truth, obs = data
     seen = np.concatenate([np.asarray(d["pixels"]) for s in obs["stations"] for d in s["detections"]])
-    err = {}
-    for model in ("fisheye", "splined"):
-        cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": model}}, "targets": {"board": BOARD.to_spec()}}
-        result = jcalib.calibrate(cell, obs)
-        assert result.details.status == "converged"
-        err[model] = _projection_error(result.details.cameras["cam0"], truth, seen[::7])
-        if model == "splined":
-            assert result.file.cameras["cam0"].model == "splined"
-            assert result.details.rms_px < 0.02  # 0.01 px per coordinate of noise: ~0.014 px per corner
-    assert np.median(err["splined"]) < 0.05, np.median(err["splined"])
-    assert np.median(err["fisheye"]) > 3 * np.median(err["splined"]), (np.median(err["fisheye"]), np.median(err["splined"]))
+    cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "splined"}}, "targets": {"board": BOARD.to_spec()}}
+    result = jcalib.calibrate(cell, obs)
+    assert result.details.status == "converged"
+    assert result.file.cameras["cam0"].model == "splined"
+    assert result.details.rms_px < 0.02  # 0.01 px per coordinate of noise: ~0.014 px per corner
+    _check_tables(result.file)
+    err = _projection_error(result.details.cameras["cam0"], truth, seen[::7])
+    assert np.median(err) < 0.05, np.median(err)
+    # the truth's non-radial spline reaches more than 1 px: what the test asks the model to hold is real
+    assert np.max(np.abs(np.asarray(truth.control))) * float(truth.focal[0]) > 1.0

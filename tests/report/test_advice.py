@@ -174,6 +174,7 @@ def test_cross_validation_halves(cases):
     assert diff.shape == expected.shape == (7, 9)
     ratio = np.nanmedian(diff) / np.nanmedian(expected)
     assert 0.1 < ratio < 3.0, ratio
+    assert cv.comparisons["cam0"].verdict == "consistent", cv.comparisons["cam0"].message  # the right lens model
 
 
 def test_fronto_parallel_views_first_warning_names_focal_and_tilt(cases):
