@@ -93,8 +93,8 @@ def main() -> None:
     result, seen = last
     cam = result.details.cameras["cam0"]
     cov = result.details.intrinsics_covariance["cam0"]
-    lo, hi = seen.min(axis=0), seen.max(axis=0)
     w, h = IMAGE_SIZE
+    lo, hi = np.maximum(seen.min(axis=0), 0.0), np.minimum(seen.max(axis=0), [w - 1.0, h - 1.0])
     regions = {"central half": (w / 4, h / 4, 3 * w / 4, 3 * h / 4), "covered by the views": (*lo, *hi)}
     print("\nThe splined result converted (jcalib convert): approximation error over the region")
     print("| to | region | RMS px | max px | pixels compared / left out | time s |")
