@@ -276,7 +276,8 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     return Calibration(
         cameras=cameras, intrinsics_covariance=intr_cov, transforms=transforms, transform_covariance=tcov,
         calibrated=dict(built.calibrated), tool_orientation=tool_orientation, points=points,
-        point_covariance=point_cov, warps=warps, warp_covariance=warp_cov, frame=g.frame, station_ids=list(g.station_ids), flange_poses=flange,
+        point_covariance=point_cov, warps=warps, warp_covariance=warp_cov, frame=g.frame,
+        station_ids=list(g.station_ids), flange_poses=flange,
         T_cam_target=T_cam_target, view_rms_px=view_rms, view_noise=view_noise, residuals=res, weights=r.weights,
         rms=rms,
         sigma_px=float(np.sqrt(corner_factor)) * built.sigma["corner"], outliers=r.outliers,

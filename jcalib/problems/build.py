@@ -240,7 +240,7 @@ class _Builder:
             params = np.asarray(model.params, np.float64)
             kw = {}
             if model.name == "splined":  # the spline's regularisation (see SPLINE_PRIOR_SIGMA)
-                spline = np.arange(params.size) >= 5
+                spline = np.arange(params.size) > list(model.param_names).index("fov_x_deg")
                 kw = dict(prior_mean=np.where(spline, 0.0, params),
                           prior_sqrt_info=np.diag(np.where(spline, 1.0 / SPLINE_PRIOR_SIGMA, 0.0)))
             self.add(f"intrinsics:{cam.name}", Euclidean(len(model.param_names)), params[None, :],

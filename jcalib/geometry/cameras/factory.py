@@ -84,7 +84,8 @@ def camera_from_opencv(
     The model is picked by the length of ``dist``: 0 (or None) → ``pinhole``, 4, 5, 8, 12, 14 →
     ``opencv4`` … ``opencv14``; with ``fisheye=True`` ``dist`` is cv2.fisheye's ``D`` (4 values)
     and the model is ``fisheye``. A ``dist`` of a result file's ``splined`` camera (``fov_x_deg`` and
-    the spline values, :data:`~jcalib.geometry.cameras.splined.SPLINED_DIST_NAMES`) gives that model. A nonzero ``K[0][1]`` gives a model with a skew parameter
+    the spline values, :data:`~jcalib.geometry.cameras.splined.SPLINED_DIST_NAMES`) gives that model.
+    A nonzero ``K[0][1]`` gives a model with a skew parameter
     (``skew = K[0][1]`` in pixels; fisheye: ``alpha = K[0][1] / fx``).
 
     Args:
