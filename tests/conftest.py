@@ -110,33 +110,3 @@ def _hang_watchdog(request):
     timer.start()
     yield
     timer.cancel()
-
-
-#: Test files whose tests run longest (compiles of whole-cell solves, notebooks, end-to-end runs), measured
-#: with ``--durations`` on an empty compilation cache. They are started first: with two xdist workers a
-#: long test left for the end runs alone while the other worker idles.
-LONG_RUNNING_FIRST = (
-    "tests/cli/test_option_matrix.py",
-    "tests/acquisition/test_demo_cell.py",
-    "tests/notebooks/test_notebooks.py",
-    "tests/problems/test_tool_orientation.py",
-    "tests/golden/test_golden.py",
-    "tests/problems/test_residual_jacobians.py",
-    "tests/problems/test_splined_calibration.py",
-    "tests/acquisition/test_e2e.py",
-    "tests/problems/test_board_warp.py",
-    "tests/problems/test_cell_multirobot.py",
-    "tests/report/test_model.py",
-    "tests/problems/test_tcp.py",
-)
-
-
-def pytest_collection_modifyitems(session, config, items):
-    """Start the long-running test files first (stable: the order within and after them is kept)."""
-    rank = {path: i for i, path in enumerate(LONG_RUNNING_FIRST)}
-
-    def key(item):
-        path = item.nodeid.split("::", 1)[0]
-        return rank.get(path, len(rank))
-
-    items.sort(key=key)
