@@ -23,33 +23,13 @@ import sys
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "problems"))
-from fisheye_scene import BOARD, CAMERA, IMAGE_SIZE, board_views, observations  # noqa: E402
+from fisheye_scene import BOARD, IMAGE_SIZE, board_views, observations, projection_error, splined_truth  # noqa: E402
 
 import jcalib  # noqa: E402
-from jcalib.geometry.cameras.splined import GRID, SplinedStereographic, fov_covering  # noqa: E402
 from jcalib.problems.convert import convert_camera  # noqa: E402
 from jcalib.sim.scene import project_target  # noqa: E402
-
-
-def truth_model() -> SplinedStereographic:
-    nx, ny = GRID
-    fov = fov_covering(CAMERA.focal, CAMERA.principal_point, IMAGE_SIZE)
-    j, i = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
-    bump = 0.004 * np.stack([np.sin(i / 3.0) * np.cos(j / 4.0), np.cos(i / 4.0) * np.sin(j / 3.0)], axis=-1)
-    return SplinedStereographic(IMAGE_SIZE, CAMERA.focal, CAMERA.principal_point, fov, bump)
-
-
-def projection_error(model, truth, pixels) -> np.ndarray:
-    rays = np.asarray(truth.unproject(pixels))
-
-    def residual(w):
-        return (np.asarray(model.project(rays @ Rotation.from_rotvec(w).as_matrix().T)) - pixels).ravel()
-
-    return np.linalg.norm(least_squares(residual, np.zeros(3)).fun.reshape(-1, 2), axis=1)
 
 
 def main() -> None:
@@ -58,7 +38,7 @@ def main() -> None:
     parser.add_argument("--sigma", type=float, default=0.1)
     parser.add_argument("--trials", type=int, default=3)
     args = parser.parse_args()
-    truth = truth_model()
+    truth = splined_truth()
     poses = board_views(truth, BOARD, args.views, seed=3)
     rows = {m: [] for m in ("fisheye", "splined")}
     last = None

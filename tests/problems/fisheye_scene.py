@@ -104,3 +104,29 @@ def observations(point_index, pixels, image_size=IMAGE_SIZE) -> dict:
             for i, (idx, px) in enumerate(zip(point_index, pixels))
         ],
     }
+
+
+def splined_truth():
+    """A lens no KB4 fisheye describes (``test_splined_calibration.py``, ``bench_splined.py``): a stereographic
+    projection with this scene's focal length and principal point plus a smooth, non-radial spline of ~1.3 px."""
+    from jcalib.geometry.cameras.splined import GRID, SplinedStereographic, fov_covering
+
+    nx, ny = GRID
+    fov = fov_covering(CAMERA.focal, CAMERA.principal_point, IMAGE_SIZE)
+    j, i = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
+    bump = 0.004 * np.stack([np.sin(i / 3.0) * np.cos(j / 4.0), np.cos(i / 4.0) * np.sin(j / 3.0)], axis=-1)
+    return SplinedStereographic(IMAGE_SIZE, CAMERA.focal, CAMERA.principal_point, fov, bump)
+
+
+def projection_error(model, truth, pixels) -> np.ndarray:
+    """``|model.project(R · ray_truth(q)) − q|`` over pixels ``q`` after the best rotation ``R`` (two
+    calibrations of one lens may differ by a rotation of the camera frame)."""
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    rays = np.asarray(truth.unproject(pixels))
+
+    def residual(w):
+        return (np.asarray(model.project(rays @ Rotation.from_rotvec(w).as_matrix().T)) - pixels).ravel()
+
+    return np.linalg.norm(least_squares(residual, np.zeros(3)).fun.reshape(-1, 2), axis=1)

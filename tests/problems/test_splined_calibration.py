@@ -8,30 +8,17 @@ import sys
 
 import numpy as np
 import pytest
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, os.path.dirname(__file__))
-from fisheye_scene import BOARD, CAMERA, IMAGE_SIZE, board_views, observations  # noqa: E402
+from fisheye_scene import BOARD, board_views, observations, projection_error, splined_truth  # noqa: E402
 
 import jcalib  # noqa: E402
-from jcalib.geometry.cameras.splined import GRID, SplinedStereographic, fov_covering  # noqa: E402
 from jcalib.sim.scene import project_target  # noqa: E402
-
-
-def _truth():
-    """A stereographic lens with the fisheye scene's focal length and principal point, plus a smooth,
-    non-radial spline of about 1.3 px that no KB4 lens has."""
-    nx, ny = GRID
-    fov = fov_covering(CAMERA.focal, CAMERA.principal_point, IMAGE_SIZE)
-    j, i = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
-    bump = 0.004 * np.stack([np.sin(i / 3.0) * np.cos(j / 4.0), np.cos(i / 4.0) * np.sin(j / 3.0)], axis=-1)
-    return SplinedStereographic(IMAGE_SIZE, CAMERA.focal, CAMERA.principal_point, fov, bump)
 
 
 @pytest.fixture(scope="module")
 def data():
-    truth = _truth()
+    truth = splined_truth()
     rng = np.random.default_rng(7)
     index, pixels = [], []
     for T in board_views(truth, BOARD, 16, seed=3):
@@ -39,18 +26,6 @@ def data():
         index.append(np.flatnonzero(ok))
         pixels.append(pix[ok] + 0.01 * rng.standard_normal((int(ok.sum()), 2)))
     return truth, observations(index, pixels)
-
-
-def _projection_error(model, truth, pixels):
-    """``|model.project(R · ray_truth(q)) − q|`` over pixels ``q`` after the best rotation ``R`` (two
-    calibrations of one lens may differ by a rotation of the camera frame)."""
-    rays = np.asarray(truth.unproject(pixels))
-
-    def residual(w):
-        R = Rotation.from_rotvec(w).as_matrix()
-        return (np.asarray(model.project(rays @ R.T)) - pixels).ravel()
-
-    return np.linalg.norm(least_squares(residual, np.zeros(3)).fun.reshape(-1, 2), axis=1)
 
 
 def _check_tables(file):
@@ -80,7 +55,7 @@ def test_splined_model_recovers_a_lens_the_fisheye_cannot(data):
     assert result.file.cameras["cam0"].model == "splined"
     assert result.details.rms_px < 0.02  # 0.01 px per coordinate of noise: ~0.014 px per corner
     _check_tables(result.file)
-    err = _projection_error(result.details.cameras["cam0"], truth, seen[::7])
+    err = projection_error(result.details.cameras["cam0"], truth, seen[::7])
     assert np.median(err) < 0.05, np.median(err)
     # the truth's non-radial spline reaches more than 1 px: what the test asks the model to hold is real
     assert np.max(np.abs(np.asarray(truth.control))) * float(truth.focal[0]) > 1.0
