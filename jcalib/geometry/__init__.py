@@ -11,6 +11,7 @@ import importlib
 #: servers, :mod:`jcalib.geometry.se3`) do not pay for JAX.
 _LAZY = {
     "conversions": None,
+    "kinematic_models": None,
     "lie": None,
     "se3": None,
     "views": None,
@@ -55,6 +56,7 @@ __all__ = [
     "conversions",
     "forward_kinematics",
     "inverse_kinematics",
+    "kinematic_models",
     "lie",
     "robot_preset",
     "se3",

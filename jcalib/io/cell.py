@@ -120,13 +120,19 @@ class RobotSpec:
     """Robot settings. ``pose_noise`` is None when flange poses are taken as exact; ``model`` names a
     kinematics preset (:data:`jcalib.geometry.ROBOT_PRESETS`) for planning and simulation.
     ``name``: the key under ``robots:`` (None for ``robot:``); ``base``: optional known
-    ``T_world_<name>`` (4, 4), m (several robots only)."""
+    ``T_world_<name>`` (4, 4), m (several robots only). ``kinematics``: the robot's kinematic model
+    (:class:`jcalib.geometry.kinematic_models.Kinematics`, from the spec's ``kinematics:`` preset or
+    table) or None; ``calibrate_kinematics``: the parameter names or groups to estimate (empty: the
+    kinematics is taken as exact)."""
 
     model: str | None = None
     pose_noise_translation_m: np.ndarray | None = None  # (3,) per axis
     pose_noise_rotation_deg: np.ndarray | None = None  # (3,) per axis
     name: str | None = None
     base: np.ndarray | None = None
+    kinematics: Any = None
+    calibrate_kinematics: tuple[str, ...] = ()
+    kinematics_spec: Any = None  # the spec's kinematics: entry as written (preset name or table)
 
 
 @dataclass(frozen=True)
@@ -304,14 +310,17 @@ def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
         return RobotSpec(name=name)
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
-    _check_keys(entry, {"pose_noise", "model"} | ({"base"} if name is not None else set()), where)
+    _check_keys(entry, {"pose_noise", "model", "kinematics", "calibrate_kinematics"}
+                | ({"base"} if name is not None else set()), where)
     model = entry.get("model")
     if model is not None and not isinstance(model, str):
         raise _fail(where + ".model", f"expected a robot preset name, got {model!r}")
     base = _pose(entry["base"], where + ".base") if entry.get("base") is not None else None
+    kin, which = _parse_kinematics(entry, where, name or "robot")
     noise = entry.get("pose_noise")
     if noise is None:
-        return RobotSpec(model=model, name=name, base=base)
+        return RobotSpec(model=model, name=name, base=base, kinematics=kin, calibrate_kinematics=which,
+                         kinematics_spec=entry.get("kinematics"))
     _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
     if "translation_m" not in noise or "rotation_deg" not in noise:
         raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
@@ -321,7 +330,29 @@ def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
         pose_noise_rotation_deg=_positive_vector(noise["rotation_deg"], where + ".pose_noise.rotation_deg"),
         name=name,
         base=base,
+        kinematics=kin,
+        calibrate_kinematics=which,
+        kinematics_spec=entry.get("kinematics"),
     )
+
+
+def _parse_kinematics(entry: dict, where: str, robot: str):
+    """``(model or None, names to calibrate)`` of a robot entry's ``kinematics:`` and ``calibrate_kinematics:``."""
+    from jcalib.geometry import kinematic_models
+
+    spec, which = entry.get("kinematics"), entry.get("calibrate_kinematics")
+    if which is not None and (not isinstance(which, list) or not all(isinstance(n, str) and n for n in which)):
+        raise _fail(where + ".calibrate_kinematics", "expected a list of parameter names or groups (e.g. "
+                                                     f"[joint_offsets, link_lengths]), got {which!r}")
+    if spec is None:
+        if which:
+            raise _fail(where + ".calibrate_kinematics", "calibrating kinematics needs the robot's nominal model: "
+                                                         "add kinematics: <preset> (or a DH / MDH / POE table)")
+        return None, ()
+    model = kinematic_models.from_spec(spec, robot, source=where + ".kinematics")
+    if which:
+        kinematic_models.select(model, list(which), source=where + ".calibrate_kinematics")
+    return model, tuple(which or ())
 
 
 def _parse_robots(data: dict, source: str) -> dict[str, RobotSpec]:
@@ -504,6 +535,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
             entry["pose"] = t.pose.tolist()
         if t.robot is not None:
             entry["robot"] = t.robot
+        if t.warp:
+            entry["warp"] = True
         out["targets"][t.name] = entry
     if cell.tools:
         out["tools"] = {t.name: {"observed_by": list(t.observed_by), **({"robot": t.robot} if t.robot else {}),
@@ -536,4 +569,8 @@ def _robot_to_dict(r: RobotSpec) -> dict:
         }
     if r.base is not None:
         robot["base"] = r.base.tolist()
+    if r.kinematics_spec is not None:
+        robot["kinematics"] = r.kinematics_spec
+    if r.calibrate_kinematics:
+        robot["calibrate_kinematics"] = list(r.calibrate_kinematics)
     return robot

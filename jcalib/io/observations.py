@@ -89,6 +89,10 @@ class Station:
             (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
             the station gives ``T_base_flange``. Which robots a station must give is checked against
             the cell (:func:`jcalib.problems.calibrate_cell`).
+        joints_deg: the robot's joint values as its controller reports them (degrees; prismatic axes
+            in mm): ``(n,)``, or robot name -> ``(n,)`` in a cell with named robots; None when not
+            recorded. Used by kinematic calibration (and to compute a flange pose from a robot's
+            kinematics where the station gives none).
     """
 
     id: str
@@ -97,6 +101,7 @@ class Station:
     contacts: tuple[Contact, ...] = ()
     flange_poses: dict[str, np.ndarray] = field(default_factory=dict)
     poses: tuple[PoseMeasurement, ...] = ()
+    joints_deg: np.ndarray | dict[str, np.ndarray] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"id": self.id}
@@ -104,6 +109,10 @@ class Station:
             out["T_base_flange"] = self.T_base_flange.tolist()
         if self.flange_poses:
             out["flange_poses"] = {r: T.tolist() for r, T in self.flange_poses.items()}
+        if isinstance(self.joints_deg, dict):
+            out["joints_deg"] = {r: q.tolist() for r, q in self.joints_deg.items()}
+        elif self.joints_deg is not None:
+            out["joints_deg"] = self.joints_deg.tolist()
         out["detections"] = [d.to_dict() for d in self.detections]
         if self.contacts:
             out["contacts"] = [{"tool": c.tool, "point": c.point} for c in self.contacts]
@@ -273,8 +282,13 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
                 raise _fail(w, "a pose measurement is {camera: <id>, target: <id>, T_cam_target: [[4x4]]} (m)")
             poses.append(PoseMeasurement(str(m["camera"]), str(m["target"]),
                                          _flange_pose(m["T_cam_target"], w + ".T_cam_target")))
+        joints = s.get("joints_deg")
+        if isinstance(joints, dict):
+            joints = {str(r): _array(q, f"{where}.joints_deg.{r}", 1) for r, q in joints.items()}
+        elif joints is not None:
+            joints = _array(joints, where + ".joints_deg", 1)
         stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts,
-                                flange_poses=flange_poses, poses=tuple(poses)))
+                                flange_poses=flange_poses, poses=tuple(poses), joints_deg=joints))
     return Observations(cameras=cameras, targets=targets, stations=tuple(stations), source=source)
 
 

@@ -19,6 +19,11 @@ Units and conventions (the file states them, readers rely on them):
   definition ``z = c0 (1 − xr²) + c1 (1 − yr²)`` (``xr, yr`` in ``[−1, 1]`` over the extent of the target's
   points, x along its columns); ``warp_std_m`` (2,) and ``warp_covariance`` 2x2 in m². Only targets
   whose warp was estimated (``warp: true``) are listed.
+- kinematics: robot -> its calibrated kinematic model: ``convention``, ``parameters`` and ``nominal``
+  (name -> value, m and rad), ``calibrated`` (the estimated names), ``std`` and ``covariance`` over
+  them, ``held`` (name -> why it was held), ``controller_offsets`` (joint -> zero offset in the
+  controller's units), ``table`` (the model in the cell spec's table form). Only robots whose
+  kinematics was calibrated are listed.
 - stats: ``rms_px``, ``num_residuals``, ``sigma_px`` and any further finite JSON values.
 - provenance: ``input_hash``, ``jcalib_version``, ``options``, ``created`` (ISO 8601).
 
@@ -67,6 +72,7 @@ __all__ = [
     "SCHEMA",
     "TRANSFORM_TANGENT_ORDER",
     "CameraResult",
+    "KinematicsResult",
     "PointResult",
     "Provenance",
     "ResultFile",
@@ -345,6 +351,74 @@ class PointResult:
         )
 
 
+@dataclass(frozen=True, eq=False)
+class KinematicsResult:
+    """A robot's calibrated kinematic model.
+
+    Attributes:
+        convention: ``"dh"``, ``"mdh"`` or ``"poe"`` (:mod:`jcalib.geometry.kinematic_models`).
+        names: ``(P,)`` parameter names (``<joint>.<parameter>``, ``base.*``, ``flange.*``).
+        values, nominal: ``(P,)`` calibrated and nominal parameters (m, rad).
+        calibrated: the estimated parameter names (the others are held at their nominal value).
+        covariance: ``(p, p)`` over ``calibrated`` in that order (m², rad², m·rad), or None.
+        extra: further JSON keys, kept as they are (``held``: name -> why, ``controller_offsets``,
+            ``table``, ``correction_rms_*``, ``repeatability``).
+    """
+
+    convention: str
+    names: tuple[str, ...]
+    values: np.ndarray
+    nominal: np.ndarray
+    calibrated: tuple[str, ...] = ()
+    covariance: np.ndarray | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        field_name(self.convention, "convention")
+        names = tuple(field_name(n, f"names[{i}]") for i, n in enumerate(self.names))
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "values", field_array(self.values, (len(names),), "values"))
+        object.__setattr__(self, "nominal", field_array(self.nominal, (len(names),), "nominal"))
+        bad = [n for n in self.calibrated if n not in names]
+        if bad:
+            raise field_fail("calibrated", f"names {bad} are not among the parameter names")
+        object.__setattr__(self, "calibrated", tuple(self.calibrated))
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", field_covariance(self.covariance, len(self.calibrated), "covariance"))
+        object.__setattr__(self, "extra", field_json(dict(self.extra), "extra"))
+
+    @property
+    def std(self) -> dict[str, float]:
+        """Calibrated name -> one standard deviation (m or rad); empty without a covariance."""
+        if self.covariance is None:
+            return {}
+        return {n: float(np.sqrt(max(v, 0.0))) for n, v in zip(self.calibrated, np.diag(self.covariance))}
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"convention": self.convention,
+                               "parameters": {n: float(v) for n, v in zip(self.names, self.values)},
+                               "nominal": {n: float(v) for n, v in zip(self.names, self.nominal)},
+                               "calibrated": list(self.calibrated)}
+        if self.covariance is not None:
+            out["std"] = self.std
+            out["covariance"] = float_list(self.covariance)
+        out["units"] = "lengths m, angles rad; covariance over 'calibrated' in that order"
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> KinematicsResult:
+        check_entry_keys(data, ("convention", "parameters", "nominal"))
+        params, nominal = data["parameters"], data["nominal"]
+        if not isinstance(params, Mapping) or not isinstance(nominal, Mapping) or list(params) != list(nominal):
+            raise field_fail("parameters", "expected name -> value mappings with the same names as 'nominal'")
+        return cls(convention=data["convention"], names=tuple(params), values=list(params.values()),
+                   nominal=list(nominal.values()), calibrated=tuple(data.get("calibrated") or ()),
+                   covariance=data.get("covariance"),
+                   extra=extra_keys(data, ("convention", "parameters", "nominal", "calibrated", "std", "covariance",
+                                           "units")))
+
+
 #: How a warp is defined (written next to it, so the file is readable without this code).
 WARP_DEFINITION = ("z = c0 (1 - xr^2) + c1 (1 - yr^2) in the target frame, xr and yr in [-1, 1] over the "
                    "extent of the target's points (x along its columns, y along its rows); mrcal's calobject_warp")
@@ -504,7 +578,7 @@ _STAT_CHECKS = {
     "num_residuals": field_count,
 }
 
-_TOP_KEYS = ("schema", "cameras", "transforms", "points", "targets", "stats", "provenance")
+_TOP_KEYS = ("schema", "cameras", "transforms", "points", "targets", "kinematics", "stats", "provenance")
 
 
 def _entries(value: Any, cls: type, where: str) -> dict[str, Any]:
@@ -529,6 +603,7 @@ class ResultFile:
             fixed camera ``T_base_<camera>``, a fixed target ``T_base_<target>``).
         points: point name -> :class:`PointResult`.
         targets: target id -> :class:`TargetResult` (targets whose warp was estimated).
+        kinematics: robot name -> :class:`KinematicsResult` (robots whose kinematics was calibrated).
         stats: ``rms_px`` (pixels), ``num_residuals``, ``sigma_px`` (a-posteriori noise, pixels),
             and any further JSON values (all finite).
         provenance: :class:`Provenance`, or None when unknown.
@@ -542,9 +617,11 @@ class ResultFile:
     stats: Mapping[str, Any] = field(default_factory=dict)
     provenance: Provenance | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+    kinematics: Mapping[str, KinematicsResult] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        set_(self, "kinematics", _entries(self.kinematics, KinematicsResult, "kinematics"))
         set_(self, "cameras", _entries(self.cameras, CameraResult, "cameras"))
         set_(self, "transforms", _entries(self.transforms, TransformResult, "transforms"))
         set_(self, "points", _entries(self.points, PointResult, "points"))
@@ -642,6 +719,8 @@ class ResultFile:
         }
         if self.targets:
             out["targets"] = {n: t.to_dict() for n, t in self.targets.items()}
+        if self.kinematics:
+            out["kinematics"] = {n: k.to_dict() for n, k in self.kinematics.items()}
         out["stats"] = dict(self.stats)
         if self.provenance is not None:
             out["provenance"] = self.provenance.to_dict()
@@ -688,6 +767,7 @@ class ResultFile:
         transforms = section("transforms", TransformResult)
         points = section("points", PointResult)
         targets = section("targets", TargetResult)
+        kinematics = section("kinematics", KinematicsResult)
         provenance = None
         if data.get("provenance") is not None:
             try:
@@ -699,6 +779,7 @@ class ResultFile:
             transforms=transforms,
             points=points,
             targets=targets,
+            kinematics=kinematics,
             stats=data.get("stats", {}),
             provenance=provenance,
             extra={k: v for k, v in data.items() if k not in _TOP_KEYS},

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jcalib.geometry.se3 import log_se3
+from jcalib.problems.kinematics import forward_batch
 from jcalib.geometry.cameras import AbstractCameraModel
 from jcalib.problems.build import CORNER_KINDS, Built, se3_matrix
 from jcalib.problems.graph import FREE, Graph
@@ -56,6 +57,8 @@ class Calibration:
         joint_covariance: ``{"names", "dims", "matrix"}`` of every shared unknown (intrinsics, transforms).
         status, iterations, sigma2, num_residuals, pose_model: solver facts.
         solution, graph, built: the :class:`jcalib.solve.Solution` and how it was built (for the report).
+        kinematics: robot -> its calibrated kinematics (:func:`kinematic_result`), for the robots whose
+            kinematic parameters were estimated.
         covariance_noise: how the covariances read the solution: ``"a_posteriori"`` (scaled by its
             ``sigma2``) or ``"stated"`` (its factor groups' σ, which carry the variance components).
     """
@@ -101,6 +104,7 @@ class Calibration:
     graph: object = field(default=None, repr=False)
     built: object = field(default=None, repr=False)
     covariance_noise: str = "a_posteriori"
+    kinematics: dict[str, dict] = field(default_factory=dict)
 
     @property
     def rms_px(self) -> float:
@@ -173,6 +177,25 @@ def robot_statistics(g: Graph, built: Built, sol, robot: str) -> dict:
     }
 
 
+def kinematic_result(g: Graph, built: Built, sol, robot: str, noise: str) -> dict:
+    """A robot's calibrated kinematics: ``model`` (:class:`~jcalib.geometry.kinematic_models.Kinematics`),
+    ``params (P,)`` and their ``covariance (P, P)`` (zero for held parameters; m, rad), ``free``
+    ``(P,)`` bool, ``held`` (name -> why), ``repeatability`` (where the flange-pose σ came from), and
+    the stations' flange corrections against the calibrated model: ``correction_rms_translation_m``
+    and ``correction_rms_rotation_deg`` (per flange axis; what the kinematics does not explain)."""
+    sel = built.kinematics[robot]
+    name = f"kinematics:{robot}"
+    model = g.robot_specs[robot].kinematics
+    params = np.asarray(sol.values[name][0], np.float64).copy()
+    ks = np.flatnonzero(g.need[robot])
+    T_model = np.asarray(forward_batch(model, params, g.joints[robot][ks]), np.float64)
+    delta = log_se3(np.linalg.inv(T_model) @ se3_matrix(sol.values[g.flange_name(robot)]))
+    rms = np.sqrt(np.mean(delta**2, axis=0))
+    return {"model": model, "params": params, "covariance": sol.covariance(name, noise=noise), "free": sel.free.copy(),
+            "held": dict(sel.held), "repeatability": built.kinematic_noise[robot],
+            "correction_rms_translation_m": rms[3:].tolist(), "correction_rms_rotation_deg": np.degrees(rms[:3]).tolist()}
+
+
 def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     """The :class:`Calibration` of the final solve."""
     sol, cell, noise = r.sol, g.cell, r.cov_noise
@@ -214,6 +237,7 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
 
     joint_names = [(c, f"intrinsics:{c}") for c in cameras] + [(n, n) for n in built.transforms]
     joint_names += [(f"warp:{t}", f"warp:{t}") for t in built.warps]
+    joint_names += [(f"kinematics:{rb}", f"kinematics:{rb}") for rb in built.kinematics]
     joint_names = [(a, b) for a, b in joint_names if not sol.layout.eliminate[sol.layout.kind(b)]]
     M = sol.joint_covariance([b for _, b in joint_names], noise=noise)
     dims = [sol.layout.dims[sol.layout.kind(b)] for _, b in joint_names]
@@ -268,7 +292,9 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         measured = g.flange[rb][ks]
         estimated = se3_matrix(vals[g.flange_name(rb)]) if built.pose_model[rb] else measured.copy()
         flange[rb] = {"station_ids": [g.station_ids[k] for k in ks], "measured": measured, "estimated": estimated}
-    robot = {rb: robot_statistics(g, built, sol, rb) for rb in g.used_robots if built.pose_model[rb]}
+    robot = {rb: robot_statistics(g, built, sol, rb) for rb in g.used_robots
+             if built.pose_model[rb] and rb not in built.kinematics}
+    kinematics = {rb: kinematic_result(g, built, sol, rb, noise) for rb in built.kinematics}
     warnings = list(start.warnings)
     warnings += [f"{g.label(rb)} has no observations; its base ({g.base_name(rb)}) is not estimated"
                  for rb in g.robot_names if g.multi and rb not in g.used_robots]
@@ -287,4 +313,4 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         motions=dict(start.motions), unobservable_fixed=start.unobservable_fixed, priors=list(built.priors),
         joint_covariance=joint, status=sol.status.name.lower(), iterations=sol.iterations, sigma2=float(sol.sigma2),
         num_residuals=num_res, pose_model=any(built.pose_model.values()), solution=sol, graph=g, built=built,
-        covariance_noise=noise)
+        covariance_noise=noise, kinematics=kinematics)

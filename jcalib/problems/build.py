@@ -10,6 +10,9 @@ Unknowns (names as in the result file):
   tool axes determine it (the rotation about the axis itself is held);
 - ``T_world_<robot>``: each robot's base (several robots; the gauge robot's is held);
 - ``point:<name>``: each cell point (held when the spec gives its position);
+- ``kinematics:<robot>``: a robot's kinematic parameters (``calibrate_kinematics``; an identifiable
+  subset free, :mod:`jcalib.problems.kinematics`), whose flange poses are then per-station unknowns
+  tied to the kinematics at the station's joints (factor ``kinematic:<robot>``) instead of the pose prior;
 - per station: each robot's flange pose (``T_base_flange`` / ``T_<robot>_flange``) under the robot's
   pose-noise prior, or constant (exact) without the pose model; each free target's pose
   (``T_<frame>_<target>``). Per-station kinds are eliminated by Schur complement; where one factor
@@ -36,7 +39,7 @@ from jcalib.geometry.targets import warp_bow
 from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.start import Start
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
-from jcalib.residuals.pose import axis_translation_prior, contact, pose_measurement
+from jcalib.residuals.pose import axis_translation_prior, contact, kinematic, pose_measurement
 from jcalib.residuals.reprojection import reprojection, tool_axis, warped_reprojection
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable
 
@@ -99,6 +102,9 @@ class Built:
         pose_sqrt_info: robot -> ``(6, 6)`` square-root information of one flange-pose correction.
         warps: targets whose warp (``warp:<target>``, :func:`jcalib.residuals.reprojection.warped_reprojection`)
             is estimated.
+        kinematics: robot -> :class:`jcalib.problems.kinematics.Selection` of the robots whose kinematic
+            parameters (``kinematics:<robot>``) are estimated; ``kinematic_noise``: robot -> where the
+            repeatability σ of its flange poses came from.
     """
 
     problem: Problem
@@ -112,6 +118,8 @@ class Built:
     priors: list[str] = field(default_factory=list)
     pose_sqrt_info: dict[str, np.ndarray] = field(default_factory=dict)
     warps: list[str] = field(default_factory=list)
+    kinematics: dict = field(default_factory=dict)
+    kinematic_noise: dict[str, str] = field(default_factory=dict)
 
     def with_weights(self, weights: dict[str, np.ndarray], scale: dict[str, float] | None = None,
                      views: dict[str, np.ndarray] | None = None) -> Problem:
@@ -186,6 +194,8 @@ class _Builder:
         self.transforms: list[str] = []
         self.pose_sqrt_info: dict[str, np.ndarray] = {}
         self.warps: list[str] = []
+        self.kinematic: dict[str, object] = {r: None for r in g.kinematic_robots}  # robot -> Selection
+        self.kinematic_noise: dict[str, str] = {}
 
     # ------------------------------------------------------------------------- variables
 
@@ -209,7 +219,9 @@ class _Builder:
             meas = se3_params(g.flange[r][stations])
             label = "station {i} flange pose" if not g.multi else f"station {{i}} {r} flange pose"
             self.per_station[name] = ("flange", r)
-            if self.pose_model[r]:
+            if r in self.kinematic:
+                self.kinematic_variables(r, name, stations, meas, label)
+            elif self.pose_model[r]:
                 spec = g.robot_specs[r]
                 trans = np.asarray(spec.pose_noise_translation_m, np.float64)
                 rot = spec.pose_noise_rotation_deg
@@ -230,6 +242,29 @@ class _Builder:
             self.per_station[name] = ("free", t)
             self.variables[name] = Variable(name, SE3(), se3_params(np.stack([poses[k] for k in ks])), eliminate=True,
                                             entry_label=f"station {{i}} {t} pose")
+
+    def kinematic_variables(self, r: str, name: str, stations: np.ndarray, meas: np.ndarray, label: str) -> None:
+        """A robot whose kinematics is calibrated: its parameters ``kinematics:<robot>`` (the identifiable
+        subset free), each station's flange pose unknown (started at the measured one) and tied to the
+        kinematics at the station's joints by the robot's repeatability (:func:`kinematic`)."""
+        g = self.g
+        model = g.robot_specs[r].kinematics
+        S, how = g.kinematic_noise[r]
+        q = g.joints[r][stations]
+        sel = g.kinematics[r]
+        self.kinematic[r] = sel
+        self.kinematic_noise[r] = how
+        self.pose_sqrt_info[r] = S
+        self.variables[name] = Variable(name, SE3(), meas, eliminate=True, entry_label=label)
+        kname = f"kinematics:{r}"
+        self.add(kname, Euclidean(model.num_params), np.asarray(model.nominal, np.float64)[None, :],
+                 fixed=~sel.free[None, :], key=kname, coord_names=list(model.param_names),
+                 entry_label=f"{g.label(r)} kinematics")
+        n = stations.size
+        self.factors.append(FactorGroup(
+            f"kinematic:{r}", kinematic(model), (kname, name), (np.zeros(n, np.int32), np.arange(n, dtype=np.int32)),
+            (q, np.broadcast_to(S, (n, 6, 6)).copy())))
+        self.chains.append((name,))
 
     def shared_variables(self) -> None:
         g, s, cell = self.g, self.s, self.g.cell
@@ -489,7 +524,7 @@ def build(g: Graph, start: Start, options, pose_model: dict[str, bool], priors: 
              "axis": options.axis_sigma_px, "contact": options.contact_sigma_m, "pose_rotation": float(np.radians(options.pose_sigma_deg)),
              "pose_translation": options.pose_sigma_m}
     return Built(problem, b.groups, sigma, b.flange_entry, b.free_entry, b.transforms, pose_model, b.calibrated,
-                 sorted(set(b.used_priors)), b.pose_sqrt_info, b.warps)
+                 sorted(set(b.used_priors)), b.pose_sqrt_info, b.warps, b.kinematic, b.kinematic_noise)
 
 
 def _check_fixed_names(g: Graph) -> None:

@@ -20,7 +20,9 @@ import numpy as np
 from jcalib.errors import BadInputError
 from jcalib.io.cell import CellSpec, cell_to_dict
 from jcalib.io.observations import Observations
-from jcalib.io.result import CameraResult, PointResult, Provenance, ResultFile, TargetResult, TransformResult, hash_inputs
+from jcalib.geometry import kinematic_models
+from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Provenance, ResultFile, TargetResult,
+                              TransformResult, hash_inputs)
 from jcalib.problems.assemble import Calibration, assemble
 from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
@@ -138,6 +140,12 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     g = Graph(cell, obs, options.reference_camera)
     check_applicable(options, g, set(given or ()))
     pose_model = {r: g.has_noise(r) if options.pose_model is None else bool(options.pose_model) for r in g.used_robots}
+    for r in g.kinematic_robots:
+        if options.pose_model is False:
+            raise BadInputError(f"option --no-pose-model: {g.label(r)} calibrates its kinematics, which models every "
+                                "station's flange pose as the kinematics at its joints within the robot's repeatability "
+                                "(its pose_noise); drop the option, or drop calibrate_kinematics")
+        pose_model[r] = True
     seed = prior if prior is not None else start
     s = Start()
     start_intrinsics(g, s, seed)
@@ -361,5 +369,20 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
     if cal.T_cam_target:
         extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
     provenance = Provenance.now(input_hash=hash_, options=asdict(options))
+    kinematics = {r: kinematics_result(k) for r, k in cal.kinematics.items()}
     return ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
-                      provenance=provenance, extra=extra)
+                      provenance=provenance, extra=extra, kinematics=kinematics)
+
+
+def kinematics_result(k: dict) -> KinematicsResult:
+    """The result-file entry of a robot's calibrated kinematics (:func:`jcalib.problems.assemble.kinematic_result`)."""
+    model, params, free = k["model"], k["params"], k["free"]
+    names = list(model.param_names)
+    cov = np.asarray(k["covariance"], np.float64)[np.ix_(free, free)]
+    extra = {"held": dict(k["held"]), "repeatability": k["repeatability"],
+             "controller_offsets": kinematic_models.controller_offsets(model, params),
+             "table": kinematic_models.table(model, params),
+             "correction_rms_translation_m": k["correction_rms_translation_m"],
+             "correction_rms_rotation_deg": k["correction_rms_rotation_deg"]}
+    return KinematicsResult(model.convention, tuple(names), params, np.asarray(model.nominal, np.float64),
+                            tuple(n for n, f in zip(names, free) if f), cov, extra)

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry import kinematic_models
+from jcalib.problems.kinematics import Selection, forward_batch, repeatability_sqrt_info, select_parameters
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 
@@ -87,7 +89,13 @@ class Graph:
         robot_names: every robot of the cell (one unnamed robot is ``"robot"``).
         station_ids: the used stations, file order.
         flange: robot -> ``(N, 4, 4)`` measured flange poses per used station (identity where the
-            station has none); ``need``: robot -> ``(N,)`` bool, stations whose observations involve it.
+            station has none; the nominal kinematics at the joints where the station gives only joints);
+            ``need``: robot -> ``(N,)`` bool, stations whose observations involve it; ``joints``: robot ->
+            ``(N, n)`` joint values (rad, m) of the robots whose kinematics is calibrated; ``kinematics``:
+            robot -> which of its kinematic parameters are estimated (the identifiable subset,
+            :func:`jcalib.problems.kinematics.select_parameters`, which also refuses motion that cannot
+            determine them); ``kinematic_noise``: robot -> ``(S (6, 6), source)`` the square-root
+            information of one of its flange poses and where its σ came from.
         pairs, tips, contacts, poses: the observation groups, keyed by the two names they connect.
     """
 
@@ -117,6 +125,9 @@ class Graph:
         self.station_ids: list[str] = []
         self.flange: dict[str, np.ndarray] = {}
         self.need: dict[str, np.ndarray] = {}
+        self.joints: dict[str, np.ndarray] = {}
+        self.kinematics: dict[str, Selection] = {}
+        self.kinematic_noise: dict[str, tuple[np.ndarray, str]] = {}
         self._gather()
 
     # ------------------------------------------------------------------------- holders and names
@@ -193,10 +204,40 @@ class Graph:
         return robot == gauge or (s.base is not None and listed)
 
     def station_pose(self, station, robot: str) -> np.ndarray | None:
-        """The measured flange pose of ``robot`` at ``station`` (None when the station has none)."""
-        if self.multi or station.flange_poses:
-            return station.flange_poses.get(robot)
-        return station.T_base_flange
+        """The measured flange pose of ``robot`` at ``station``: the one the station gives, else the
+        robot's nominal kinematics at the station's joint values, else None."""
+        T = station.flange_poses.get(robot) if self.multi or station.flange_poses else station.T_base_flange
+        if T is None:
+            q = self.station_joints(station, robot)
+            kin = self.robot_specs[robot].kinematics if robot in self.robot_specs else None
+            if q is not None and kin is not None:
+                T = np.asarray(forward_batch(kin, kin.nominal, q[None]), np.float64)[0]
+        return T
+
+    def station_joints(self, station, robot: str) -> np.ndarray | None:
+        """``(n,)`` joint values of ``robot`` at ``station`` in rad (m for prismatic axes), or None.
+
+        Raises:
+            BadInputError: the count does not match the robot's kinematics.
+        """
+        q = station.joints_deg
+        if isinstance(q, dict):
+            q = q.get(robot)
+        elif q is not None and self.multi:
+            raise BadInputError(f"{self.obs.source}: station '{station.id}': joints_deg is a list, but the cell has "
+                                f"several robots ({', '.join(self.robot_names)}); give joints_deg: {{robot: [...]}}")
+        kin = self.robot_specs[robot].kinematics if robot in self.robot_specs else None
+        if q is None or kin is None:
+            return None
+        try:
+            return np.asarray(kinematic_models.joints_from_controller(kin, q), np.float64)
+        except BadInputError as e:
+            raise BadInputError(f"{self.obs.source}: station '{station.id}': joints_deg: {e}") from None
+
+    @property
+    def kinematic_robots(self) -> list[str]:
+        """The used robots whose kinematic parameters are unknowns (``calibrate_kinematics``)."""
+        return [r for r in self.used_robots if r in self.kinematics]
 
     # ------------------------------------------------------------------------- gather
 
@@ -289,6 +330,21 @@ class Graph:
                 if mask[k]:
                     T[k] = np.asarray(self.station_pose(station, r), np.float64)
             self.flange[r], self.need[r] = T, mask
+            if self.robot_specs[r].calibrate_kinematics:
+                q = [self.station_joints(station, r) if mask[k] else None for k, station in enumerate(stations)]
+                missing = [self.station_ids[k] for k in range(n) if mask[k] and q[k] is None]
+                if missing:
+                    raise BadInputError(
+                        f"{src}: station(s) {', '.join(repr(m) for m in missing[:5])} have no joints_deg of "
+                        f"{self.label(r)}; calibrating its kinematics needs the joint values of every station "
+                        "(sessions record them; add joints_deg or remove calibrate_kinematics)")
+                nj = self.robot_specs[r].kinematics.num_joints
+                self.joints[r] = np.stack([qk if qk is not None else np.zeros(nj) for qk in q])
+                spec = self.robot_specs[r]
+                S, how = repeatability_sqrt_info(spec)
+                self.kinematics[r] = select_parameters(spec.kinematics, spec.calibrate_kinematics,
+                                                       self.joints[r][mask], S, self.label(r))
+                self.kinematic_noise[r] = (S, how)
         for key, p in list(self.pairs.items()):
             hc, ht = self.holder(cell.cameras[p.camera]), self.holder(cell.targets[p.target])
             if hc == ht and hc != FREE and len(p.views) > 1:
@@ -309,7 +365,7 @@ class Graph:
                     f"{src}: station '{station.id}' gives T_base_flange, but the cell has several robots "
                     f"({', '.join(self.robot_names)}): give each robot's flange pose in flange_poses: {{robot: [[4x4]]}}")
             for r in sorted(x for x in need if x not in (None, FREE)):
-                if r not in station.flange_poses:
+                if self.station_pose(station, r) is None:
                     raise BadInputError(
                         f"{src}: station '{station.id}': the detections or contacts involve robot '{r}' (a camera, "
                         f"target or tool on its flange), but the station has no flange pose of '{r}'; add "
@@ -317,7 +373,7 @@ class Graph:
         elif self.station_pose(station, self.robot_names[0]) is None:
             raise BadInputError(
                 f"{src}: station '{station.id}' has no T_base_flange; a robot cell needs the flange pose of every "
-                "station")
+                "station (or its joints_deg and the robot's kinematics: in the cell)")
 
     # ------------------------------------------------------------------------- queries
 

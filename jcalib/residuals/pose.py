@@ -1,14 +1,17 @@
-"""Residuals between poses: tool-tip contacts, 6-DOF pose measurements (pose loops) and a prior on a
-translation component.
+"""Residuals between poses: tool-tip contacts, 6-DOF pose measurements (pose loops), a robot's flange
+pose against its kinematic model and a prior on a translation component.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
-from jcalib.geometry import lie
+from jcalib.geometry import kinematic_models, lie
 from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian, chain_pose
 from jcalib.residuals.reprojection import recipe
 
@@ -64,3 +67,38 @@ def axis_translation_prior(T, obs):
     one-axis robot motion cannot determine)."""
     axis, value = obs
     return jnp.matmul(axis, T[4:7])[None] - value
+
+
+_KINEMATIC: dict = {}
+
+
+def _model_key(model) -> str:
+    """A process-independent name of a kinematic model: its structure and a digest of its arrays."""
+    leaves, treedef = jax.tree_util.tree_flatten(model)
+    h = hashlib.sha256(repr(treedef).encode())
+    for leaf in leaves:
+        h.update(np.asarray(leaf, np.float64).tobytes())
+    return h.hexdigest()[:24]
+
+
+def kinematic(model):
+    """A robot's flange pose against its kinematics, whitened, ``(6,)``.
+
+    ``fn(params (P,), T_base_flange (7,), obs)`` with ``obs = (q (n,), S (6, 6))``: ``S · Log(FK(params, q)⁻¹ ·
+    T_base_flange)``, the station's flange pose as a right perturbation of the pose that the kinematic
+    model (:func:`jcalib.geometry.kinematic_models.forward`, parameters ``params``) gives at the joint
+    values ``q`` (rad, m), whitened by the square-root information ``S`` of the robot's repeatability.
+    With the flange poses eliminated per station, this factor carries each station's evidence about
+    the flange (from the cameras, contacts, pose sensors) into the kinematic parameters.
+    """
+    key = _model_key(model)
+    if key not in _KINEMATIC:
+        def fn(params, T_base_flange, obs):
+            q, S = obs
+            T_model = lie.se3_from_matrix(kinematic_models.forward(model, params, q))
+            return S @ lie.se3_log(lie.se3_compose(lie.se3_inverse(T_model), T_base_flange))
+
+        fn.__name__ = "kinematic"
+        fn.__jcalib_key__ = recipe("kinematic", key)
+        _KINEMATIC[key] = fn
+    return _KINEMATIC[key]

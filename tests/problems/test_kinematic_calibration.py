@@ -1,0 +1,157 @@
+"""Robot kinematic calibration inside the joint problem: recovery, identifiability, degenerate motion,
+bad input and the result file (DESIGN.md: kinematics is a preset of the one builder)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry import kinematic_models
+from jcalib.geometry.se3 import invert
+from jcalib.io.cell import parse_cell
+from jcalib.io.observations import parse_observations
+from jcalib.io.result import ResultFile
+from jcalib.problems import CalibrationOptions, calibrate_cell
+from jcalib.problems.calibrate import result_file
+from jcalib.problems.kinematics import generic_joints, select_parameters
+from jcalib.sim.kinematic_cells import synthetic_arm_cell, synthetic_positioner_cell
+
+
+def structural_mask(preset: str, groups=("joint_offsets", "link_lengths", "twists")) -> np.ndarray:
+    """The parameters the builder keeps free for generic motion (errors are drawn only for those)."""
+    model = kinematic_models.PRESETS[preset]()
+    return select_parameters(model, groups, generic_joints(model), np.eye(6) * 1e4, "robot").free
+
+
+def calibrate(cell, obs, **options):
+    return calibrate_cell(parse_cell(cell), parse_observations(obs), CalibrationOptions(**options))
+
+
+@pytest.fixture(scope="module")
+def positioner_noiseless():
+    mask = structural_mask("positioner_2axis")
+    cell, obs, truth = synthetic_positioner_cell(3, num_stations=16, num_heldout=4, sigma_deg=0.0, sigma_m=0.0,
+                                                 scatter=False, error_mask=mask, error_scale=20.0)
+    return cell, obs, truth, mask, calibrate(cell, obs)
+
+
+def test_positioner_kinematics_sensor_and_target_recovered_from_noiseless_poses(positioner_noiseless):
+    """A 2-axis positioner seen by a fixed 6-DOF sensor: the identifiable DH parameters, the sensor's pose
+    and the target's pose on the table come back to 1e-6 (m, rad) from noiseless measurements."""
+    _, _, truth, mask, cal = positioner_noiseless
+    k = cal.kinematics["robot"]
+    assert np.array_equal(k["free"], mask)
+    assert mask.sum() >= 2
+    err = np.abs(k["params"] - truth["params"])
+    assert err.max() < 1e-6, dict(zip(truth["names"], err))
+    # the errors were real (20x the realistic σ): the nominal model is far off
+    assert np.abs(truth["params"] - truth["nominal"])[mask].max() > 1e-3
+    for name, T in (("T_base_tracker", truth["T_base_tracker"]), ("T_flange_part", truth["T_flange_part"])):
+        D = invert(T) @ cal.transforms[name]
+        assert np.linalg.norm(D[:3, 3]) < 1e-6
+        assert np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)) < 1e-6
+
+
+def test_held_parameters_are_named_with_what_absorbs_them(positioner_noiseless):
+    _, _, truth, mask, cal = positioner_noiseless
+    held = cal.kinematics["robot"]["held"]
+    names = np.array(truth["names"])
+    requested = set(kinematic_models.parameter_groups(kinematic_models.PRESETS["positioner_2axis"]())["joint_offsets"])
+    # every requested parameter is either free or held with a reason
+    for n in requested:
+        assert (n in names[mask]) or ("not separable" in held[n])
+    # the first joint's offset is a rotation of the base: what is fixed in the base absorbs it
+    first = kinematic_models.PRESETS["positioner_2axis"]().joint_names[0]
+    assert "base frame" in held[f"{first}.theta"]
+
+
+def test_result_file_carries_the_kinematics_and_round_trips(positioner_noiseless):
+    _, _, truth, mask, cal = positioner_noiseless
+    file = result_file(cal, CalibrationOptions(), "0" * 16)
+    back = ResultFile.from_dict(file.to_dict())
+    k = back.kinematics["robot"]
+    assert k.convention == "dh"
+    assert list(k.names) == truth["names"]
+    assert set(k.calibrated) == set(np.array(truth["names"])[mask])
+    assert np.allclose(k.values, cal.kinematics["robot"]["params"], rtol=0, atol=1e-15)
+    assert k.covariance.shape == (mask.sum(), mask.sum())
+    assert set(k.extra["held"]) == set(cal.kinematics["robot"]["held"])
+    assert set(k.extra["controller_offsets"]) == set(kinematic_models.PRESETS["positioner_2axis"]().joint_names)
+
+
+def test_arm_kinematics_recovered_and_held_out_poses_beat_the_nominal_model():
+    """A 6-axis arm with hidden DH errors and a camera on its flange, 0.2 px: the recovered parameters lie
+    within their σ (χ² over the free parameters), and on held-out joint values the calibrated model puts
+    the flange camera far closer to its true pose (in the board frame, each model with the cell's
+    estimates) than the nominal kinematics does. The comparison with today's per-station pose-noise
+    model (its own hand-eye and board estimates) is benchmarks/bench_kinematics.py."""
+    mask = structural_mask("kuka_kr10_r1100_sixx")
+    cell, obs, truth = synthetic_arm_cell(5, num_stations=30, num_heldout=10, error_mask=mask)
+    cal = calibrate(cell, obs)
+    k = cal.kinematics["robot"]
+    assert np.array_equal(k["free"], mask)
+    free = k["free"]
+    e = (k["params"] - truth["params"])[free]
+    C = np.asarray(k["covariance"])[np.ix_(free, free)]
+    chi2 = float(e @ np.linalg.solve(C, e))
+    dof = int(free.sum())
+    assert chi2 < dof + 5 * np.sqrt(2 * dof), (chi2, dof)  # χ²(dof): a 5σ bound, one trial
+    assert np.sqrt(np.mean(((truth["params"] - truth["nominal"])[free]) ** 2 / np.diag(C))) > 10  # errors ≫ σ
+
+    model = kinematic_models.PRESETS["kuka_kr10_r1100_sixx"]()
+    q = truth["heldout"]["q"]
+    true = invert(truth["T_base_board"]) @ truth["heldout"]["T_base_flange"] @ truth["T_flange_cam0"]
+
+    def error_mm(params):
+        T_bf = np.asarray(kinematic_models.forward(model, params, q))
+        pred = invert(cal.transforms["T_base_board"]) @ T_bf @ cal.transforms["T_flange_cam0"]
+        return 1e3 * np.linalg.norm(pred[:, :3, 3] - true[:, :3, 3], axis=1)
+
+    calibrated, nominal = np.median(error_mm(k["params"])), np.median(error_mm(truth["nominal"]))
+    assert calibrated < 0.2 * nominal, (calibrated, nominal)
+    assert calibrated < 0.1  # mm: pixel noise and the robot's 0.02 mm repeatability
+
+
+def test_a_joint_that_never_moved_is_named_exit_3():
+    cell, obs, _ = synthetic_positioner_cell(4, num_stations=12, num_heldout=1, sigma_deg=0.0, sigma_m=0.0,
+                                             scatter=False)
+    still = copy.deepcopy(obs)
+    model = kinematic_models.PRESETS["positioner_2axis"]()
+    for st in still["stations"]:
+        st["joints_deg"][1] = 30.0  # the table never turned
+        st["T_base_flange"] = np.asarray(kinematic_models.forward(
+            model, model.nominal, kinematic_models.joints_from_controller(model, st["joints_deg"]))).tolist()
+    with pytest.raises(NotObservableError, match=f"{model.joint_names[1]}.*never moved") as err:
+        calibrate(cell, still)
+    assert err.value.unknowns
+
+
+def test_a_parameter_asked_for_by_name_that_no_motion_determines_is_refused():
+    cell, obs, _ = synthetic_positioner_cell(4, num_stations=12, num_heldout=1)
+    first = kinematic_models.PRESETS["positioner_2axis"]().joint_names[0]
+    cell["robot"]["calibrate_kinematics"] = [f"{first}.theta"]
+    with pytest.raises(NotObservableError, match=rf"{first}\.theta.*cannot be determined by any motion"):
+        calibrate(cell, obs)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda c, o: c["robot"].pop("kinematics"), "needs the robot's nominal model"),
+    (lambda c, o: c["robot"].update(calibrate_kinematics=["joint_ofsets"]), "joint_offsets"),
+    (lambda c, o: o["stations"][2].pop("joints_deg"), "no joints_deg"),
+    (lambda c, o: o["stations"][1].update(joints_deg=[1.0, 2.0, 3.0]), "station 's001'"),
+    (lambda c, o: c["robot"].update(kinematics="kuka_kr10_r1100_six"), "kuka_kr10_r1100_sixx"),
+])
+def test_bad_kinematic_input_is_a_clear_error(edit, message):
+    cell, obs, _ = synthetic_positioner_cell(4, num_stations=8, num_heldout=1)
+    edit(cell, obs)
+    with pytest.raises(BadInputError, match=message):
+        calibrate(cell, obs)
+
+
+def test_no_pose_model_is_refused_for_kinematic_calibration():
+    cell, obs, _ = synthetic_positioner_cell(4, num_stations=8, num_heldout=1)
+    with pytest.raises(BadInputError, match="no-pose-model"):
+        calibrate(cell, obs, pose_model=False)
