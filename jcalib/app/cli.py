@@ -62,6 +62,11 @@ def demo(
         bool, typer.Option(help="Only the rendered single-camera calibration (no robot, no network).")
     ] = False,
     views: Annotated[int, typer.Option(help="--camera-only: number of rendered views.")] = 20,
+    kinematic_errors: Annotated[
+        bool, typer.Option("--kinematic-errors", help="The simulated arm hides realistic kinematic errors (seeded by "
+                           "--seed); calibrate its joint offsets, link lengths and twists with the cell, and compare "
+                           "with a calibration that takes the nominal kinematics.")
+    ] = False,
 ) -> None:
     """Run a whole simulated cell on loopback, calibrate it jointly, compare with the ground truth.
 
@@ -74,6 +79,10 @@ def demo(
     """
     check_output_dir("--out", out)
     enable_compilation_cache()
+    if camera_only and kinematic_errors:
+        from jcalib.errors import BadInputError
+
+        raise BadInputError("--kinematic-errors needs the whole-cell demo (a robot); drop --camera-only")
     if camera_only:
         from jcalib.app.demo_camera import run_demo
 
@@ -81,7 +90,8 @@ def demo(
         return
     from jcalib.app.demo_cell import demo as run_cell
 
-    run_cell(out, stations=stations, protocol=protocol, image_size=image_size, seed=seed)
+    run_cell(out, stations=stations, protocol=protocol, image_size=image_size, seed=seed,
+             kinematic_errors=kinematic_errors)
 
 
 @app.command()
@@ -191,17 +201,20 @@ def calibrate(
 @app.command()
 def export(
     result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
-    format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid or krl.")],
+    format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid, krl, kinematics or urdf.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="File to write.")],
     camera: Annotated[Optional[str], typer.Option(help="Camera id (opencv, ros).")] = None,
     module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
+    robot: Annotated[Optional[str], typer.Option(help="Robot whose calibrated kinematics to export (kinematics: "
+                                                      "default all; urdf: needed when several).")] = None,
     tool_orientation: Annotated[
         Optional[list[str]],
         typer.Option(help="rapid, krl: TOOL=flange or TOOL=X,Y,Z (tool axis in the flange frame) for a tool whose "
                           "orientation was not calibrated; such tools are refused without it."),
     ] = None,
 ) -> None:
-    """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID or KUKA KRL."""
+    """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID, KUKA KRL, or the calibrated robot
+    kinematics as a cell-spec table with σ and controller offsets (kinematics) or a URDF (urdf)."""
     from jcalib.errors import BadInputError
 
     check_outputs({"-o": out}, [result])
@@ -209,6 +222,8 @@ def export(
         raise BadInputError(f"--camera applies to the opencv and ros formats, not {format!r}")
     if module is not None and format != "rapid":
         raise BadInputError(f"--module applies to the rapid format, not {format!r}")
+    if robot is not None and format not in ("kinematics", "urdf"):
+        raise BadInputError(f"--robot applies to the kinematics and urdf formats, not {format!r}")
     from jcalib.io.export import export_result
     from jcalib.io.export._common import parse_tool_orientation
 
@@ -217,7 +232,8 @@ def export(
         raise BadInputError(f"--tool-orientation applies to the rapid and krl formats, not {format!r}")
     options = {"opencv": {"cameras": camera}, "ros": {"camera": camera},
                "rapid": {"module": module, "orientations": orientations or None},
-               "krl": {"orientations": orientations or None}}.get(format, {})
+               "krl": {"orientations": orientations or None}, "kinematics": {"robots": robot},
+               "urdf": {"robot": robot}}.get(format, {})
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")
 
@@ -414,26 +430,45 @@ def _check_report_inputs(result: Path, observations: Path | None, cell: Path | N
 @app.command()
 def plan(
     cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
-    kind: Annotated[str, typer.Option("--kind", help="viewsets, handeye or tcp.")],
+    kind: Annotated[str, typer.Option("--kind", help="viewsets, handeye, tcp or kinematics.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Plan JSON (jcalib.plan/1) to write.")],
     robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
-    stations: Annotated[Optional[int], typer.Option(help="Candidate stations (unreachable ones are dropped).")] = None,
-    camera: Annotated[Optional[str], typer.Option(help="Camera to plan for (viewsets, handeye).")] = None,
-    target: Annotated[Optional[str], typer.Option(help="Target to plan for (viewsets, handeye).")] = None,
+    stations: Annotated[Optional[int], typer.Option(help="Candidate stations (unreachable ones are dropped); "
+                                                         "kinematics: stations to plan (default 30).")] = None,
+    camera: Annotated[Optional[str], typer.Option(help="Camera to plan for (viewsets, handeye, kinematics).")] = None,
+    target: Annotated[Optional[str], typer.Option(help="Target to plan for (viewsets, handeye, kinematics).")] = None,
     tool: Annotated[Optional[str], typer.Option(help="Tool to plan for (tcp).")] = None,
-    amplitude_deg: Annotated[Optional[float], typer.Option(help="Largest tilt / rotation, degrees.")] = None,
+    amplitude_deg: Annotated[Optional[float], typer.Option(help="Largest tilt / rotation, degrees (kinematics: "
+                                                                "largest view angle from the target normal, 45).")] = None,
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
+    candidates: Annotated[Optional[int], typer.Option(help="kinematics: candidate configurations to choose from "
+                                                           "(default 20 per station).")] = None,
+    seed: Annotated[int, typer.Option(help="kinematics: random seed of the candidates.")] = 0,
+    sigma_px: Annotated[Optional[float], typer.Option(help="kinematics: corner noise (px) assumed for the predicted "
+                                                           "σ (default 0.2).")] = None,
 ) -> None:
-    """Plan robot stations (flange poses) for camera, hand-eye or TCP calibration."""
+    """Plan robot stations (flange poses) for camera, hand-eye, TCP or kinematic calibration.
+
+    kinematics: joint configurations that determine the kinematic parameters the cell calibrates
+    (robot kinematics: and calibrate_kinematics:), chosen D-optimally from random candidates within the
+    joint limits (and, with a flange camera or a flange target, with the target in view); the plan
+    records each station's joints_deg and the predicted σ per parameter group.
+    """
     check_outputs({"-o": out}, [cell])
     _check_cell(cell)
     enable_compilation_cache()
     from jcalib.app.commands import parse_image_size, run_plan
 
     planned = run_plan(cell, kind, out, robot=robot, num_stations=stations, camera=camera, target=target,
-                       tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size))  # fmt: skip
+                       tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size),
+                       num_candidates=candidates, seed=seed, sigma_px=sigma_px)  # fmt: skip
     for what, why in planned.dropped.items():
-        typer.echo(f"dropped {what}: {why}", err=True)
+        typer.echo(f"dropped {why}: {what}" if kind == "kinematics" else f"dropped {what}: {why}", err=True)
+    if kind == "kinematics":
+        from jcalib.app.commands import kinematic_plan_lines
+
+        for line in kinematic_plan_lines(planned):
+            typer.echo(line)
     typer.echo(f"wrote {out}: {len(planned.plan)} stations ({kind})")
 
 
@@ -451,6 +486,16 @@ def simulate(
     noise: Annotated[
         str, typer.Option(help="Image noise: clean (bright, sharp) or realistic (dim, defocused, ~0.1 px corners).")
     ] = "clean",
+    kinematic_errors: Annotated[
+        Optional[int],
+        typer.Option("--kinematic-errors", metavar="SEED",
+                     help="Hide seeded realistic kinematic errors (joint offsets, link lengths, twists) in the robot: "
+                          "the controller reports its preset's kinematics, the cameras see the true arm; --truth "
+                          "then holds the true parameters."),
+    ] = None,
+    kinematic_error_scale: Annotated[
+        float, typer.Option(help="--kinematic-errors: factor on their σ (1: ~0.05 deg, 0.5 mm).")
+    ] = 1.0,
 ) -> None:
     """Run a simulated cell (robot server + fake GigE cameras) on loopback until interrupted."""
     check_outputs({"--truth": truth}, [cell])
@@ -471,7 +516,8 @@ def simulate(
 
     run_simulate(cell, robot_protocol=robot_protocol, robot_port=robot_port, camera_addresses=parse_named(camera),
                  truth=truth, robot=robot, image_size=parse_image_size(image_size), time_scale=time_scale,
-                 seed=seed, noise=noise, stop=stop, on_ready=ready)  # fmt: skip
+                 seed=seed, noise=noise, stop=stop, on_ready=ready, kinematic_errors=kinematic_errors,
+                 kinematic_error_scale=kinematic_error_scale)  # fmt: skip
 
 
 @app.command()

@@ -298,22 +298,50 @@ def run_plan(
     tool: str | None = None,
     amplitude_deg: float | None = None,
     image_size: tuple[int, int] | None = None,
+    num_candidates: int | None = None,
+    seed: int = 0,
+    sigma_px: float | None = None,
 ):
-    """``jcalib plan``: plan stations for the cell (:func:`jcalib.acquisition.planner.plan_cell`), write them.
+    """``jcalib plan``: plan stations for the cell (:func:`jcalib.acquisition.planner.plan_cell`, or
+    :func:`~jcalib.acquisition.planner.plan_kinematics` for ``kinematics``), write them.
 
     Returns:
         The :class:`~jcalib.acquisition.planner.PlannedStations` written to ``out`` (``jcalib.plan/1``
-        JSON with an extra ``planner`` key: kind, robot, camera / target / tool, dropped candidates).
+        JSON with an extra ``planner`` key: kind, robot, camera / target / tool, dropped candidates;
+        ``kinematics``: also the prediction and the joint spans).
     """
     from jcalib.acquisition.layout import cell_layout
-    from jcalib.acquisition.planner import plan_cell
+    from jcalib.acquisition.planner import plan_cell, plan_kinematics
     from jcalib.io.atomic import write_json_atomic
 
+    if kind == "kinematics":  # the layout is built only where a camera view is planned (not for external axes)
+        planned = plan_kinematics(cell, robot=robot, image_size=image_size, num_stations=num_stations, camera=camera,
+                                  target=target, amplitude_deg=amplitude_deg, num_candidates=num_candidates,
+                                  seed=seed, sigma_px=sigma_px)  # fmt: skip
+        write_json_atomic(out, planned.to_json())
+        return planned
     layout = cell_layout(cell, robot=robot, image_size=image_size)
     planned = plan_cell(layout, kind, num_stations=num_stations, camera=camera, target=target, tool=tool,
                         amplitude_deg=amplitude_deg)  # fmt: skip
     write_json_atomic(out, planned.to_json(layout))
     return planned
+
+
+def kinematic_plan_lines(planned) -> list[str]:
+    """Console lines of a ``kinematics`` plan: each joint's span, the predicted worst σ per parameter
+    group and what the prediction assumes."""
+    d = planned.details
+    pred = d["prediction"]
+    spans = ", ".join(f"{j} {v['value']:.0f} {v['unit']}" for j, v in d["joint_span"].items())
+    lines = [f"joints move over: {spans}",
+             f"{len(d['free_parameters'])} parameters estimated, from {d['usable']} usable of {d['candidates']} "
+             f"candidates; condition {pred['condition']:.3g}"]
+    if d["held_parameters"]:
+        lines.append(f"held at nominal (not separable): {', '.join(d['held_parameters'])}")
+    for group, w in pred["worst"].items():
+        lines.append(f"predicted worst σ {group}: {w['value']:.3g} ({w['name']})")
+    lines.append(f"assuming {pred['assumes']}")
+    return lines
 
 
 def run_simulate(
@@ -330,6 +358,8 @@ def run_simulate(
     noise: str = "clean",
     stop: threading.Event | None = None,
     on_ready: Callable[[dict], None] | None = None,
+    kinematic_errors: int | None = None,
+    kinematic_error_scale: float = 1.0,
 ) -> None:
     """``jcalib simulate``: serve the cell's nominal layout (robot + fake GigE cameras) until ``stop``.
 
@@ -351,6 +381,10 @@ def run_simulate(
             "clean" (bright, sharp: ~0.01 px corners) or "realistic" (dim, defocused: ~0.1 px corners).
         stop: set to shut down (default: until KeyboardInterrupt).
         on_ready: called with ``{"robot": URL, "cameras": {id: URL}}`` once every device listens.
+        kinematic_errors: seed of hidden kinematic errors of the robot (None: its kinematics is the
+            preset's): the controller plans and reports with the preset, the cameras see the true arm
+            (:func:`jcalib.app.simcell.simulated_kinematics`); ``truth`` then holds the true parameters.
+        kinematic_error_scale: factor on the errors' σ (1: a real arm's, ~0.05 deg and 0.5 mm).
     """
     import ipaddress
 
@@ -386,8 +420,15 @@ def run_simulate(
     scene = scene_from_layout(layout)
     model = preset_model(layout.robot)
     model.inverse(layout.T_base_flange_home, model.home_rad)  # compile the IK before clients connect
+    kinematics = true_forward = None
+    if kinematic_errors is not None:
+        from jcalib.app.simcell import simulated_kinematics
+
+        kinematics = simulated_kinematics(model, layout.robot, int(kinematic_errors), float(kinematic_error_scale))
+        true_forward = kinematics.forward()
+        true_forward(model.home_rad)  # compile before clients connect
     if truth is not None:
-        write_json_atomic(truth, layout_truth(layout, seed=int(seed), time_scale=float(time_scale),
+        write_json_atomic(truth, layout_truth(layout, kinematics, seed=int(seed), time_scale=float(time_scale),
                                               protocol=robot_protocol))  # fmt: skip
     ready = threading.Event()
     info: dict = {}
@@ -402,6 +443,7 @@ def run_simulate(
     run_simulated_cell(
         scene, robot_protocol=robot_protocol, robot_port=int(robot_port), camera_addresses=camera_addresses,
         robot_model=model, time_scale=time_scale, seed=seed, stop=stop, ready=ready, info=info, options=options,
+        true_forward=true_forward,
     )  # fmt: skip
 
 
@@ -418,6 +460,7 @@ def run_simulated_cell(
     ready: threading.Event | None = None,
     info: dict | None = None,
     options: Any = None,
+    true_forward: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> None:
     """A robot server plus one fake GigE camera per scene camera, until ``stop`` (behind ``jcalib simulate``).
 
@@ -433,6 +476,8 @@ def run_simulated_cell(
         ready: set once every device is listening.
         info: filled before ``ready`` is set: ``{"robot": "kuka://127.0.0.1:PORT", "cameras": {id: "gige://ADDR"}}``.
         options: the cameras' :class:`jcalib.sim.render.RenderOptions` (None: the defaults).
+        true_forward: the robot's true kinematics (joints rad -> ``T_base_flange``), which the cameras
+            see while the controller reports ``robot_model``'s (None: no kinematic error).
     """
     from contextlib import ExitStack
 
@@ -445,7 +490,7 @@ def run_simulated_cell(
     unknown = set(camera_addresses) - set(scene.cameras)
     if unknown:
         raise BadInputError(f"--camera: {', '.join(sorted(unknown))} not in the cell (has {', '.join(scene.cameras)})")
-    ctrl = SimulatedController(robot_model, time_scale=time_scale, seed=seed)
+    ctrl = SimulatedController(robot_model, time_scale=time_scale, seed=seed, true_forward=true_forward)
     stop = stop or threading.Event()
     with ExitStack() as stack:
         server = make_server(robot_protocol, "127.0.0.1", robot_port, ctrl).start()

@@ -16,6 +16,15 @@ The chain is the one a cell integrator runs on hardware, with simulators standin
 6. write ``result.json``, the HTML report and the RAPID / KRL / OpenCV exports, and print every
    estimate next to the simulator's ground truth and its σ.
 
+With ``kinematic_errors`` (``jcalib demo --kinematic-errors``) the simulated arm hides seeded realistic
+kinematic errors (joint zeros, link lengths, twists; ``jcalib simulate --kinematic-errors``): its
+controller plans and reports with the nominal preset, as a real one does, while the cameras see the true
+arm. The cell that is calibrated (``cell_kinematics.yaml``) then names ``kinematics: <preset>`` and
+``calibrate_kinematics: [joint_offsets, link_lengths, twists]``, so the identifiable kinematic
+parameters are estimated with everything else from the stations' joint values; the demo prints them
+against the truth, and calibrates the same observations once more with the nominal kinematics
+(``result_nominal.json``) to show how far off the hand-eye, fixed-camera and TCP estimates are then.
+
 The second camera needs its own loopback address (GigE Vision's control port is fixed at 3956), so
 the demo runs in a private network namespace (``unshare -n``; ``unshare -rn`` when not root) where
 ``lo`` is up with 127.0.0.1 and 127.0.0.2: nothing is broadcast on real interfaces.
@@ -62,6 +71,10 @@ targets:
 tools:
   torch: {observed_by: [cam_fixed]}
 """
+#: What the demo with kinematic errors calibrates of the arm (the identifiable subset is kept).
+KINEMATIC_GROUPS = ("joint_offsets", "link_lengths", "twists")
+#: Stations planned for the arm's kinematics (``kinematics`` planner) with ``--kinematic-errors``.
+KINEMATIC_STATIONS = 20
 #: Tool stations appended to the hand-eye plan (``tcp`` planner).
 TOOL_STATIONS = 7
 ADDRESSES = {"cam_hand": "127.0.0.1", "cam_fixed": "127.0.0.2"}
@@ -100,6 +113,7 @@ def run_cell_demo(
     protocol: str = "kuka",
     image_size: str = "640x480",
     seed: int = 0,
+    kinematic_errors: bool = False,
     console: Console | None = None,
 ) -> dict:
     """Run the whole-cell demo (inside a private network namespace); returns the comparison rows.
@@ -109,7 +123,9 @@ def run_cell_demo(
         stations: hand-eye stations to plan (unreachable ones are dropped).
         tool_stations: tool (``tcp``) stations appended to them.
         protocol: simulated controller, "kuka" or "abb".  image_size: "WIDTHxHEIGHT", px.
-        seed: noise seed of the simulated cell.
+        seed: noise seed of the simulated cell (and of its kinematic errors).
+        kinematic_errors: the arm hides kinematic errors, which the calibration estimates (module
+            docstring); the rows then include the kinematic parameters (deg, mm; truth = true minus nominal).
 
     Returns:
         ``{quantity: (truth, estimate, σ)}`` in the units printed (px, mm, deg).
@@ -130,13 +146,19 @@ def run_cell_demo(
     write_text_atomic(cell_path, DEMO_CELL)
     size = parse_image_size(image_size)
     robot = "kuka_kr10_r1100_sixx" if protocol == "kuka" else "abb_irb4600_45_205"
+    calib_cell = cell_path
+    if kinematic_errors:
+        calib_cell = out_dir / "cell_kinematics.yaml"
+        write_text_atomic(calib_cell, kinematic_cell(robot))
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    num_handeye, num_tool = plan_demo(cell_path, out_dir / "plan.json", robot=robot, stations=stations,
-                                      tool_stations=tool_stations, image_size=size)  # fmt: skip
+    num_handeye, num_tool, num_kin = plan_demo(
+        calib_cell, out_dir / "plan.json", robot=robot, stations=stations, tool_stations=tool_stations,
+        image_size=size, kinematic_stations=KINEMATIC_STATIONS if kinematic_errors else 0)  # fmt: skip
     timings["plan"] = time.perf_counter() - t0
-    console.print(f"planned {num_handeye} hand-eye + {num_tool} tool stations for {robot}", highlight=False)
+    kin_text = f" + {num_kin} kinematic" if kinematic_errors else ""
+    console.print(f"planned {num_handeye} hand-eye{kin_text} + {num_tool} tool stations for {robot}", highlight=False)
 
     # The simulator runs as its own process (`jcalib simulate`), like the real controller and
     # cameras: Aravis' fake cameras and its client do not share one process reliably.
@@ -145,6 +167,8 @@ def run_cell_demo(
            "--robot-protocol", protocol, "--robot-port", "0", "--time-scale", "0", "--truth",
            str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed),
            "--noise", "realistic"]  # sensor noise as a real camera has it: a fair table of errors in σ
+    if kinematic_errors:
+        cmd += ["--kinematic-errors", str(seed)]
     for name, addr in ADDRESSES.items():
         cmd += ["--camera", f"{name}={addr}"]
     with open(out_dir / "simulate.log", "w") as log:
@@ -175,9 +199,16 @@ def run_cell_demo(
 
     t0 = time.perf_counter()
     with console.status("calibrating the whole cell (closed forms, then one joint least-squares problem)"):
-        result = calibrate(cell_path, out_dir / "observations.json")
+        result = calibrate(calib_cell, out_dir / "observations.json")
     timings["calibrate"] = time.perf_counter() - t0
     result.to_json(out_dir / "result.json")
+    nominal = None
+    if kinematic_errors:
+        t0 = time.perf_counter()
+        with console.status("calibrating the same observations with the nominal kinematics, for comparison"):
+            nominal = calibrate(cell_path, out_dir / "observations.json")
+        timings["calibrate (nominal kinematics)"] = time.perf_counter() - t0
+        nominal.to_json(out_dir / "result_nominal.json")
 
     t0 = time.perf_counter()
     write_report(out_dir / "result.json", out_dir / "report.html", observations=out_dir / "observations.json")
@@ -193,6 +224,8 @@ def run_cell_demo(
             console.print(f"[yellow]no {fmt} export:[/] {escape(str(e))}", highlight=False)
     timings["report+export"] = time.perf_counter() - t0
 
+    if nominal is not None:
+        written += ["cell_kinematics.yaml", "result_nominal.json"]
     truth = json.loads((out_dir / "truth.json").read_text())
     rows = compare_with_truth(result.file, truth)
     table = Table(title=f"jcalib demo: whole cell from {len(obs.stations)} stations ({protocol} robot, 2 GigE "
@@ -203,15 +236,86 @@ def run_cell_demo(
         z = (e - t) / s if s > 0 else float("nan")
         table.add_row(name, f"{t:.5g}", f"{e:.5g}", f"{s:.2g}", f"{e - t:+.2g}", f"{z:+.2f}")
     console.print(table)
+    if nominal is not None:
+        kin_rows = compare_kinematics(result.file, truth)
+        console.print(kinematics_table(kin_rows, robot))
+        rows.update({f"kinematics {k}": v for k, v in kin_rows.items()})
     z = np.array([(e - t) / s for t, e, s in rows.values() if s > 0])
     console.print(
         f"max |error/σ| = {np.max(np.abs(z)):.2f} over {z.size} unknowns (consistent with the reported σ when "
         "most are below 2 and none far beyond 3)",
         highlight=False,
     )
+    if nominal is not None:
+        console.print(pose_error_table(result.file, nominal.file, truth))
     console.print("timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()), highlight=False)
     console.print(escape(f"wrote {out_dir}/: " + ", ".join(written)), highlight=False)
     return rows
+
+
+def kinematic_cell(robot: str) -> str:
+    """The demo cell with the arm's kinematics calibrated: ``kinematics: <robot>`` and
+    ``calibrate_kinematics:`` :data:`KINEMATIC_GROUPS` under ``robot:``."""
+    head = "robot:\n  model: kuka_kr10_r1100_sixx\n"
+    return DEMO_CELL.replace(head, f"robot:\n  model: {robot}\n  kinematics: {robot}  # nominal model (controller)\n"
+                                   f"  calibrate_kinematics: [{', '.join(KINEMATIC_GROUPS)}]\n")
+
+
+def _is_length(name: str) -> bool:
+    return name.rsplit(".", 1)[-1] in ("a", "d", "tx", "ty", "tz")
+
+
+def compare_kinematics(result, truth: dict) -> dict[str, tuple[float, float, float]]:
+    """``{parameter (unit): (true - nominal, estimate - nominal, σ)}`` of the calibrated kinematic
+    parameters (mm for lengths, deg for angles); empty when the result or the truth has none."""
+    true = (truth.get("robot") or {}).get("kinematics")
+    if not true or not result.kinematics:
+        return {}
+    k = next(iter(result.kinematics.values()))
+    true_value = dict(zip(true["names"], true["values"]))
+    std = k.std
+    rows = {}
+    for name in k.calibrated:
+        i = k.names.index(name)
+        f, unit = (1e3, "mm") if _is_length(name) else (float(np.degrees(1.0)), "deg")
+        nominal = float(k.nominal[i])
+        rows[f"{name} ({unit})"] = ((true_value[name] - nominal) * f, (float(k.values[i]) - nominal) * f,
+                                    std.get(name, 0.0) * f)  # fmt: skip
+    return rows
+
+
+def kinematics_table(rows: dict[str, tuple[float, float, float]], robot: str) -> Table:
+    """The kinematic parameters against the truth (deviations from the nominal model)."""
+    table = Table(title=f"{robot}: calibrated kinematic parameters (deviation from the nominal model)")
+    for col in ("parameter", "true error", "estimate", "σ", "error", "error / σ"):
+        table.add_column(col, justify="left" if col == "parameter" else "right")
+    for name, (t, e, s) in rows.items():
+        z = (e - t) / s if s > 0 else float("nan")
+        table.add_row(name, f"{t:+.4f}", f"{e:+.4f}", f"{s:.2g}", f"{e - t:+.2g}", f"{z:+.2f}")
+    return table
+
+
+def pose_error_table(result, nominal, truth: dict) -> Table:
+    """Position (mm) and rotation (deg) errors of every calibrated pose with the kinematics calibrated
+    and with the nominal kinematics, each with its error / σ (the largest per axis), and the rms px."""
+    table = Table(title="the same observations calibrated with and without the arm's kinematics")
+    for col in ("transform", "kinematics calibrated", "nominal kinematics"):
+        table.add_column(col, justify="left" if col == "transform" else "right")
+    per = [compare_with_truth(r, truth) for r in (result, nominal)]
+    keys = sorted({k.split(" ")[0] for k in per[0] if k.startswith("T_")})
+    for key in keys:
+        cells = []
+        for rows in per:
+            t = np.array([rows[f"{key} t{a} (mm, frame b)"] for a in "xyz" if f"{key} t{a} (mm, frame b)" in rows])
+            r = np.array([rows[f"{key} r{a} (deg)"] for a in "xyz" if f"{key} r{a} (deg)" in rows])
+            z = [abs(e - tr) / s for tr, e, s in (*t, *r) if s > 0]
+            text = f"{np.linalg.norm(t[:, 1]):.3f} mm" if t.size else "-"
+            if r.size:
+                text += f", {np.linalg.norm(r[:, 1]):.4f} deg"
+            cells.append(text + (f" (max {max(z):.1f} σ)" if z else ""))
+        table.add_row(key, *cells)
+    table.add_row("rms reprojection", *(f"{r.stats.get('rms_px', float('nan')):.3f} px" for r in (result, nominal)))
+    return table
 
 
 def plan_demo(
@@ -222,11 +326,15 @@ def plan_demo(
     stations: int,
     tool_stations: int,
     image_size: tuple[int, int] | None,
-) -> tuple[int, int]:
-    """Plan the demo: ``handeye`` stations (ids ``s000…``) then ``tcp`` stations (ids ``t000…``), one plan.
+    kinematic_stations: int = 0,
+) -> tuple[int, int, int]:
+    """Plan the demo: ``handeye`` stations (ids ``s000…``), ``kinematics`` stations (ids ``k000…``, when
+    ``kinematic_stations`` > 0: joint configurations spread over the arm's range, D-optimal for its
+    kinematic parameters; the cell must name ``kinematics:`` and ``calibrate_kinematics:``), then ``tcp``
+    stations (ids ``t000…``), one plan.
 
     Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key per part). Returns the number of
-    hand-eye and tool stations kept (reachable, in view).
+    hand-eye, tool and kinematic stations kept (reachable, in view).
     """
     from jcalib.acquisition.layout import cell_layout
     from jcalib.io.plan import make_plan
@@ -234,14 +342,16 @@ def plan_demo(
     from jcalib.io.atomic import write_json_atomic
 
     layout = cell_layout(cell_path, robot=robot, image_size=image_size)
-    handeye = plan_cell(layout, "handeye", num_stations=stations)
-    tool = plan_cell(layout, "tcp", num_stations=tool_stations)
-    poses = [s.T_base_flange for s in handeye.plan.stations] + [s.T_base_flange for s in tool.plan.stations]
-    ids = [f"s{k:03d}" for k in range(len(handeye.plan))] + [f"t{k:03d}" for k in range(len(tool.plan))]
+    parts = [("s", plan_cell(layout, "handeye", num_stations=stations))]
+    if kinematic_stations > 0:
+        parts.append(("k", plan_cell(layout, "kinematics", num_stations=kinematic_stations)))
+    parts.append(("t", plan_cell(layout, "tcp", num_stations=tool_stations)))
+    poses = [s.T_base_flange for _, p in parts for s in p.plan.stations]
+    ids = [f"{prefix}{k:03d}" for prefix, p in parts for k in range(len(p.plan))]
     plan = make_plan(poses, ids)
-    write_json_atomic(out, {**plan.to_json(), "planner": [handeye.to_json(layout)["planner"],
-                                                          tool.to_json(layout)["planner"]]})  # fmt: skip
-    return len(handeye.plan), len(tool.plan)
+    write_json_atomic(out, {**plan.to_json(), "planner": [p.to_json(layout)["planner"] for _, p in parts]})
+    counts = {prefix: len(p.plan) for prefix, p in parts}
+    return counts["s"], counts["t"], counts.get("k", 0)
 
 
 def _rotation_error_deg(R_true: np.ndarray, R_est: np.ndarray) -> np.ndarray:
@@ -301,17 +411,19 @@ def compare_with_truth(result, truth: dict) -> dict[str, tuple[float, float, flo
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point inside the namespace: ``python -m jcalib.app.demo_cell OUT STATIONS PROTOCOL SIZE SEED``."""
+    """Entry point inside the namespace: ``python -m jcalib.app.demo_cell OUT STATIONS PROTOCOL SIZE SEED
+    [KINEMATIC_ERRORS (0/1)]``."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    out, stations, protocol, size, seed = argv
-    run_cell_demo(Path(out), stations=int(stations), protocol=protocol, image_size=size, seed=int(seed))
+    out, stations, protocol, size, seed, *rest = argv
+    run_cell_demo(Path(out), stations=int(stations), protocol=protocol, image_size=size, seed=int(seed),
+                  kinematic_errors=bool(int(rest[0])) if rest else False)  # fmt: skip
     return 0
 
 
 def demo(out_dir: Path, *, stations: int = 16, protocol: str = "kuka", image_size: str = "640x480",
-         seed: int = 0) -> None:
+         seed: int = 0, kinematic_errors: bool = False) -> None:
     """The ``jcalib demo`` command body: enter a private network namespace, then run the demo there."""
-    args = [str(out_dir), str(int(stations)), protocol, image_size, str(int(seed))]
+    args = [str(out_dir), str(int(stations)), protocol, image_size, str(int(seed)), str(int(bool(kinematic_errors)))]
     if _in_private_namespace():
         main(args)
         return

@@ -13,6 +13,14 @@ tip). While the tool tip (the true TCP) is inside the zone, the camera renders t
 a backlight (:func:`jcalib.sim.tool.render_tool_image`; the backlight hides the rest of the scene);
 otherwise it renders the targets as usual. The tool is a :class:`jcalib.sim.tool.SymmetricTool`
 running straight from the tip towards the flange origin. The robot arm and flange are never drawn.
+
+**Kinematic errors.** :func:`simulated_kinematics` draws the true kinematics of a preset arm: seeded
+errors of realistic size (:data:`jcalib.sim.kinematic_cells.KINEMATIC_ERRORS`) on its identifiable
+joint offsets, link lengths and twists (the minimal set that the calibration keeps,
+:func:`jcalib.problems.kinematics.select_parameters` at generic joints, so that the true hand-eye, TCP
+and target poses stay the ones a kinematic calibration recovers). The simulated controller then plans
+and reports with its nominal model while the cameras see the true flange
+(:class:`~jcalib.acquisition.robots.simulated.SimulatedController` ``true_forward``).
 """
 
 from __future__ import annotations
@@ -318,12 +326,107 @@ def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> Ce
     return CellScene(Scene(cameras=cameras, targets=targets, views=[]), tools)
 
 
-def layout_truth(layout: Any, **controller: Any) -> dict:
+#: The parameter groups that carry simulated kinematic errors.
+KINEMATIC_ERROR_GROUPS = ("joint_offsets", "link_lengths", "twists")
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulatedKinematics:
+    """The true kinematics of a simulated arm whose controller uses the nominal preset.
+
+    Attributes:
+        model: the preset's :class:`jcalib.geometry.kinematic_models.Kinematics` (dh; nominal parameters).
+        params: ``(P,)`` true parameters (m, rad).
+        error_mask: ``(P,)`` bool, the parameters that got an error (the identifiable subset of
+            :data:`KINEMATIC_ERROR_GROUPS`).
+        preset: the preset name.  seed, scale: the errors' seed and the factor on their σ.
+    """
+
+    model: Any
+    params: np.ndarray
+    error_mask: np.ndarray
+    preset: str
+    seed: int
+    scale: float
+
+    def forward(self):
+        """The controller's ``true_forward``: joints (n,) rad -> true ``T_base_flange`` (4, 4), m."""
+        from jcalib.acquisition.robots.simulated import kinematics_forward
+
+        return kinematics_forward(self.model, self.params)
+
+    def to_json(self) -> dict:
+        """The truth file's ``kinematics`` entry: parameter ``names``, true ``values`` and ``nominal``
+        (m, rad), the ones with an error (``errors_on``), and the true per-joint zero offsets in
+        controller units (``controller_offsets``: deg; see
+        :func:`jcalib.geometry.kinematic_models.controller_offsets`)."""
+        from jcalib.geometry import kinematic_models
+
+        names = list(self.model.param_names)
+        return {
+            "preset": self.preset, "convention": self.model.convention, "units": "m, rad",
+            "seed": int(self.seed), "scale": float(self.scale), "names": names,
+            "values": np.asarray(self.params, dtype=np.float64).tolist(),
+            "nominal": np.asarray(self.model.nominal, dtype=np.float64).tolist(),
+            "errors_on": [n for n, m in zip(names, self.error_mask) if m],
+            "controller_offsets": kinematic_models.controller_offsets(self.model, self.params),
+        }  # fmt: skip
+
+
+def simulated_kinematics(
+    controller_model: Any,
+    preset: str,
+    seed: int,
+    scale: float = 1.0,
+    *,
+    repeatability_m: float = 1.3e-5,
+    repeatability_rad: float = 2e-5,
+) -> SimulatedKinematics:
+    """Seeded true kinematics for a simulated arm (module docstring: *Kinematic errors*).
+
+    Args:
+        controller_model: the simulated controller's model; it must be the preset's
+            :class:`~jcalib.acquisition.robots.model.DHRobotModel` (its joints are the kinematics').
+        preset: the robot preset (a key of :data:`jcalib.geometry.kinematic_models.PRESETS`).
+        seed: seed of the errors.  scale: factor on their σ (1: a real arm's, about 0.05 deg and 0.5 mm).
+        repeatability_m, repeatability_rad: the controller's repeatability (σ per axis), which whitens
+            the identifiability scan as in the calibration.
+
+    Raises:
+        BadInputError: a controller model that is not a preset's DH model, an unknown preset, or a bad scale.
+    """
+    from jcalib.acquisition.robots.model import DHRobotModel
+    from jcalib.geometry import kinematic_models
+    from jcalib.problems.kinematics import generic_joints, select_parameters
+    from jcalib.sim.kinematic_cells import kinematic_errors
+
+    if not isinstance(controller_model, DHRobotModel):
+        raise BadInputError(
+            f"--kinematic-errors: the simulated robot must be a robot preset (DH kinematics) for its kinematics "
+            f"to carry errors, got the controller model {type(controller_model).__name__}; name the robot with "
+            f"robot: {{model: <preset>}} in the cell or --robot ({', '.join(kinematic_models.PRESETS)})"
+        )
+    if preset not in kinematic_models.PRESETS:
+        raise BadInputError(
+            f"--kinematic-errors: robot {preset!r} has no kinematics preset; use one of {', '.join(kinematic_models.PRESETS)}"
+        )
+    if not (np.isfinite(scale) and scale >= 0.0):
+        raise BadInputError(f"--kinematic-error-scale: expected a factor >= 0 on the errors' σ, got {scale!r}")
+    model = kinematic_models.PRESETS[preset]()
+    S = np.diag(np.concatenate([np.full(3, 1.0 / repeatability_rad), np.full(3, 1.0 / repeatability_m)]))
+    mask = select_parameters(model, KINEMATIC_ERROR_GROUPS, generic_joints(model), S, preset).free
+    params = kinematic_errors(model, np.random.default_rng(seed), mask, float(scale))
+    return SimulatedKinematics(model, params, mask, preset, int(seed), float(scale))
+
+
+def layout_truth(layout: Any, kinematics: SimulatedKinematics | None = None, **controller: Any) -> dict:
     """Ground truth of a simulated cell as a JSON-ready mapping (``jcalib.sim.cell/1``).
 
     Holds the robot preset, every camera's OpenCV ``K``, ``dist``, image size and pose
     (``T_flange_<cam>`` or ``T_base_<cam>``), every target's points and pose, the tools' TCPs
-    (``T_flange_<tool>``), and ``controller`` (e.g. repeatability, seed). Metres, pixels.
+    (``T_flange_<tool>``), and ``controller`` (e.g. repeatability, seed). Metres, pixels. With
+    ``kinematics`` (a robot with kinematic errors), ``robot.kinematics`` holds its true parameters
+    (:meth:`SimulatedKinematics.to_json`).
     """
     cams = {}
     for name, c in layout.cameras.items():
@@ -338,10 +441,13 @@ def layout_truth(layout: Any, **controller: Any) -> dict:
             "points": np.asarray(t.geometry.points, dtype=np.float64).tolist(),
             "mount": t.mount, f"T_{t.mount}_{name}": t.pose.tolist(),
         }  # fmt: skip
+    robot = {"preset": layout.robot, "home_deg": np.degrees(layout.home_rad).tolist(), **controller}
+    if kinematics is not None:
+        robot["kinematics"] = kinematics.to_json()
     return {
         "schema": "jcalib.sim.cell/1",
         "units": "metres, pixels (centre of the top-left pixel is (0, 0))",
-        "robot": {"preset": layout.robot, "home_deg": np.degrees(layout.home_rad).tolist(), **controller},
+        "robot": robot,
         "cameras": cams,
         "targets": tgts,
         "tools": {name: {f"T_flange_{name}": T.tolist()} for name, T in layout.tools.items()},

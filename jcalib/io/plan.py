@@ -5,6 +5,10 @@
  "stations": [{"id": "s000", "T_base_flange": [[1,0,0,0.5],[0,1,0,0],[0,0,1,0.8],[0,0,0,1]], "move": "joint"}]}
 ```
 ``T_base_flange`` is in metres (the flange in the robot base); ``move`` is "joint" (default) or "linear".
+Optional ``joints_deg``: the joint values that reach the pose, in the controller's units (degrees;
+prismatic axes in mm), as ``jcalib plan --kind kinematics`` writes them: the configuration the plan
+was designed for (a capture may move there in joint space, or check that its inverse kinematics lands on
+the same branch). Plans without it stay valid and keep their digest.
 """
 
 from __future__ import annotations
@@ -29,14 +33,19 @@ _ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 @dataclass(frozen=True)
 class Station:
-    """One planned station: id, target ``T_base_flange`` (4, 4) in m, and the move kind."""
+    """One planned station: id, target ``T_base_flange`` (4, 4) in m, the move kind, and optionally the
+    joints ``joints_deg`` (n,) that reach it (controller units: deg, mm for prismatic axes)."""
 
     id: str
     T_base_flange: np.ndarray
     move: str = "joint"
+    joints_deg: tuple[float, ...] | None = None
 
     def to_json(self) -> dict:
-        return {"id": self.id, "T_base_flange": self.T_base_flange.tolist(), "move": self.move}
+        out = {"id": self.id, "T_base_flange": self.T_base_flange.tolist(), "move": self.move}
+        if self.joints_deg is not None:
+            out["joints_deg"] = list(self.joints_deg)
+        return out
 
 
 @dataclass(frozen=True)
@@ -56,13 +65,20 @@ class Plan:
         return len(self.stations)
 
 
-def make_plan(poses: list[np.ndarray] | np.ndarray, ids: list[str] | None = None, move: str = "joint") -> Plan:
-    """Plan from (n, 4, 4) flange poses in m; ids default to ``s000, s001, ...``."""
+def make_plan(poses: list[np.ndarray] | np.ndarray, ids: list[str] | None = None, move: str = "joint",
+              joints_deg: list | np.ndarray | None = None) -> Plan:
+    """Plan from (n, 4, 4) flange poses in m; ids default to ``s000, s001, ...``; ``joints_deg``: optional
+    (n, j) joint values reaching them (controller units)."""
     poses = list(poses)
     ids = ids if ids is not None else [f"s{i:03d}" for i in range(len(poses))]
     if len(ids) != len(poses):
         raise BadInputError(f"ids: expected {len(poses)} ids (one per pose), got {len(ids)}")
-    return _validate([{"id": i, "T_base_flange": np.asarray(T).tolist(), "move": move} for i, T in zip(ids, poses)], "plan")
+    if joints_deg is not None and len(joints_deg) != len(poses):
+        raise BadInputError(f"joints_deg: expected {len(poses)} joint vectors (one per pose), got {len(joints_deg)}")
+    stations = [{"id": i, "T_base_flange": np.asarray(T).tolist(), "move": move} for i, T in zip(ids, poses)]
+    for s, j in zip(stations, joints_deg if joints_deg is not None else []):
+        s["joints_deg"] = np.asarray(j, dtype=np.float64).tolist()
+    return _validate(stations, "plan")
 
 
 def _validate(stations: object, where: str) -> Plan:
@@ -90,8 +106,28 @@ def _validate(stations: object, where: str) -> Plan:
         move = s.get("move", "joint")
         if move not in ("joint", "linear"):
             raise BadInputError(f"{at} ({sid}): move must be 'joint' or 'linear', got {move!r}")
-        out.append(Station(sid, T, move))
+        out.append(Station(sid, T, move, _joints(s.get("joints_deg"), f"{at} ({sid})")))
+    sizes = {len(st.joints_deg) for st in out if st.joints_deg is not None}
+    if len(sizes) > 1:
+        raise BadInputError(f"{where}: the stations' joints_deg have different lengths {sorted(sizes)}; one robot "
+                            "has one number of joints")
     return Plan(tuple(out))
+
+
+def _joints(value: object, at: str) -> tuple[float, ...] | None:
+    """A station's optional ``joints_deg``: 1..32 finite joint values (controller units)."""
+    if value is None:
+        return None
+    try:
+        if not isinstance(value, (list, tuple)) or any(isinstance(v, bool) for v in value):
+            raise ValueError
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.full(0, np.nan)
+    if arr.ndim != 1 or not 1 <= arr.size <= 32 or not np.all(np.isfinite(arr)):
+        raise BadInputError(f"{at}: joints_deg must be a list of 1..32 finite joint values (deg; mm for "
+                            f"prismatic axes), got {value!r}")
+    return tuple(float(v) for v in arr)
 
 
 def plan_from_json(obj: dict, where: str = "plan") -> Plan:

@@ -2,9 +2,10 @@
 
 Reads a ``jcalib.session/1`` folder (``session.json`` + ``stations.jsonl`` + images), detects the cell's
 target(s) in every image of every finished station, and writes ``observations.json`` in the
-``jcalib.observations/1`` format: per station its measured ``T_base_flange`` and one detection per
-(camera, target) found. Nothing stops the batch: skipped stations, missing or unreadable images and
-images without the target are reported as :class:`SessionFailure` records.
+``jcalib.observations/1`` format: per station its measured ``T_base_flange``, the joints the controller
+reported (``joints_deg``, for kinematic calibration) and one detection per (camera, target) found.
+Nothing stops the batch: skipped stations, missing or unreadable images and images without the target
+are reported as :class:`SessionFailure` records.
 
 **Tool tips.** Nothing in a session says which stations present a tool: a backlit tool image simply
 shows no target. So an image of a camera that observes a tool (``tools.<tool>.observed_by`` in the
@@ -82,8 +83,8 @@ def detect_session(
 
     Returns:
         ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
-        per station that has at least one detection (ids and ``T_base_flange`` in m from the session,
-        pixels in the OpenCV convention; a tool tip is one pixel) and the list of :class:`SessionFailure`.
+        per station that has at least one detection (ids, ``T_base_flange`` in m and ``joints_deg`` from
+        the session, pixels in the OpenCV convention; a tool tip is one pixel) and the list of :class:`SessionFailure`.
 
     Raises:
         BadInputError: not a session, no cell spec, an unknown target or tool, a station image naming
@@ -194,7 +195,8 @@ def detect_session(
             continue
         T = rec.get("T_base_flange")
         stations.append(
-            Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64))
+            Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64),
+                    joints_deg=_joints(rec.get("joints_deg")))
         )
     for cam in {c for _, c, _ in jobs} - set(sizes):  # cameras that never saw a target: size from an image
         from jcalib.vision.image import image_header_size
@@ -209,6 +211,15 @@ def detect_session(
         source=str(d),
     )
     return obs, failures
+
+
+def _joints(value: Any) -> np.ndarray | dict[str, np.ndarray] | None:
+    """A session record's ``joints_deg`` (a list, or robot -> list) as the observations' station holds it."""
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        return {str(r): np.asarray(q, dtype=np.float64) for r, q in value.items()}
+    return np.asarray(value, dtype=np.float64)
 
 
 def _tool_per_camera(spec: Any, tool: str | None) -> dict[str, tuple[str, str]]:

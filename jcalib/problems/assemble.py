@@ -177,10 +177,16 @@ def robot_statistics(g: Graph, built: Built, sol, robot: str) -> dict:
     }
 
 
+def _repeatability(S: np.ndarray, source: str) -> dict:
+    """The stated σ of one flange pose (per flange axis) from its square-root information, and its source."""
+    sigma = 1.0 / np.diag(S)
+    return {"translation_m": sigma[3:].tolist(), "rotation_deg": np.degrees(sigma[:3]).tolist(), "source": source}
+
+
 def kinematic_result(g: Graph, built: Built, sol, robot: str, noise: str) -> dict:
     """A robot's calibrated kinematics: ``model`` (:class:`~jcalib.geometry.kinematic_models.Kinematics`),
     ``params (P,)`` and their ``covariance (P, P)`` (zero for held parameters; m, rad), ``free``
-    ``(P,)`` bool, ``held`` (name -> why), ``repeatability`` (where the flange-pose σ came from), and
+    ``(P,)`` bool, ``held`` (name -> why), ``repeatability`` (the flange-pose σ per axis and where it came from), and
     the stations' flange corrections against the calibrated model: ``correction_rms_translation_m``
     and ``correction_rms_rotation_deg`` (per flange axis; what the kinematics does not explain)."""
     sel = built.kinematics[robot]
@@ -192,7 +198,7 @@ def kinematic_result(g: Graph, built: Built, sol, robot: str, noise: str) -> dic
     delta = log_se3(np.linalg.inv(T_model) @ se3_matrix(sol.values[g.flange_name(robot)]))
     rms = np.sqrt(np.mean(delta**2, axis=0))
     return {"model": model, "params": params, "covariance": sol.covariance(name, noise=noise), "free": sel.free.copy(),
-            "held": dict(sel.held), "repeatability": built.kinematic_noise[robot],
+            "held": dict(sel.held), "repeatability": _repeatability(built.pose_sqrt_info[robot], built.kinematic_noise[robot]),
             "correction_rms_translation_m": rms[3:].tolist(), "correction_rms_rotation_deg": np.degrees(rms[:3]).tolist()}
 
 

@@ -26,6 +26,7 @@ from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Prove
 from jcalib.problems.assemble import Calibration, assemble
 from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
+from jcalib.problems.heldout import heldout_accuracy
 from jcalib.problems.options import CalibrationOptions, check_applicable
 from jcalib.problems.refine import refine
 from jcalib.problems.start import Start, start_intrinsics, start_poses
@@ -221,7 +222,11 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
     options = options or CalibrationOptions()
     g, s, built = prepare(cell, obs, options, prior=prior, prior_names=prior_names, start=start, given=given,
                           priors=priors, known=known)
-    return assemble(g, s, built, refine(g, s, built, options))
+    r = refine(g, s, built, options)
+    cal = assemble(g, s, built, r)
+    for robot, held in heldout_accuracy(g, built, r, options).items():
+        cal.kinematics[robot]["heldout"] = held
+    return cal
 
 
 def options_of(file: ResultFile) -> CalibrationOptions:
@@ -277,6 +282,13 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
             raise BadInputError(f"result: the cell estimates target '{t}''s warp (warp: true), but the result has no "
                                 f"targets.{t}.warp_m; give the cell spec the result was computed from")
         x0[f"warp:{t}"] = np.asarray(saved.warp_m, np.float64)[None, :]
+    for r in built.kinematics:
+        saved = file.kinematics.get(r)
+        model = g.robot_specs[r].kinematics
+        if saved is None or tuple(saved.names) != tuple(model.param_names):
+            raise BadInputError(f"result: the cell calibrates {g.label(r)}'s kinematics, but the result has no matching "
+                                f"kinematics.{r} section; give the cell spec the result was computed from")
+        x0[f"kinematics:{r}"] = np.asarray(saved.values, np.float64)[None, :]
     rejected = {(o["of"], str(o["station"]), int(o["point_index"])) for o in file.stats.get("outliers") or []}
     weights = built.unit_weights()
     for gr in built.groups:
@@ -379,7 +391,8 @@ def kinematics_result(k: dict) -> KinematicsResult:
     model, params, free = k["model"], k["params"], k["free"]
     names = list(model.param_names)
     cov = np.asarray(k["covariance"], np.float64)[np.ix_(free, free)]
-    extra = {"held": dict(k["held"]), "repeatability": k["repeatability"],
+    extra = {"held": dict(k["held"]), "repeatability": k["repeatability"], "spec": kinematic_models.to_spec(model, params),
+             **({"heldout": k["heldout"]} if "heldout" in k else {}),
              "controller_offsets": kinematic_models.controller_offsets(model, params),
              "table": kinematic_models.table(model, params),
              "correction_rms_translation_m": k["correction_rms_translation_m"],

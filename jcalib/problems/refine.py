@@ -117,7 +117,7 @@ def _kinds(built: Built) -> list[str]:
 
 def uses_components(built: Built, options) -> bool:
     """Whether variance components apply: a-posteriori noise with several kinds or stated priors."""
-    stated = any(f.name.startswith("prior:") for f in built.problem.factors)
+    stated = any(f.name.startswith(("prior:", "kinematic:")) for f in built.problem.factors)  # stated σ, held
     return options.noise == "a_posteriori" and (len(_kinds(built)) > 1 or stated)
 
 

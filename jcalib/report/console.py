@@ -6,7 +6,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from jcalib.io.result import ResultFile
+from jcalib.io.result import KinematicsResult, ResultFile
 
 _PIXEL_PARAMS = {"fx", "fy", "cx", "cy", "skew"}
 
@@ -94,6 +94,29 @@ def targets_table(result: ResultFile) -> Table | None:
     return table
 
 
+def kinematics_table(robot: str, k: KinematicsResult) -> Table:
+    """The "Robot kinematics" table of one robot: every calibrated parameter with nominal, calibrated,
+    change and σ (mm / deg)."""
+    from jcalib.report.kinematics import parameter_rows
+
+    table = Table(title=f"Robot kinematics: {robot} ({k.convention})")
+    for col in ("parameter", "nominal", "calibrated", "change", "σ", "unit"):
+        table.add_column(col, justify="left" if col in ("parameter", "unit") else "right")
+    for p in parameter_rows(k):
+        table.add_row(p.name, f"{p.nominal:.5f}", f"{p.calibrated:.5f}", f"{p.change:+.4g}",
+                      "–" if p.std is None else f"{p.std:.3g}", p.unit)
+    return table
+
+
+def kinematics_lines(k: KinematicsResult) -> list[str]:
+    """The lines under a robot's kinematics table: the held parameters, the stations' flange correction
+    RMS against the stated repeatability, and the held-out prediction error."""
+    from jcalib.report.kinematics import fit_lines
+
+    held = list(k.extra.get("held") or {})
+    return [f"held at nominal: {', '.join(held) if held else 'none'}", *fit_lines(k)]
+
+
 def print_result(result: ResultFile, console: Console | None = None, truth=None) -> None:
     """Print the result's tables and fit statistics."""
     console = console or Console()
@@ -102,6 +125,10 @@ def print_result(result: ResultFile, console: Console | None = None, truth=None)
     for t in (transforms_table(result), points_table(result), targets_table(result)):
         if t is not None:
             console.print(t)
+    for robot, k in result.kinematics.items():
+        console.print(kinematics_table(robot, k))
+        for line in kinematics_lines(k):
+            console.print(line, highlight=False)
     s = result.stats
     parts = []
     if "rms_px" in s:

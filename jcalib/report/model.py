@@ -47,6 +47,7 @@ __all__ = [
     "correlations",
     "intrinsic_unknown",
     "joint_covariance",
+    "kinematic_unknown",
     "linear_model",
     "model_from_file",
     "options_of",
@@ -121,6 +122,13 @@ WARP_COORDS = ("c0", "c1")
 def warp_unknown(target: str, coord: str) -> Unknown:
     """A board warp coefficient (``c0`` along the target's x, ``c1`` along its y), displayed in mm."""
     return Unknown(f"warp:{target}", coord, "mm", 1000.0, "target")
+
+
+def kinematic_unknown(robot: str, name: str) -> Unknown:
+    """A kinematic parameter ``<joint>.<param>`` (or ``base.*``/``flange.*``) of a robot, in mm or deg."""
+    if name.rsplit(".", 1)[-1] in ("a", "d", "tx", "ty", "tz"):
+        return Unknown(f"kinematics:{robot}", name, "mm", 1000.0, "robot")
+    return Unknown(f"kinematics:{robot}", name, "deg", 180.0 / math.pi, "robot")
 
 
 # ------------------------------------------------------------------------------------ the model
@@ -408,6 +416,17 @@ def _check_restored(cal, file: ResultFile) -> None:
             z = np.where(std > 0, d / np.where(std > 0, std, 1.0), np.where(d > 1e-12, np.inf, 0))
             if z.max() > worst:
                 worst, where = float(z.max()), f"{t} warp {WARP_COORDS[int(np.argmax(z))]}"
+    for r, k in file.kinematics.items():
+        if r in cal.kinematics:
+            mine = cal.kinematics[r]
+            if tuple(mine["model"].param_names) != tuple(k.names):
+                raise BadInputError(f"cell: the kinematics of robot '{r}' has other parameters than the result's; give "
+                                    "the cell spec the result was computed from")
+            std = np.sqrt(np.maximum(np.diag(np.asarray(mine["covariance"])), 0.0))
+            d = np.abs(np.asarray(mine["params"]) - k.values)
+            z = np.where(std > 0, d / np.where(std > 0, std, 1.0), np.where(d > 1e-12, np.inf, 0))
+            if z.max() > worst:
+                worst, where = float(z.max()), f"kinematics of {r} {k.names[int(np.argmax(z))]}"
     if worst > RESTORE_TOLERANCE_SIGMA:
         raise BadInputError(
             f"observations, cell: re-solving the result with them moves {where} by {worst:.3g} σ from the result's "
@@ -443,25 +462,29 @@ def joint_covariance(file: ResultFile) -> tuple[tuple[Unknown, ...], np.ndarray]
     try:
         names = [str(n) for n in data["names"]]
         C = np.asarray(data["matrix"], np.float64)
+        pairs = [tuple(n.rpartition(".")[::2]) for n in names]  # (block, coord)
         if "dims" in data:  # block form: one name per block (a camera's intrinsics or a transform), its dimension
-            full = []
+            pairs = []
             for n, d in zip(names, data["dims"], strict=True):
+                if n.startswith("kinematics:") and n[11:] not in file.kinematics:
+                    raise ValueError(f"block {n!r} names a robot without a kinematics entry in the result")
                 coords = (file.cameras[n].param_names if n in file.cameras
+                          else file.kinematics[n[11:]].names if n.startswith("kinematics:")
                           else WARP_COORDS if n.startswith("warp:") else TANGENT)
                 if len(coords) != int(d):
                     raise ValueError(f"block {n!r} has {d} coordinates, expected {len(coords)}")
-                full += [f"{n}.{c}" for c in coords]
-            names = full
+                pairs += [(n, c) for c in coords]
     except (KeyError, TypeError, ValueError) as err:
         raise BadInputError(f"{JOINT_COVARIANCE_KEY}: expected {{names: [...], matrix: n x n}}, got {err}") from None
-    if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)):
+    if C.shape != (len(pairs), len(pairs)) or not np.all(np.isfinite(C)):
         raise BadInputError(
-            f"{JOINT_COVARIANCE_KEY}.matrix: expected a finite {len(names)}x{len(names)} matrix, got shape {C.shape}")
+            f"{JOINT_COVARIANCE_KEY}.matrix: expected a finite {len(pairs)}x{len(pairs)} matrix, got shape {C.shape}")
     unknowns = []
-    for n in names:
-        block, _, coord = n.rpartition(".")
+    for block, coord in pairs:
         if block.startswith("warp:") and coord in WARP_COORDS:
             unknowns.append(warp_unknown(block[5:], coord))
+        elif block.startswith("kinematics:"):
+            unknowns.append(kinematic_unknown(block[11:], coord))
         else:
             unknowns.append(transform_unknown(block, coord) if coord in TANGENT else intrinsic_unknown(block, coord))
     return tuple(unknowns), C

@@ -29,11 +29,11 @@ def test_each_format_writes_its_golden_text(fmt, options, golden, tmp_path):
 
 
 def test_formats_and_bad_requests(tmp_path):
-    assert sorted(EXPORT_FORMATS) == ["krl", "opencv", "rapid", "ros"]
+    assert sorted(EXPORT_FORMATS) == ["kinematics", "krl", "opencv", "rapid", "ros", "urdf"]
     with pytest.raises(
-        BadInputError, match="format: expected one of opencv, ros, rapid, krl, got 'urdf'"
+        BadInputError, match="format: expected one of opencv, ros, rapid, krl, kinematics, urdf, got 'sdf'"
     ):
-        export_result(GOLDEN / "result.json", "urdf", tmp_path / "x")
+        export_result(GOLDEN / "result.json", "sdf", tmp_path / "x")
     with pytest.raises(
         BadInputError, match="takes the options tools, bases, orientations; got unknown option.*wobjs"
     ):

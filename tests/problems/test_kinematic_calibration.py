@@ -80,6 +80,8 @@ def test_result_file_carries_the_kinematics_and_round_trips(positioner_noiseless
     assert k.covariance.shape == (mask.sum(), mask.sum())
     assert set(k.extra["held"]) == set(cal.kinematics["robot"]["held"])
     assert set(k.extra["controller_offsets"]) == set(kinematic_models.PRESETS["positioner_2axis"]().joint_names)
+    assert k.extra["heldout"]["calibrated"]["position_median_mm"] < 1e-6  # noiseless: exact prediction
+    assert k.extra["heldout"]["nominal"]["position_median_mm"] > 0.1
 
 
 def test_arm_kinematics_recovered_and_held_out_poses_beat_the_nominal_model():
@@ -113,6 +115,11 @@ def test_arm_kinematics_recovered_and_held_out_poses_beat_the_nominal_model():
     calibrated, nominal = np.median(error_mm(k["params"])), np.median(error_mm(truth["nominal"]))
     assert calibrated < 0.2 * nominal, (calibrated, nominal)
     assert calibrated < 0.1  # mm: pixel noise and the robot's 0.02 mm repeatability
+    # the result's own held-out check (no truth: folds of stations predicted from the others) sees it too
+    held = k["heldout"]
+    assert held["stations"] == 30 and held["folds"] == 5
+    assert held["calibrated"]["position_median_mm"] < 0.5 * held["nominal"]["position_median_mm"]
+    assert held["calibrated"]["rotation_median_deg"] < 0.5 * held["nominal"]["rotation_median_deg"]
 
 
 def test_a_joint_that_never_moved_is_named_exit_3():
@@ -155,3 +162,31 @@ def test_no_pose_model_is_refused_for_kinematic_calibration():
     cell, obs, _ = synthetic_positioner_cell(4, num_stations=8, num_heldout=1)
     with pytest.raises(BadInputError, match="no-pose-model"):
         calibrate(cell, obs, pose_model=False)
+
+
+@pytest.mark.parametrize("convention", [
+    pytest.param("mdh", marks=pytest.mark.slow(reason="compiles a third kinematic structure; the builder's convention-"
+                                              "independence is checked by the poe case, mdh's FK by tests/geometry")),
+    "poe"])
+def test_other_conventions_fit_the_same_robot_exactly(convention):
+    """The positioner's true (DH) kinematics calibrated in MDH or POE form: each parameterisation keeps its
+    own identifiable subset, and all predict the part's pose in the sensor frame at new joint values
+    exactly (noiseless data), where the nominal model is off."""
+    cell, obs, truth = synthetic_positioner_cell(8, num_stations=16, num_heldout=6, sigma_deg=0.0, sigma_m=0.0,
+                                                 scatter=False, error_mask=structural_mask("positioner_2axis"),
+                                                 error_scale=20.0)
+    cell["robot"]["kinematics"] = {"preset": "positioner_2axis", "convention": convention}
+    cell["robot"]["calibrate_kinematics"] = ["all"]
+    cal = calibrate(cell, obs)
+    k = cal.kinematics["robot"]
+    model = k["model"]
+    assert model.convention == convention and k["free"].sum() >= 2
+    assert "base.rx" in k["held"] and "flange.tz" in k["held"]
+    q = truth["heldout"]["q"]
+    true = invert(truth["T_base_tracker"]) @ truth["heldout"]["T_base_flange"] @ truth["T_flange_part"]
+    pred = invert(cal.transforms["T_base_tracker"]) @ np.asarray(kinematic_models.forward(model, k["params"], q)) \
+        @ cal.transforms["T_flange_part"]
+    nominal = invert(cal.transforms["T_base_tracker"]) @ np.asarray(kinematic_models.forward(model, model.nominal, q)) \
+        @ cal.transforms["T_flange_part"]
+    assert np.abs(pred[:, :3, 3] - true[:, :3, 3]).max() < 1e-6
+    assert np.abs(nominal[:, :3, 3] - true[:, :3, 3]).max() > 1e-4

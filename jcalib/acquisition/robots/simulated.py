@@ -13,13 +13,22 @@ of ``settle_amplitude_rad`` over ``settle_time_s``), so a client that grabs befo
 sees a moving arm. Reported poses come from the joints (the encoders), as a real controller's do;
 the flange itself is off that pose by a random error of the size of the robot's repeatability, drawn
 per move (backlash and elasticity the motor encoders do not see): the true pose, which a frame source
-renders, is the reported one times that error. The robot's kinematic error is not modelled.
+renders, is the reported one times that error.
+
+Kinematic error (optional, ``true_forward``): a real arm's joint zeros, link lengths and twists differ
+from the nominal model its controller uses. The controller still plans with its nominal model (inverse
+kinematics, path checks) and reports the nominal forward kinematics at its encoder values, while the
+flange really is at the *true* forward kinematics at the same joints (times the repeatability error):
+the reported pose is off by up to millimetres, systematically, as on a real robot. Without it the true
+kinematics is the nominal one. :func:`kinematics_forward` makes ``true_forward`` from a
+:class:`jcalib.geometry.kinematic_models.Kinematics` and its true parameters.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,6 +81,9 @@ class SimulatedController:
         tools: tool index -> ``T_flange_tool`` (4, 4) m; index 0 is the flange itself.
         bases: base index -> ``T_robroot_base`` (4, 4) m; index 0 is the robot base.
         seed: random seed of the repeatability noise.
+        true_forward: the arm's true kinematics, joints ``(n,)`` (the controller's, rad; m for prismatic
+            axes) -> true ``T_base_flange`` (4, 4), m (e.g. :func:`kinematics_forward`); None: the
+            nominal ``model.forward`` (no kinematic error). Only :meth:`true_T_base_flange` uses it.
     """
 
     def __init__(
@@ -89,8 +101,12 @@ class SimulatedController:
         tools: dict[int, np.ndarray] | None = None,
         bases: dict[int, np.ndarray] | None = None,
         seed: int = 0,
+        true_forward: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.model = model if model is not None else default_model()
+        if true_forward is not None and not callable(true_forward):
+            raise BadInputError(f"true_forward: expected a function joints -> T_base_flange, got {true_forward!r}")
+        self.true_forward = true_forward
         self.repeatability_m = float(repeatability_m)
         self.repeatability_rad = float(repeatability_rad)
         self.linear_speed_m_s = float(linear_speed_m_s)
@@ -139,10 +155,13 @@ class SimulatedController:
             return self._joints_at(time.monotonic())[1]
 
     def true_T_base_flange(self) -> np.ndarray:
-        """(4, 4) true flange pose in the robot base (m): what a frame source renders (the reported
-        pose times the repeatability error of the last move)."""
+        """(4, 4) true flange pose in the robot base (m): what a frame source renders (the true
+        kinematics at the current joints, the nominal one without ``true_forward``, times the
+        repeatability error of the last move)."""
         with self._lock:
-            return self.model.forward(self._joints_at(time.monotonic())[0]) @ self._T_error
+            q = self._joints_at(time.monotonic())[0]
+            forward = self.true_forward if self.true_forward is not None else self.model.forward
+            return np.asarray(forward(q), dtype=np.float64) @ self._T_error
 
     def T_base_tool(self) -> np.ndarray:
         """(4, 4) pose of the active tool in the active base, m (flange in robot base for 0/0)."""
@@ -238,6 +257,36 @@ class SimulatedController:
         """Start a move and block until the robot arrives (fine point; the ring-down continues)."""
         self.start_move(T_base_tool, kind)
         self.wait_motion()
+
+
+def kinematics_forward(model, params) -> Callable[[np.ndarray], np.ndarray]:
+    """``true_forward`` of a :class:`SimulatedController` whose arm has the kinematics ``model`` at ``params``.
+
+    Args:
+        model: a :class:`jcalib.geometry.kinematic_models.Kinematics` whose joints are the controller's
+            (same order, sign and zero: e.g. ``from_dh_robot`` of the controller's preset).
+        params: ``(P,)`` the true parameters (m, rad), e.g. nominal plus
+            :func:`jcalib.sim.kinematic_cells.kinematic_errors`.
+
+    Returns:
+        joints ``(n,)`` (rad, m) -> ``T_base_flange`` (4, 4), m (numpy; ``jit``-compiled on first call).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from jcalib.geometry import kinematic_models
+
+    p = jnp.asarray(params, dtype=jnp.float64)
+    if p.shape != (model.num_params,):
+        raise BadInputError(
+            f"params: expected shape ({model.num_params},) for the kinematics of {model.name}, got {p.shape}"
+        )
+    fk = jax.jit(lambda q: kinematic_models.forward(model, p, q))
+
+    def forward(joints_rad: np.ndarray) -> np.ndarray:
+        return np.asarray(fk(jnp.asarray(joints_rad, dtype=jnp.float64)))
+
+    return forward
 
 
 class SimulatedRobot(Robot):

@@ -11,6 +11,7 @@ from typing import Any
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
 from jcalib.io.export.abb_rapid import abb_rapid_module
+from jcalib.io.export.kinematics import kinematics_urdf, kinematics_yaml
 from jcalib.io.export.kuka_krl import kuka_config_lines
 from jcalib.io.export.opencv_yaml import opencv_yaml
 from jcalib.io.export.ros import ros_camera_info
@@ -20,12 +21,15 @@ __all__ = ["EXPORT_FORMATS", "export_result", "export_text"]
 
 #: Format name -> ``(result, **options) -> str``. Options per format:
 #: ``opencv``: ``cameras`` (one id or a pair); ``ros``: ``camera``, ``camera_name``;
-#: ``rapid``: ``tools``, ``wobjs``, ``module``, ``loads``; ``krl``: ``tools``, ``bases``.
+#: ``rapid``: ``tools``, ``wobjs``, ``module``, ``loads``; ``krl``: ``tools``, ``bases``;
+#: ``kinematics``: ``robots``; ``urdf``: ``robot`` (both need a result with calibrated kinematics).
 EXPORT_FORMATS: dict[str, Callable[..., str]] = {
     "opencv": opencv_yaml,
     "ros": ros_camera_info,
     "rapid": abb_rapid_module,
     "krl": kuka_config_lines,
+    "kinematics": kinematics_yaml,
+    "urdf": kinematics_urdf,
 }
 
 
@@ -52,8 +56,8 @@ def export_text(result: ResultFile | str | os.PathLike, fmt: str, **names: Any) 
 def export_result(
     result_path: str | os.PathLike | ResultFile, fmt: str, out_path: str | os.PathLike, **names: Any
 ) -> Path:
-    """Read a result file, export it in format ``fmt`` (``opencv``, ``ros``, ``rapid``, ``krl``)
-    and write ``out_path`` atomically. ``names`` are the format's options (see
+    """Read a result file, export it in format ``fmt`` (``opencv``, ``ros``, ``rapid``, ``krl``,
+    ``kinematics``, ``urdf``) and write ``out_path`` atomically. ``names`` are the format's options (see
     :data:`EXPORT_FORMATS`); None values are left to the format's defaults.
 
     Returns:

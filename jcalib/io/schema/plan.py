@@ -6,7 +6,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, StringConstraints
 
-from jcalib.io.schema.base import Closed, SchemaError, validate
+from jcalib.io.schema.base import Closed, SchemaError, YNum, validate
 from jcalib.io.schema.common import YMat4, max_reach_m, pose_problem
 
 __all__ = ["PlanDocument", "validate_plan_document"]
@@ -19,6 +19,7 @@ class PlanStation(Closed):
     id: PlanId | None = None
     T_base_flange: YMat4
     move: Literal["joint", "linear"] = "joint"
+    joints_deg: Annotated[list[YNum], Field(min_length=1, max_length=32)] | None = None  # controller units (deg, mm)
 
 
 class PlanDocument(Closed):
