@@ -17,7 +17,7 @@ import numpy as np
 from jcalib.geometry.se3 import log_se3
 from jcalib.problems.kinematics import forward_batch
 from jcalib.geometry.cameras import AbstractCameraModel
-from jcalib.problems.build import CORNER_KINDS, Built, se3_matrix
+from jcalib.problems.build import CORNER_KINDS, Built, kinematic_prior_sigma, se3_matrix
 from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.refine import Refined, residuals
 from jcalib.problems.start import Start
@@ -177,6 +177,11 @@ def robot_statistics(g: Graph, built: Built, sol, robot: str) -> dict:
     }
 
 
+#: A calibrated kinematic parameter whose σ exceeds this fraction of its prior σ is reported as weakly
+#: determined by the data.
+WEAK_PRIOR_RATIO = 0.3
+
+
 def _repeatability(S: np.ndarray, source: str) -> dict:
     """The stated σ of one flange pose (per flange axis) from its square-root information, and its source."""
     sigma = 1.0 / np.diag(S)
@@ -197,7 +202,10 @@ def kinematic_result(g: Graph, built: Built, sol, robot: str, noise: str) -> dic
     T_model = np.asarray(forward_batch(model, params, g.joints[robot][ks]), np.float64)
     delta = log_se3(np.linalg.inv(T_model) @ se3_matrix(sol.values[g.flange_name(robot)]))
     rms = np.sqrt(np.mean(delta**2, axis=0))
-    return {"model": model, "params": params, "covariance": sol.covariance(name, noise=noise), "free": sel.free.copy(),
+    cov = sol.covariance(name, noise=noise)
+    ratio = np.sqrt(np.maximum(np.diag(cov), 0.0)) / kinematic_prior_sigma(model)
+    weak = {n: float(x) for n, x, f in zip(model.param_names, ratio, sel.free) if f and x > WEAK_PRIOR_RATIO}
+    return {"weak": weak, "model": model, "params": params, "covariance": cov, "free": sel.free.copy(),
             "held": dict(sel.held), "repeatability": _repeatability(built.pose_sqrt_info[robot], built.kinematic_noise[robot]),
             "correction_rms_translation_m": rms[3:].tolist(), "correction_rms_rotation_deg": np.degrees(rms[:3]).tolist()}
 
@@ -302,6 +310,13 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
              if built.pose_model[rb] and rb not in built.kinematics}
     kinematics = {rb: kinematic_result(g, built, sol, rb, noise) for rb in built.kinematics}
     warnings = list(start.warnings)
+    for rb, k in kinematics.items():
+        if k["weak"]:
+            warnings.append(
+                f"{g.label(rb)}: the stations barely determine the kinematic parameter(s) "
+                f"{', '.join(f'{n} (σ {x:.0%} of the prior)' for n, x in k['weak'].items())}: their estimates lean "
+                "on the nominal model's prior; add stations that move every joint through more of its range "
+                "(jcalib plan --kind kinematics)")
     warnings += [f"{g.label(rb)} has no observations; its base ({g.base_name(rb)}) is not estimated"
                  for rb in g.robot_names if g.multi and rb not in g.used_robots]
     num_res = int(sum(np.sum(r.weights[gr.name] > 0) * res[gr.name].shape[1] for gr in built.groups))

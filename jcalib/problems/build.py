@@ -59,6 +59,15 @@ def se3_params(T) -> np.ndarray:
     return np.asarray(conversions.matrix_to_pose(np.asarray(T, np.float64)))
 
 
+def start_params(T) -> np.ndarray:
+    """(4, 4) -> (7,) of a start value computed by a closed form, its rotation projected onto the nearest
+    rotation first (a closed form on near-degenerate motion can return one a little off orthonormal)."""
+    T = np.array(T, np.float64)
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    T[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return se3_params(T)
+
+
 def se3_matrix(p) -> np.ndarray:
     """(..., 7) ``wxyz_xyz`` -> (..., 4, 4)."""
     return np.asarray(conversions.pose_to_matrix(np.asarray(p, np.float64)))
@@ -168,6 +177,20 @@ def loss_of(options):
 SPLINE_PRIOR_SIGMA = 0.1
 
 
+#: σ of the prior that keeps calibrated kinematic parameters near their nominal values (m, rad): a robot's
+#: real geometry is within a few millimetres and tenths of a degree of its data sheet, far wider than what
+#: usable stations determine (hundredths), so the prior decides only directions the motion barely excites
+#: and keeps the solve out of far-away minima there (the result warns about such parameters).
+KINEMATIC_PRIOR_SIGMA = {"m": 5e-3, "rad": float(np.radians(1.0))}
+
+
+def kinematic_prior_sigma(model) -> np.ndarray:
+    """``(P,)`` prior σ of each kinematic parameter (:data:`KINEMATIC_PRIOR_SIGMA`, by its unit)."""
+    angle = ("theta", "alpha", "beta", "rx", "ry", "rz")
+    return np.array([KINEMATIC_PRIOR_SIGMA["rad" if n.rsplit(".", 1)[-1] in angle else "m"]
+                     for n in model.param_names])
+
+
 def sqrt_info(cov: np.ndarray) -> np.ndarray:
     """Pseudo-inverse square root ``S`` (``SᵀS = Σ⁺``) of a covariance; zero rows where Σ has no variance."""
     cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
@@ -257,9 +280,10 @@ class _Builder:
         self.pose_sqrt_info[r] = S
         self.variables[name] = Variable(name, SE3(), meas, eliminate=True, entry_label=label)
         kname = f"kinematics:{r}"
-        self.add(kname, Euclidean(model.num_params), np.asarray(model.nominal, np.float64)[None, :],
-                 fixed=~sel.free[None, :], key=kname, coord_names=list(model.param_names),
-                 entry_label=f"{g.label(r)} kinematics")
+        nominal = np.asarray(model.nominal, np.float64)
+        self.add(kname, Euclidean(model.num_params), nominal[None, :], fixed=~sel.free[None, :], key=kname,
+                 coord_names=list(model.param_names), entry_label=f"{g.label(r)} kinematics", prior_mean=nominal,
+                 prior_sqrt_info=np.diag(np.where(sel.free, 1.0 / kinematic_prior_sigma(model), 0.0)))
         n = stations.size
         self.factors.append(FactorGroup(
             f"kinematic:{r}", kinematic(model), (kname, name), (np.zeros(n, np.int32), np.arange(n, dtype=np.int32)),
@@ -294,7 +318,7 @@ class _Builder:
                                     "add pose: [[4x4]] (m) or remove it from fixed")
             self.transforms.append(name)
             self.calibrated[name] = [] if fixed else ["rx", "ry", "rz", "tx", "ty", "tz"]
-            self.add(name, SE3(), se3_params(s.known[name]), fixed=fixed)
+            self.add(name, SE3(), start_params(s.known[name]), fixed=fixed)
         for tool in cell.tools.values():
             name = f"T_flange_{tool.name}"
             held = name in cell.fixed or tool.name in cell.fixed
@@ -302,14 +326,14 @@ class _Builder:
             fixed = np.array([not tilt, not tilt, True, held, held, held])
             self.transforms.append(name)
             self.calibrated[name] = [c for c, f in zip(("rx", "ry", "rz", "tx", "ty", "tz"), fixed) if not f]
-            self.add(name, SE3(), se3_params(s.known[name]), fixed=fixed)
+            self.add(name, SE3(), start_params(s.known[name]), fixed=fixed)
         for r in g.used_robots:
             name = g.base_name(r)
             if name is not None:
                 self.transforms.append(name)
                 held = g.held_base(r)
                 self.calibrated[name] = [] if held else ["rx", "ry", "rz", "tx", "ty", "tz"]
-                self.add(name, SE3(), se3_params(s.known[name]), fixed=held)
+                self.add(name, SE3(), start_params(s.known[name]), fixed=held)
         for t in sorted({t for _, t in g.pairs}):
             if cell.targets[t].warp:
                 self.warps.append(t)

@@ -392,6 +392,7 @@ def kinematics_result(k: dict) -> KinematicsResult:
     names = list(model.param_names)
     cov = np.asarray(k["covariance"], np.float64)[np.ix_(free, free)]
     extra = {"held": dict(k["held"]), "repeatability": k["repeatability"], "spec": kinematic_models.to_spec(model, params),
+             "weakly_determined": {n: {"std_over_prior_std": x} for n, x in k.get("weak", {}).items()},
              **({"heldout": k["heldout"]} if "heldout" in k else {}),
              "controller_offsets": kinematic_models.controller_offsets(model, params),
              "table": kinematic_models.table(model, params),

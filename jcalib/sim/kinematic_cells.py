@@ -183,12 +183,12 @@ def synthetic_arm_cell(seed: int = 0, num_stations: int = 30, num_heldout: int =
 def synthetic_positioner_cell(seed: int = 0, num_stations: int = 30, num_heldout: int = 20, *,
                               sigma_deg: float = 0.005, sigma_m: float = 2e-5, error_mask=None,
                               error_scale: float = 1.0, repeatability_m: float = 1e-5,
-                              repeatability_deg: float = 0.001, scatter: bool = True,
+                              repeatability_deg: float = 0.001, scatter: bool = True, tilt_range_deg: float = 80.0,
                               calibrate: tuple[str, ...] = ("joint_offsets", "link_lengths", "twists")):
     """A 2-axis tilt-rotate positioner carrying a target, whose pose a fixed 6-DOF sensor measures.
 
     Args:
-        seed: noise, kinematic errors and joint values (tilt within ±80°, rotation within ±180°).
+        seed: noise, kinematic errors and joint values (tilt within ±``tilt_range_deg``, rotation within ±180°).
         sigma_deg, sigma_m: the sensor's pose noise (right perturbation of ``T_sensor_target``, per axis);
             0 for noiseless data.
         repeatability_m, repeatability_deg: the positioner's scatter about its true kinematics (none
@@ -204,8 +204,8 @@ def synthetic_positioner_cell(seed: int = 0, num_stations: int = 30, num_heldout
     T_base_tracker = _look_at(np.array([1.8, 0.6, 1.6]), np.array([0.0, 0.0, 0.9]), up=(0.0, 0.0, 1.0))
     T_flange_part = make_pose(rotation((0.1, 0.3, 1.0), 0.5), [0.12, -0.08, 0.05])
     want = num_stations + num_heldout
-    lo = np.maximum(np.asarray(model.lower), np.radians([-80.0, -180.0]))
-    hi = np.minimum(np.asarray(model.upper), np.radians([80.0, 180.0]))
+    lo = np.maximum(np.asarray(model.lower), np.radians([-tilt_range_deg, -180.0]))
+    hi = np.minimum(np.asarray(model.upper), np.radians([tilt_range_deg, 180.0]))
     q_all = rng.uniform(lo, hi, size=(want, 2))
     T_true = np.asarray(_fk(model, jnp.asarray(true_params), jnp.asarray(q_all)))
     if scatter:

@@ -80,7 +80,7 @@ def test_result_file_carries_the_kinematics_and_round_trips(positioner_noiseless
     assert k.covariance.shape == (mask.sum(), mask.sum())
     assert set(k.extra["held"]) == set(cal.kinematics["robot"]["held"])
     assert set(k.extra["controller_offsets"]) == set(kinematic_models.PRESETS["positioner_2axis"]().joint_names)
-    assert k.extra["heldout"]["calibrated"]["position_median_mm"] < 1e-6  # noiseless: exact prediction
+    assert k.extra["heldout"]["calibrated"]["position_median_mm"] < 1e-3  # noiseless: exact to 1e-6 m
     assert k.extra["heldout"]["nominal"]["position_median_mm"] > 0.1
 
 
@@ -190,3 +190,16 @@ def test_other_conventions_fit_the_same_robot_exactly(convention):
         @ cal.transforms["T_flange_part"]
     assert np.abs(pred[:, :3, 3] - true[:, :3, 3]).max() < 1e-6
     assert np.abs(nominal[:, :3, 3] - true[:, :3, 3]).max() > 1e-4
+
+
+def test_barely_excited_parameters_lean_on_the_prior_and_are_named():
+    """A positioner whose tilt axis moves only ±0.2°: its geometry is barely seen, so the estimate stays near
+    the nominal model (the prior), within its σ of the truth, and the result names the weak parameters."""
+    cell, obs, truth = synthetic_positioner_cell(9, num_stations=16, num_heldout=1, tilt_range_deg=0.2)
+    cal = calibrate(cell, obs)
+    k = cal.kinematics["robot"]
+    assert k["weak"], k["free"]
+    assert any("barely determine" in w and all(n in w for n in k["weak"]) for w in cal.warnings)
+    free = k["free"]
+    z = (k["params"] - truth["params"])[free] / np.sqrt(np.diag(k["covariance"]))[free]
+    assert np.all(np.abs(z) < 5), z
