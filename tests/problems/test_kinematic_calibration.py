@@ -3,11 +3,16 @@ bad input and the result file (DESIGN.md: kinematics is a preset of the one buil
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
+import json
 
 import numpy as np
 import pytest
+import yaml
 
+from jcalib.app.cli import main
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import kinematic_models
 from jcalib.geometry.se3 import invert
@@ -122,7 +127,7 @@ def test_arm_kinematics_recovered_and_held_out_poses_beat_the_nominal_model():
     assert held["calibrated"]["rotation_median_deg"] < 0.5 * held["nominal"]["rotation_median_deg"]
 
 
-def test_a_joint_that_never_moved_is_named_exit_3():
+def test_a_joint_that_never_moved_is_named_exit_3(tmp_path):
     cell, obs, _ = synthetic_positioner_cell(4, num_stations=12, num_heldout=1, sigma_deg=0.0, sigma_m=0.0,
                                              scatter=False)
     still = copy.deepcopy(obs)
@@ -134,6 +139,15 @@ def test_a_joint_that_never_moved_is_named_exit_3():
     with pytest.raises(NotObservableError, match=f"{model.joint_names[1]}.*never moved") as err:
         calibrate(cell, still)
     assert err.value.unknowns
+    # the command line: exit 3, the message on stderr, no traceback
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    (tmp_path / "obs.json").write_text(json.dumps(still))
+    out = io.StringIO()
+    with contextlib.redirect_stderr(out), contextlib.redirect_stdout(out), pytest.raises(SystemExit) as code:
+        main(["calibrate", str(tmp_path / "cell.yaml"), str(tmp_path / "obs.json"), "-o", str(tmp_path / "r.json")])
+    assert code.value.code == 3
+    assert "never moved" in out.getvalue() and "Traceback" not in out.getvalue()
+    assert not (tmp_path / "r.json").exists()
 
 
 def test_a_parameter_asked_for_by_name_that_no_motion_determines_is_refused():
