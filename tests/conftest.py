@@ -110,3 +110,24 @@ def _hang_watchdog(request):
     timer.start()
     yield
     timer.cancel()
+
+
+@pytest.fixture(scope="session")
+def run_cli():
+    """``run_cli(*args) -> (exit status, stdout and stderr)``: the ``jcalib`` command, run in this process."""
+    import contextlib
+    import io
+
+    from jcalib.app.cli import main
+
+    def run(*args) -> tuple[int, str]:
+        out = io.StringIO()
+        with contextlib.redirect_stderr(out), contextlib.redirect_stdout(out):
+            try:
+                main([str(a) for a in args])
+                code = 0
+            except SystemExit as e:
+                code = e.code if isinstance(e.code, int) else 1
+        return code, out.getvalue()
+
+    return run

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.geometry import kinematic_models, lie
+from jcalib.geometry import kinematic_models, kinematic_tables, lie
 from jcalib.geometry.kinematic_identifiability import (GAUGE_COLUMNS, INDEPENDENCE_TOLERANCE, flange_jacobians,
                                                        gauge_columns, repeatability_sqrt_info, structural_scan)
 from jcalib.geometry.kinematics import DHRobot, forward_kinematics
@@ -288,7 +288,7 @@ def ik_robot(model, kinematics_spec=None) -> DHRobot:
     """
     if model.convention != "dh" and isinstance(kinematics_spec, dict) and "preset" in kinematics_spec:
         entry = {k: v for k, v in kinematics_spec.items() if k != "convention"}
-        model = kinematic_models.from_spec(entry, model.name)
+        model = kinematic_tables.from_spec(entry, model.name)
     if model.convention != "dh" or any(t != "revolute" for t in model.joint_types):
         raise BadInputError(
             f"plan --kind kinematics: the kinematics of {model.name} is a {model.convention} chain"

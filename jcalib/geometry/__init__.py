@@ -12,6 +12,7 @@ import importlib
 _LAZY = {
     "conversions": None,
     "kinematic_models": None,
+    "kinematic_tables": None,
     "lie": None,
     "se3": None,
     "views": None,
@@ -57,6 +58,7 @@ __all__ = [
     "forward_kinematics",
     "inverse_kinematics",
     "kinematic_models",
+    "kinematic_tables",
     "lie",
     "robot_preset",
     "se3",

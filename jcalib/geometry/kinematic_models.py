@@ -52,7 +52,6 @@ Controller units: joints are reported in degrees (revolute) and mm (prismatic);
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
 import functools
 import math
@@ -66,18 +65,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.geometry import robots as _robots
+from jcalib.geometry import robots
 from jcalib.geometry.kinematics import DHRobot, dh_transform
 from jcalib.geometry.lie import se3_exp, se3_to_matrix
 
 __all__ = [
-    "CONVENTIONS", "PRESETS", "Kinematics", "controller_offsets", "convert", "forward", "from_dh_robot",
-    "from_spec", "joint_frames", "joints_from_controller", "joints_to_controller", "linear_track",
-    "parameter_groups", "positioner_2axis", "rotary_table", "select", "table", "to_spec",
+    "CONVENTIONS", "JOINT_TYPES", "PRESETS", "SUFFIXES", "Kinematics", "check_params", "controller_offsets",
+    "convert", "effective_base_flange", "forward", "from_dh_robot", "joint_frames", "joints_from_controller",
+    "joints_to_controller", "linear_track", "make_model", "parameter_groups", "poe_from_frames",
+    "positioner_2axis", "rotary_table", "select", "suggest",
 ]
 
 CONVENTIONS = ("dh", "mdh", "poe")
-_SUFFIXES = {
+SUFFIXES = {
     "dh": ("theta", "d", "a", "alpha"),
     "mdh": ("alpha", "a", "theta", "d", "beta"),
     "poe": ("rx", "ry", "rz", "tx", "ty", "tz"),
@@ -87,7 +87,7 @@ _OFFSET = {"revolute": {"dh": "theta", "mdh": "theta", "poe": "rz"},
            "prismatic": {"dh": "d", "mdh": "d", "poe": "tz"}}
 _LENGTHS = ("a", "d", "tx", "ty", "tz")
 _GROUPS = ("joint_offsets", "link_lengths", "twists", "base", "flange", "all")
-_JOINT_TYPES = ("revolute", "prismatic")
+JOINT_TYPES = ("revolute", "prismatic")
 
 
 class Kinematics(eqx.Module):
@@ -177,7 +177,7 @@ def _exp(delta) -> jax.Array:
 def _fixed_parts(model: Kinematics, params: jax.Array):
     """The joint-independent parts: ``B (4, 4)``, ``P (n, 4, 4)`` or None, ``S (n, 4, 4)`` or None,
     ``F (4, 4)`` (module docstring; None = identity). All exponentials are evaluated in one batch."""
-    n, k = model.num_joints, len(_SUFFIXES[model.convention])
+    n, k = model.num_joints, len(SUFFIXES[model.convention])
     blocks = params[: n * k].reshape(n, k)
     tangents = params[n * k :].reshape(2, 6)
     if model.convention == "poe":
@@ -206,7 +206,7 @@ def _chain(model: Kinematics, parts, q: jax.Array):
     return T @ F, jnp.stack(frames)
 
 
-def _check_params(model: Kinematics, params) -> jax.Array:
+def check_params(model: Kinematics, params) -> jax.Array:
     params = jnp.asarray(params, dtype=jnp.float64)
     if params.shape != (model.num_params,):
         raise BadInputError(
@@ -232,7 +232,7 @@ def forward(model: Kinematics, params, q) -> jax.Array:
     ``q`` is in rad (revolute) and m (prismatic). Pure ``jax.numpy``: jit, vmap and jacfwd work in
     ``params`` and ``q``. Joint limits are not checked.
     """
-    params, q = _check_params(model, params), _check_q(model, q)
+    params, q = check_params(model, params), _check_q(model, q)
     parts = _fixed_parts(model, params)
     return jnp.vectorize(lambda qi: _chain(model, parts, qi)[0], signature="(n)->(i,j)")(q)
 
@@ -243,7 +243,7 @@ def joint_frames(model: Kinematics, params, q=None) -> jax.Array:
     Frame i's z axis is joint i's axis (direction of positive motion for ``joint_sign = +1``); its
     origin is a point on that axis. Joint i moves everything after its frame.
     """
-    params = _check_params(model, params)
+    params = check_params(model, params)
     q = jnp.zeros(model.num_joints, dtype=jnp.float64) if q is None else _check_q(model, q)
     parts = _fixed_parts(model, params)
     return jnp.vectorize(lambda qi: _chain(model, parts, qi)[1], signature="(n)->(m,i,j)")(q)
@@ -265,7 +265,7 @@ def parameter_groups(model: Kinematics) -> dict[str, list[str]]:
     ``flange``, ``all`` (definitions in the module docstring)."""
     groups: dict[str, list[str]] = {g: [] for g in _GROUPS}
     for joint, joint_type in zip(model.joint_names, model.joint_types):
-        for suffix in _SUFFIXES[model.convention]:
+        for suffix in SUFFIXES[model.convention]:
             groups[_group_of(model.convention, joint_type, suffix)].append(f"{joint}.{suffix}")
     groups["base"] = [f"base.{c}" for c in _TANGENT]
     groups["flange"] = [f"flange.{c}" for c in _TANGENT]
@@ -294,10 +294,10 @@ def select(model: Kinematics, names, source: str = "cell") -> np.ndarray:
             raise BadInputError(
                 f"{source}: calibrate_kinematics: {entry!r} is neither a parameter group nor a "
                 f"parameter of the {model.convention} kinematics of {model.name}"
-                f"{_suggest(entry, list(groups) + list(model.param_names), 0.0)} "
+                f"{suggest(entry, list(groups) + list(model.param_names), 0.0)} "
                 f"Valid groups: {', '.join(groups)}; parameters are '<joint>.<name>' "
                 f"with joints {', '.join(model.joint_names)} and names "
-                f"{', '.join(_SUFFIXES[model.convention])} (and base.rx .. flange.tz)."
+                f"{', '.join(SUFFIXES[model.convention])} (and base.rx .. flange.tz)."
             )
     return mask
 
@@ -344,7 +344,7 @@ def joints_to_controller(model: Kinematics, q, name: str = "q") -> np.ndarray:
 
 
 def _offset_index(model: Kinematics, i: int) -> int:
-    suffixes = _SUFFIXES[model.convention]
+    suffixes = SUFFIXES[model.convention]
     return i * len(suffixes) + suffixes.index(_OFFSET[model.joint_types[i]][model.convention])
 
 
@@ -357,7 +357,7 @@ def controller_offsets(model: Kinematics, params) -> dict[str, float]:
     i.e. adding ``offset`` to the controller's joint values makes the nominal model fit. Example: a
     ``theta`` larger by 0.01 rad on a joint with sign -1 gives -0.573 deg.
     """
-    p, nominal = np.asarray(_check_params(model, params)), np.asarray(model.nominal)
+    p, nominal = np.asarray(check_params(model, params)), np.asarray(model.nominal)
     sign, scale = np.asarray(model.joint_sign), _controller_scale(model)
     out = {}
     for i, joint in enumerate(model.joint_names):
@@ -376,7 +376,7 @@ def _identifier(name: Any) -> str:
     return "J" + s if not s or s[0].isdigit() else s
 
 
-def _make(*, name, convention, joint_types, joint_names, per_joint, sign, lower, upper,
+def make_model(*, name, convention, joint_types, joint_names, per_joint, sign, lower, upper,
           base=None, flange=None, links=None, where=None) -> Kinematics:
     """Build and check a model; ``per_joint (n, k)`` holds the nominal per-joint parameters."""
     where = where or f"kinematics of {name}"
@@ -388,7 +388,7 @@ def _make(*, name, convention, joint_types, joint_names, per_joint, sign, lower,
             f"{where}: joint names {list(joint_names)} give the identifiers {list(names)}: {dup} "
             f"repeat or clash with base/flange; give every joint a distinct name such as 'A1'"
         )
-    per_joint = np.asarray(per_joint, dtype=np.float64).reshape(n, len(_SUFFIXES[convention]))
+    per_joint = np.asarray(per_joint, dtype=np.float64).reshape(n, len(SUFFIXES[convention]))
     arrays = {
         "per-joint parameters": per_joint, "sign": np.asarray(sign, dtype=np.float64),
         "lower": np.asarray(lower, dtype=np.float64), "upper": np.asarray(upper, dtype=np.float64),
@@ -406,7 +406,7 @@ def _make(*, name, convention, joint_types, joint_names, per_joint, sign, lower,
             f"{where}, joint {i + 1} ({names[i]}): lower limit {arrays['lower'][i]:.6g} >= upper "
             f"limit {arrays['upper'][i]:.6g}; write the limits as [lower, upper] with lower < upper"
         )
-    param_names = tuple(f"{j}.{s}" for j in names for s in _SUFFIXES[convention])
+    param_names = tuple(f"{j}.{s}" for j in names for s in SUFFIXES[convention])
     param_names += tuple(f"{f}.{c}" for f in ("base", "flange") for c in _TANGENT)
     f64 = functools.partial(jnp.asarray, dtype=jnp.float64)
     return Kinematics(
@@ -418,8 +418,8 @@ def _make(*, name, convention, joint_types, joint_names, per_joint, sign, lower,
     )
 
 
-def _effective_base_flange(model: Kinematics, params) -> tuple[np.ndarray, np.ndarray]:
-    B, _, _, F = _fixed_parts(model, _check_params(model, params))
+def effective_base_flange(model: Kinematics, params) -> tuple[np.ndarray, np.ndarray]:
+    B, _, _, F = _fixed_parts(model, check_params(model, params))
     return np.asarray(B), np.asarray(F)
 
 
@@ -430,12 +430,12 @@ def _inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _poe_from_frames(model_like: dict, base, frames, home) -> Kinematics:
+def poe_from_frames(model_like: dict, base, frames, home) -> Kinematics:
     """Local POE model with joint frames ``frames (n, 4, 4)`` and flange ``home`` at zero (base frame)."""
     base, frames, home = (np.asarray(x, dtype=np.float64) for x in (base, frames, home))
     previous = [base] + list(frames[:-1])
     links = np.stack([_inv(a) @ b for a, b in zip(previous, frames)])
-    return _make(convention="poe", per_joint=np.zeros((len(frames), 6)), base=base,
+    return make_model(convention="poe", per_joint=np.zeros((len(frames), 6)), base=base,
                  flange=_inv(frames[-1]) @ home, links=links, **model_like)
 
 
@@ -454,10 +454,10 @@ def convert(model: Kinematics, convention: str) -> Kinematics:
         return model
     like = {"name": model.name, "joint_types": model.joint_types, "joint_names": model.joint_names,
             "sign": np.asarray(model.joint_sign), "lower": np.asarray(model.lower), "upper": np.asarray(model.upper)}
-    base, flange = _effective_base_flange(model, model.nominal)
+    base, flange = effective_base_flange(model, model.nominal)
     if convention == "poe":
         zeros = jnp.zeros(model.num_joints, dtype=jnp.float64)
-        return _poe_from_frames(like, base, joint_frames(model, model.nominal),
+        return poe_from_frames(like, base, joint_frames(model, model.nominal),
                                 forward(model, model.nominal, zeros))
     if model.convention != "dh":
         raise BadInputError(
@@ -469,13 +469,13 @@ def convert(model: Kinematics, convention: str) -> Kinematics:
     a_prev = np.concatenate([[0.0], dh[:-1, 2]])
     mdh = np.stack([alpha_prev, a_prev, dh[:, 0], dh[:, 1], np.zeros(len(dh))], axis=1)
     tail = np.asarray(_trans(0, dh[-1, 2]) @ _rot(0, dh[-1, 3]))
-    return _make(convention="mdh", per_joint=mdh, base=base, flange=tail @ flange, **like)
+    return make_model(convention="mdh", per_joint=mdh, base=base, flange=tail @ flange, **like)
 
 
 def from_dh_robot(robot: DHRobot, convention: str = "dh") -> Kinematics:
     """A model with exactly the FK of ``kinematics.forward_kinematics(robot, q)`` in ``convention``."""
     dh = np.stack([np.asarray(x) for x in (robot.theta_offset, robot.d, robot.a, robot.alpha)], axis=1)
-    model = _make(name=robot.name, convention="dh", joint_types=("revolute",) * robot.num_joints,
+    model = make_model(name=robot.name, convention="dh", joint_types=("revolute",) * robot.num_joints,
                   joint_names=robot.joint_names, per_joint=dh, sign=robot.joint_sign,
                   lower=robot.lower, upper=robot.upper, base=robot.T_base_link0,
                   flange=robot.T_link_flange)
@@ -504,7 +504,7 @@ def positioner_2axis() -> Kinematics:
     base[2, 3] = 0.65
     # theta, d, a, alpha: frame 1 z = table normal (x1 = base y), frame 2 on the face with x = base x
     dh = [[-math.pi / 2, 0.0, 0.0, -math.pi / 2], [-math.pi / 2, 0.15, 0.0, 0.0]]
-    return _make(name="2-axis tilt-rotate positioner", convention="dh",
+    return make_model(name="2-axis tilt-rotate positioner", convention="dh",
                  joint_types=("revolute", "revolute"), joint_names=("tilt", "rotate"), per_joint=dh,
                  sign=[1.0, 1.0], lower=[-math.radians(135.0), -_TWO_PI],
                  upper=[math.radians(135.0), _TWO_PI], base=base)
@@ -515,7 +515,7 @@ def linear_track() -> Kinematics:
 
     The flange (carriage plate) is at ``(q, 0, 0)`` m with the base's orientation.
     """
-    return _make(name="linear track", convention="dh", joint_types=("prismatic",),
+    return make_model(name="linear track", convention="dh", joint_types=("prismatic",),
                  joint_names=("travel",), per_joint=[[0.0, 0.0, 0.0, 0.0]], sign=[1.0], lower=[0.0],
                  upper=[6.0], base=_Z_ALONG_X, flange=_Z_ALONG_X.T)
 
@@ -523,17 +523,17 @@ def linear_track() -> Kinematics:
 def rotary_table() -> Kinematics:
     """Rotary table (dh): one revolute axis ``rotate`` about the base z axis, +-360 deg; flange = table
     centre at the base origin, ``Rz(q)``."""
-    return _make(name="rotary table", convention="dh", joint_types=("revolute",),
+    return make_model(name="rotary table", convention="dh", joint_types=("revolute",),
                  joint_names=("rotate",), per_joint=[[0.0, 0.0, 0.0, 0.0]], sign=[1.0],
                  lower=[-_TWO_PI], upper=[_TWO_PI])
 
 
 def _arm_preset(key: str) -> Kinematics:
-    return from_dh_robot(_robots.PRESETS[key]())
+    return from_dh_robot(robots.PRESETS[key]())
 
 
 PRESETS: dict[str, Callable[[], Kinematics]] = {
-    **{key: functools.partial(_arm_preset, key) for key in _robots.PRESETS},
+    **{key: functools.partial(_arm_preset, key) for key in robots.PRESETS},
     "positioner_2axis": positioner_2axis,
     "linear_track": linear_track,
     "rotary_table": rotary_table,
@@ -542,278 +542,7 @@ PRESETS: dict[str, Callable[[], Kinematics]] = {
 and three external axes."""
 
 
-# ----------------------------------------------------------------------------------------------
-# Export
-# ----------------------------------------------------------------------------------------------
-
-
-def _limits_entry(joint_type: str, lo: float, hi: float) -> dict:
-    if joint_type == "revolute":
-        return {"limits_deg": [math.degrees(lo), math.degrees(hi)]}
-    return {"limits_mm": [lo * 1e3, hi * 1e3]}
-
-
-def _joint_rows(model: Kinematics, params) -> list[dict]:
-    p = np.asarray(_check_params(model, params))
-    suffixes = _SUFFIXES[model.convention]
-    k = len(suffixes)
-    frames = np.asarray(joint_frames(model, p))
-    rows = []
-    for i, (joint, joint_type) in enumerate(zip(model.joint_names, model.joint_types)):
-        v = dict(zip(suffixes, (float(x) for x in p[i * k : (i + 1) * k])))
-        row: dict[str, Any] = {"name": joint, "type": joint_type}
-        if model.convention == "poe":
-            row.update({f"{c}_deg": math.degrees(v[c]) for c in ("rx", "ry", "rz")})
-            row.update({f"{c}_m": v[c] for c in ("tx", "ty", "tz")})
-            row["axis"] = frames[i, :3, 2].tolist()
-            row["point_m"] = frames[i, :3, 3].tolist()
-        else:
-            row.update(a_m=v["a"], alpha_deg=math.degrees(v["alpha"]), d_m=v["d"],
-                       theta_deg=math.degrees(v["theta"]))
-            if model.convention == "mdh":
-                row["beta_deg"] = math.degrees(v["beta"])
-        row["sign"] = int(np.asarray(model.joint_sign)[i])
-        row.update(_limits_entry(joint_type, float(model.lower[i]), float(model.upper[i])))
-        rows.append(row)
-    return rows
-
-
-def table(model: Kinematics, params) -> list[dict]:
-    """Export table: one dict per joint, then ``{"name": "base", "matrix"}``, ``{"name": "flange", ...}``.
-
-    Joint dicts: ``name``, ``type``, dh/mdh ``a_m, alpha_deg, d_m, theta_deg`` (mdh ``beta_deg``);
-    poe ``rx_deg, ry_deg, rz_deg, tx_m, ty_m, tz_m`` plus the joint's ``axis`` and ``point_m`` in the
-    base frame at zero joints; ``sign``; ``limits_deg`` (revolute) or ``limits_mm`` (prismatic).
-    The matrices are ``T_base_link0 . Exp(base)`` and ``T_link_flange . Exp(flange)`` (4x4, m).
-    """
-    base, flange = _effective_base_flange(model, params)
-    return _joint_rows(model, params) + [
-        {"name": "base", "matrix": base.tolist()}, {"name": "flange", "matrix": flange.tolist()}
-    ]
-
-
-def to_spec(model: Kinematics, params) -> dict:
-    """A cell-spec ``kinematics:`` table for ``params``: :func:`from_spec` of it has the same FK."""
-    rows = _joint_rows(model, params)
-    if model.convention == "poe":
-        keep = ("name", "type", "axis", "point_m", "sign", "limits_deg", "limits_mm")
-        home = forward(model, params, jnp.zeros(model.num_joints, dtype=jnp.float64))
-        return {"convention": "poe", "joints": [{k: r[k] for k in keep if k in r} for r in rows],
-                "home": np.asarray(home).tolist()}
-    base, flange = _effective_base_flange(model, params)
-    return {"convention": model.convention, "joints": rows, "base": base.tolist(),
-            "flange": flange.tolist()}
-
-
-# ----------------------------------------------------------------------------------------------
-# Cell spec parsing
-# ----------------------------------------------------------------------------------------------
-
-
-def _suggest(word: Any, options, cutoff: float = 0.5) -> str:
+def suggest(word: Any, options, cutoff: float = 0.5) -> str:
+    """A did-you-mean hint for the closest of ``options`` to ``word`` (empty when none is close)."""
     close = difflib.get_close_matches(str(word), list(options), 1, cutoff)
     return f"; did you mean {close[0]!r}?" if close else ""
-
-
-_KEY_HINTS = {"beta_deg": " (beta_deg belongs to the mdh convention: write convention: mdh, or drop it)"}
-
-
-def _check_keys(d: dict, allowed, where: str, what: str) -> None:
-    for key in d:
-        if key not in allowed:
-            hint = _KEY_HINTS.get(key) or _suggest(key, allowed)
-            raise BadInputError(
-                f"{where}: unknown key {key!r} in {what}{hint} Write only {', '.join(sorted(allowed))}."
-            )
-
-
-def _number(d: dict, key: str, where: str, hint: str, default: float | None = None) -> float:
-    if key not in d:
-        if default is not None:
-            return default
-        raise BadInputError(f"{where}: missing field {key!r}; write {key}: <number> ({hint})")
-    v = d[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
-        raise BadInputError(f"{where}: {key}: expected a finite number ({hint}), got {v!r}")
-    return float(v)
-
-
-def _array(d: dict, key: str, shape: tuple, where: str, hint: str) -> np.ndarray:
-    if key not in d:
-        raise BadInputError(f"{where}: missing field {key!r}; write {key}: {hint}")
-    try:
-        arr = np.asarray(d[key], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise BadInputError(f"{where}: {key}: expected numbers, got {d[key]!r}; write {key}: {hint}") from None
-    if arr.shape != shape:
-        raise BadInputError(f"{where}: {key}: expected shape {shape}, got {arr.shape} ({d[key]!r}); write {key}: {hint}")
-    if not np.all(np.isfinite(arr)):
-        raise BadInputError(f"{where}: {key}: expected finite values, got {arr.tolist()}; write {key}: {hint}")
-    return arr
-
-
-def _transform(d: dict, key: str, where: str, default_identity: bool = True) -> np.ndarray:
-    hint = "[[4x4]], a rigid transform [[R, t], [0, 0, 0, 1]] in metres with orthonormal R, det +1"
-    if key not in d and default_identity:
-        return np.eye(4)
-    T = _array(d, key, (4, 4), where, hint)
-    R = T[:3, :3]
-    if (np.max(np.abs(R.T @ R - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0.0
-            or np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])) > 0.0):
-        raise BadInputError(f"{where}: {key}: not a rigid transform: {np.round(T, 6).tolist()}; write {key}: {hint}")
-    u, _, vt = np.linalg.svd(R)  # the nearest rotation: printed matrices are rounded to ~1e-6
-    T[:3, :3] = u @ vt
-    return T
-
-
-def _preset(name: Any, where: str) -> Kinematics:
-    if not isinstance(name, str) or name not in PRESETS:
-        raise BadInputError(
-            f"{where}: unknown kinematics preset {name!r}{_suggest(name, PRESETS, 0.0)} "
-            f"Write one of {', '.join(PRESETS)}, or a dh/mdh/poe table."
-        )
-    return PRESETS[name]()
-
-
-def _convention(spec: dict, where: str) -> str:
-    if "convention" not in spec:
-        raise BadInputError(f"{where}: missing field 'convention'; write convention: dh, mdh or poe")
-    conv = spec["convention"]
-    if conv not in CONVENTIONS:
-        raise BadInputError(
-            f"{where}: convention: unknown {conv!r}{_suggest(conv, CONVENTIONS)} Write dh, mdh or poe."
-        )
-    return conv
-
-
-def _joint_common(js: Any, i: int, where: str, allowed: set) -> tuple:
-    """(name, type, sign, lower, upper, where) of one joint entry; limits in rad / m."""
-    jwhere = f"{where}, joint {i + 1}"
-    if not isinstance(js, dict):
-        raise BadInputError(f"{jwhere}: expected a mapping with name, type, ... got {js!r}")
-    if "name" not in js or not isinstance(js["name"], str) or not js["name"].strip():
-        raise BadInputError(f"{jwhere}: missing field 'name'; write name: A{i + 1} (the controller's axis name)")
-    jwhere = f"{where}, joint {i + 1} ({js['name']!r})"
-    _check_keys(js, allowed, jwhere, "the joint entry")
-    joint_type = js.get("type", "revolute")
-    if joint_type not in _JOINT_TYPES:
-        raise BadInputError(f"{jwhere}: type: unknown {joint_type!r}{_suggest(joint_type, _JOINT_TYPES)} "
-                            f"Write revolute or prismatic.")
-    sign = _number(js, "sign", jwhere, "+1 or -1", 1.0)
-    if abs(sign) != 1.0:
-        raise BadInputError(f"{jwhere}: sign: expected +1 or -1, got {js['sign']!r}; write sign: 1 or sign: -1")
-    key, other, unit, scale = (("limits_deg", "limits_mm", "deg", math.pi / 180.0) if joint_type == "revolute"
-                               else ("limits_mm", "limits_deg", "mm", 1e-3))
-    if other in js:
-        raise BadInputError(f"{jwhere}: {other}: a {joint_type} joint's limits are in {unit}; "
-                            f"write {key}: [lower, upper] instead")
-    lo, hi = _array(js, key, (2,), jwhere, f"[lower, upper] ({unit})")
-    if lo >= hi:
-        raise BadInputError(f"{jwhere}: {key}: lower {lo:g} >= upper {hi:g}; write {key}: [lower, upper] "
-                            f"with lower < upper ({unit})")
-    return js["name"], joint_type, sign, lo * scale, hi * scale, jwhere
-
-
-def _joints_list(spec: dict, where: str) -> list:
-    joints = spec.get("joints")
-    if not isinstance(joints, list) or not joints:
-        raise BadInputError(f"{where}: joints: expected a non-empty list of joint entries, got {joints!r}; "
-                            f"write joints: [{{name: A1, type: revolute, ...}}, ...]")
-    return joints
-
-
-def _dh_table(spec: dict, robot: str, convention: str, where: str) -> Kinematics:
-    _check_keys(spec, {"convention", "joints", "base", "flange"}, where, f"the {convention} table")
-    allowed = {"name", "type", "a_m", "alpha_deg", "d_m", "theta_deg", "sign", "limits_deg", "limits_mm"}
-    allowed |= {"beta_deg"} if convention == "mdh" else set()
-    names, types, signs, lower, upper, rows = [], [], [], [], [], []
-    for i, js in enumerate(_joints_list(spec, where)):
-        name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed)
-        a = _number(js, "a_m", jwhere, "link length, m")
-        alpha = math.radians(_number(js, "alpha_deg", jwhere, "link twist, deg"))
-        d = _number(js, "d_m", jwhere, "link offset, m")
-        theta = math.radians(_number(js, "theta_deg", jwhere, "joint angle offset, deg", 0.0))
-        beta = math.radians(_number(js, "beta_deg", jwhere, "Hayati tilt, deg", 0.0))
-        rows.append([theta, d, a, alpha] if convention == "dh" else [alpha, a, theta, d, beta])
-        names.append(name), types.append(joint_type), signs.append(sign), lower.append(lo), upper.append(hi)
-    return _make(name=robot, convention=convention, joint_types=tuple(types), joint_names=names,
-                 per_joint=rows, sign=signs, lower=lower, upper=upper,
-                 base=_transform(spec, "base", where), flange=_transform(spec, "flange", where), where=where)
-
-
-def _min_rotation(R_prev: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """The rotation with z axis ``z`` closest to ``R_prev`` (the smallest turn of its z onto ``z``)."""
-    u = R_prev[:, 2]
-    c, w = float(u @ z), np.cross(u, z)
-    if c < -1.0 + 1e-12:  # opposite: half turn about the previous x axis
-        x = R_prev[:, 0]
-        return (2.0 * np.outer(x, x) - np.eye(3)) @ R_prev
-    W = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    return (np.eye(3) + W + W @ W / (1.0 + c)) @ R_prev
-
-
-def _poe_table(spec: dict, robot: str, where: str) -> Kinematics:
-    _check_keys(spec, {"convention", "joints", "home"}, where, "the poe table")
-    allowed = {"name", "type", "axis", "point_m", "sign", "limits_deg", "limits_mm"}
-    names, types, signs, lower, upper, frames = [], [], [], [], [], []
-    R = np.eye(3)
-    for i, js in enumerate(_joints_list(spec, where)):
-        name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed)
-        axis = _array(js, "axis", (3,), jwhere, "[x, y, z], a unit vector in the base frame at zero joints")
-        norm = float(np.linalg.norm(axis))
-        if abs(norm - 1.0) > 1e-6:
-            fix = np.round(axis / norm, 9).tolist() if norm > 0 else "[0, 0, 1]"
-            raise BadInputError(f"{jwhere}: axis: expected a unit vector, got {axis.tolist()} (norm {norm:.6g}); "
-                                f"write axis: {fix}")
-        point = _array(js, "point_m", (3,), jwhere, "[x, y, z], a point on the axis, base frame at zero joints, m")
-        R = _min_rotation(R, axis / norm)
-        F = np.eye(4)
-        F[:3, :3], F[:3, 3] = R, point
-        frames.append(F)
-        names.append(name), types.append(joint_type), signs.append(sign), lower.append(lo), upper.append(hi)
-    if "home" not in spec:
-        raise BadInputError(f"{where}: missing field 'home'; write home: [[4x4]], the flange pose in the base "
-                            f"frame at zero joints (m)")
-    like = {"name": robot, "joint_types": tuple(types), "joint_names": names, "sign": signs, "lower": lower,
-            "upper": upper, "where": where}
-    return _poe_from_frames(like, np.eye(4), np.stack(frames), _transform(spec, "home", where, False))
-
-
-def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
-    """Build the kinematics of a cell-spec ``kinematics:`` entry.
-
-    Accepts a preset name; ``{"preset": NAME}`` with optional ``"base": [[4x4]]`` (m, pre-multiplied:
-    the preset's base frame in the robot base frame) and ``"convention"`` (converted, same FK); a
-    dh/mdh table ``{"convention", "joints": [{"name", "type", "a_m", "alpha_deg", "d_m",
-    "theta_deg" (default 0), "beta_deg" (mdh, default 0), "sign" (default 1), "limits_deg" |
-    "limits_mm"}], "base", "flange"}`` (4x4, m, default identity); or a poe table ``{"convention":
-    "poe", "joints": [{"name", "type", "axis" (unit, base frame at zero), "point_m", "sign",
-    "limits_deg" | "limits_mm"}], "home": [[4x4]]}`` (flange pose at zero joints). ``type`` defaults
-    to revolute; a joint moves by ``sign * q`` about/along its axis. A :class:`Kinematics` passes
-    through. Tables are named ``robot``, presets ``"<robot> (<model>)"``.
-
-    Raises:
-        BadInputError: naming ``source``, the robot, the joint and the field, and what to write.
-    """
-    where = f"{source}: kinematics of robot {robot!r}"
-    if isinstance(spec, Kinematics):
-        return spec
-    spec = {"preset": spec} if isinstance(spec, str) else spec
-    if not isinstance(spec, dict):
-        raise BadInputError(f"{where}: expected a preset name or a mapping (preset: ..., or a dh/mdh/poe "
-                            f"table), got {spec!r}")
-    if "preset" in spec:
-        _check_keys(spec, {"preset", "base", "convention"}, where, "the preset entry")
-        model = _preset(spec["preset"], where)
-        model = dataclasses.replace(model, name=f"{robot} ({model.name})")
-        if "base" in spec:
-            base = jnp.asarray(_transform(spec, "base", where), dtype=jnp.float64)
-            model = dataclasses.replace(model, T_base_link0=base @ model.T_base_link0)
-        return convert(model, _convention(spec, where)) if "convention" in spec else model
-    if "joints" not in spec:
-        raise BadInputError(f"{where}: expected 'preset' or 'joints' in {sorted(spec)}; write preset: "
-                            f"<name> ({', '.join(PRESETS)}) or a dh/mdh/poe table with joints: [...]")
-    convention = _convention(spec, where)
-    if convention == "poe":
-        return _poe_table(spec, robot, where)
-    return _dh_table(spec, robot, convention, where)

@@ -338,7 +338,7 @@ def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
 
 def _parse_kinematics(entry: dict, where: str, robot: str):
     """``(model or None, names to calibrate)`` of a robot entry's ``kinematics:`` and ``calibrate_kinematics:``."""
-    from jcalib.geometry import kinematic_models
+    from jcalib.geometry import kinematic_models, kinematic_tables
 
     spec, which = entry.get("kinematics"), entry.get("calibrate_kinematics")
     if which is not None and (not isinstance(which, list) or not all(isinstance(n, str) and n for n in which)):
@@ -349,7 +349,7 @@ def _parse_kinematics(entry: dict, where: str, robot: str):
             raise _fail(where + ".calibrate_kinematics", "calibrating kinematics needs the robot's nominal model: "
                                                          "add kinematics: <preset> (or a DH / MDH / POE table)")
         return None, ()
-    model = kinematic_models.from_spec(spec, robot, source=where + ".kinematics")
+    model = kinematic_tables.from_spec(spec, robot, source=where + ".kinematics")
     if which:
         kinematic_models.select(model, list(which), source=where + ".calibrate_kinematics")
     return model, tuple(which or ())

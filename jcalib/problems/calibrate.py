@@ -20,7 +20,7 @@ import numpy as np
 from jcalib.errors import BadInputError
 from jcalib.io.cell import CellSpec, cell_to_dict
 from jcalib.io.observations import Observations
-from jcalib.geometry import kinematic_models
+from jcalib.geometry import kinematic_models, kinematic_tables
 from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Provenance, ResultFile, TargetResult,
                               TransformResult, hash_inputs)
 from jcalib.problems.assemble import Calibration, assemble
@@ -391,11 +391,11 @@ def kinematics_result(k: dict) -> KinematicsResult:
     model, params, free = k["model"], k["params"], k["free"]
     names = list(model.param_names)
     cov = np.asarray(k["covariance"], np.float64)[np.ix_(free, free)]
-    extra = {"held": dict(k["held"]), "repeatability": k["repeatability"], "spec": kinematic_models.to_spec(model, params),
+    extra = {"held": dict(k["held"]), "repeatability": k["repeatability"], "spec": kinematic_tables.to_spec(model, params),
              "weakly_determined": {n: {"std_over_prior_std": x} for n, x in k.get("weak", {}).items()},
              **({"heldout": k["heldout"]} if "heldout" in k else {}),
              "controller_offsets": kinematic_models.controller_offsets(model, params),
-             "table": kinematic_models.table(model, params),
+             "table": kinematic_tables.table(model, params),
              "correction_rms_translation_m": k["correction_rms_translation_m"],
              "correction_rms_rotation_deg": k["correction_rms_rotation_deg"]}
     return KinematicsResult(model.convention, tuple(names), params, np.asarray(model.nominal, np.float64),

@@ -3,14 +3,11 @@ input (one plain message, never a traceback)."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 
 import numpy as np
 import pytest
 
-from jcalib.app.cli import main
 from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.io.result import CameraResult, ResultFile
 from jcalib.sim.scene import project_target, random_calibration_views
@@ -29,17 +26,6 @@ targets:
 """
 
 
-def _run(*args) -> tuple[int, str]:
-    out = io.StringIO()
-    with contextlib.redirect_stderr(out), contextlib.redirect_stdout(out):
-        try:
-            main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else 1
-    return code, out.getvalue()
-
-
 def _result(path, dist=DIST, model="opencv5", size=(1280, 960)):
     n = 4 + len(dist)
     cam = CameraResult(model, size, K, dist, covariance=np.diag(STD[:n] ** 2))
@@ -56,8 +42,8 @@ def files(tmp_path_factory):
             "small": _result(d / "s.json", size=(640, 480)), "dir": d}
 
 
-def test_consistent_results_exit_0_and_write_json(files, tmp_path):
-    code, text = _run("compare", files["a"], files["a2"], "--grid", "12x9", "--json", tmp_path / "c.json")
+def test_consistent_results_exit_0_and_write_json(files, tmp_path, run_cli):
+    code, text = run_cli("compare", files["a"], files["a2"], "--grid", "12x9", "--json", tmp_path / "c.json")
     assert code == 0, text
     assert "consistent" in text and "cam0" in text
     doc = json.loads((tmp_path / "c.json").read_text())
@@ -65,8 +51,8 @@ def test_consistent_results_exit_0_and_write_json(files, tmp_path):
     assert doc["cameras"]["cam0"]["num_points"] + doc["cameras"]["cam0"]["num_skipped"] == 12 * 9
 
 
-def test_differing_results_exit_1(files):
-    code, text = _run("compare", files["a"], files["b"], "--camera", "cam0", "--grid", "12x9")
+def test_differing_results_exit_1(files, run_cli):
+    code, text = run_cli("compare", files["a"], files["b"], "--camera", "cam0", "--grid", "12x9")
     assert code == 1, text
     assert "differ" in text and "corner" in text and "Traceback" not in text
 
@@ -81,9 +67,9 @@ def test_differing_results_exit_1(files):
     (("{a2}", "--gird", "12x9"), "No such option"),
     (("{a2}", "--distance", "far"), "Invalid value"),
 ])
-def test_bad_input_exit_2_without_traceback(files, args, message):
+def test_bad_input_exit_2_without_traceback(files, args, message, run_cli):
     args = [a.format(**files) for a in args]
-    code, text = _run("compare", files["a"], *args)
+    code, text = run_cli("compare", files["a"], *args)
     assert code == 2, text
     assert message in text and "Traceback" not in text
 
@@ -99,21 +85,21 @@ def _observations(rng, num_views):
             "targets": {"board": {"points": BOARD.points.tolist()}}, "stations": stations}
 
 
-def test_cross_validate_exit_statuses(tmp_path):
+def test_cross_validate_exit_statuses(tmp_path, run_cli):
     rng = np.random.default_rng(21)
     (tmp_path / "cell.yaml").write_text(CELL % "")
     (tmp_path / "wrong.yaml").write_text(CELL % ", fix: [k1, k2, p1, p2, k3]")  # no distortion: wrong model
     (tmp_path / "obs.json").write_text(json.dumps(_observations(rng, 20)))
     (tmp_path / "few.json").write_text(json.dumps(_observations(rng, 7)))
-    code, text = _run("cross-validate", tmp_path / "cell.yaml", tmp_path / "obs.json", "--json", tmp_path / "cv.json")
+    code, text = run_cli("cross-validate", tmp_path / "cell.yaml", tmp_path / "obs.json", "--json", tmp_path / "cv.json")
     assert code == 0, text
     assert "10 stations" in text and "consistent" in text
     doc = json.loads((tmp_path / "cv.json").read_text())
     assert doc["stations"]["a"][:2] == ["s00", "s02"] and doc["cameras"]["cam0"]["verdict"] == "consistent"
-    code, text = _run("cross-validate", tmp_path / "wrong.yaml", tmp_path / "obs.json", "--split", "random")
+    code, text = run_cli("cross-validate", tmp_path / "wrong.yaml", tmp_path / "obs.json", "--split", "random")
     assert code == 1, text
     assert "differ" in text
-    code, text = _run("cross-validate", tmp_path / "cell.yaml", tmp_path / "few.json")
+    code, text = run_cli("cross-validate", tmp_path / "cell.yaml", tmp_path / "few.json")
     assert code == 2 and "7 views" in text and "Traceback" not in text, text
-    code, text = _run("cross-validate", tmp_path / "cell.yaml", tmp_path / "obs.json", "--split", "thirds")
+    code, text = run_cli("cross-validate", tmp_path / "cell.yaml", tmp_path / "obs.json", "--split", "thirds")
     assert code == 2 and "split" in text and "Traceback" not in text, text

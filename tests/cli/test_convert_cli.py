@@ -2,29 +2,15 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 
 import numpy as np
 import pytest
 
-from jcalib.app.cli import main
 from jcalib.geometry import camera_from_opencv
 from jcalib.io.result import CameraResult, ResultFile, TransformResult, load_result
 
 KF = np.array([[420.0, 0, 640.0], [0, 421.0, 480.0], [0, 0, 1]])
 DF = np.array([0.02, -0.01, 0.003, -0.0005])
-
-
-def _run(*args) -> tuple[int, str]:
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(err):
-        try:
-            main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else 1
-    return code, err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -40,9 +26,9 @@ def fisheye_result(tmp_path_factory):
     return path
 
 
-def test_convert_writes_the_converted_camera_and_reports_the_error(fisheye_result, tmp_path):
+def test_convert_writes_the_converted_camera_and_reports_the_error(fisheye_result, tmp_path, run_cli):
     out = tmp_path / "opencv5.json"
-    code, text = _run("convert", fisheye_result, "--to", "opencv5", "--region", "440,330,840,630", "-o", out)
+    code, text = run_cli("convert", fisheye_result, "--to", "opencv5", "--region", "440,330,840,630", "-o", out)
     assert code == 0, text
     assert "RMS" in text and "fisheye → opencv5" in text
     file = load_result(out)
@@ -63,8 +49,8 @@ def test_convert_writes_the_converted_camera_and_reports_the_error(fisheye_resul
     (("--to", "opencv8", "--fix", "k9"), "k9"),
     (("--too", "opencv5"), "--too"),
 ])
-def test_refusals_exit_2_with_a_message(fisheye_result, tmp_path, args, expected):
-    code, text = _run("convert", fisheye_result, *args, "-o", tmp_path / "x.json")
+def test_refusals_exit_2_with_a_message(fisheye_result, tmp_path, args, expected, run_cli):
+    code, text = run_cli("convert", fisheye_result, *args, "-o", tmp_path / "x.json")
     assert code == 2, text
     assert expected in text and "Traceback" not in text
     assert not (tmp_path / "x.json").exists()

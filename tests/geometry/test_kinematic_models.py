@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from jcalib.errors import BadInputError
 from jcalib.geometry import kinematic_models as km
+from jcalib.geometry import kinematic_tables as kt
 from jcalib.geometry import kinematics as K
 from jcalib.geometry import robots
 
@@ -85,7 +86,7 @@ def test_jacobian_matches_finite_differences(convention):
     -1) in each convention, and on the linear track (dh). Each model costs a ~1 s compilation."""
     rng = np.random.default_rng(1)
     h = 1e-6
-    models = [km.convert(km.from_spec(MIXED_TABLE, "r1"), convention)]
+    models = [km.convert(kt.from_spec(MIXED_TABLE, "r1"), convention)]
     for model in models + ([km.linear_track()] if convention == "dh" else []):
         P = model.num_params
         params = model.nominal + 1e-3 * rng.standard_normal(P)  # off the nominal
@@ -102,7 +103,7 @@ def test_jacobian_matches_finite_differences(convention):
 
 
 def test_mixed_table_conversions_keep_the_fk():
-    model = km.from_spec(MIXED_TABLE, "r1")
+    model = kt.from_spec(MIXED_TABLE, "r1")
     assert model.joint_types == ("prismatic", "revolute", "revolute", "prismatic")
     assert model.joint_names == ("E1", "A1", "A2", "E2")
     q = _random_q(model, 8)
@@ -139,7 +140,7 @@ def test_poe_rz_perturbation_is_a_joint_offset():
 
 
 def test_controller_units_round_trip():
-    model = km.from_spec(MIXED_TABLE, "r1")
+    model = kt.from_spec(MIXED_TABLE, "r1")
     joints = np.array([[1500.0, 90.0, -45.0, 20.0], [0.0, 0.0, 180.0, -100.0]])
     q = km.joints_from_controller(model, joints)
     np.testing.assert_allclose(q[0], [1.5, math.pi / 2, -math.pi / 4, 0.02], rtol=1e-15)
@@ -166,7 +167,7 @@ def test_select_groups_and_names():
 
 
 def test_controller_offsets_sign_convention():
-    model = km.from_spec(MIXED_TABLE, "r1")  # A1 has sign -1
+    model = kt.from_spec(MIXED_TABLE, "r1")  # A1 has sign -1
     params = model.nominal.at[model.param_names.index("A1.theta")].add(0.01)
     params = params.at[model.param_names.index("E1.d")].add(0.002)
     offsets = km.controller_offsets(model, params)
@@ -207,17 +208,17 @@ def test_from_spec_preset_and_tables():
         "name": "kuka_kr10_r1100_sixx",
         "preset": {"preset": "kuka_kr10_r1100_sixx"},
         "preset_mdh": {"preset": "kuka_kr10_r1100_sixx", "convention": "mdh"},
-        "dh_table": km.to_spec(km.from_dh_robot(kuka, "dh"), km.from_dh_robot(kuka).nominal),
-        "mdh_table": km.to_spec(km.from_dh_robot(kuka, "mdh"), km.from_dh_robot(kuka, "mdh").nominal),
+        "dh_table": kt.to_spec(km.from_dh_robot(kuka, "dh"), km.from_dh_robot(kuka).nominal),
+        "mdh_table": kt.to_spec(km.from_dh_robot(kuka, "mdh"), km.from_dh_robot(kuka, "mdh").nominal),
     }
     for label, spec in specs.items():
-        model = km.from_spec(spec, "r1")
+        model = kt.from_spec(spec, "r1")
         np.testing.assert_allclose(np.asarray(km.forward(model, model.nominal, q)), expected, atol=1e-9,
                                    err_msg=label)
-    assert km.from_spec("kuka_kr10_r1100_sixx", "r1").name == "r1 (KUKA KR 10 R1100 sixx)"
-    moved = km.from_spec({"preset": "kuka_kr10_r1100_sixx", "base": base.tolist()}, "r1")
+    assert kt.from_spec("kuka_kr10_r1100_sixx", "r1").name == "r1 (KUKA KR 10 R1100 sixx)"
+    moved = kt.from_spec({"preset": "kuka_kr10_r1100_sixx", "base": base.tolist()}, "r1")
     np.testing.assert_allclose(np.asarray(km.forward(moved, moved.nominal, q)), base @ expected, atol=1e-9)
-    mdh = km.from_spec(specs["mdh_table"], "r1")
+    mdh = kt.from_spec(specs["mdh_table"], "r1")
     assert mdh.convention == "mdh" and mdh.param_names[4] == "A1.beta"
 
 
@@ -228,17 +229,17 @@ def test_from_spec_poe_table_from_dh_axes():
             "joints": [{"name": f"J{i + 1}", "axis": frames[i, :3, 2].tolist(), "point_m": frames[i, :3, 3].tolist(),
                         "sign": float(robot.joint_sign[i]),
                         "limits_deg": np.degrees([robot.lower[i], robot.upper[i]]).tolist()} for i in range(6)]}
-    model = km.from_spec(spec, "r2")
+    model = kt.from_spec(spec, "r2")
     assert model.convention == "poe" and float(np.abs(model.nominal).max()) == 0.0
     q = _random_q(robot, 8)
     expected = np.asarray(K.forward_kinematics(robot, q))
     np.testing.assert_allclose(np.asarray(km.forward(model, model.nominal, q)), expected, atol=1e-9)
     # and the export of a perturbed poe model reads back with the same FK
     params = model.nominal + 1e-3 * np.random.default_rng(3).standard_normal(model.num_params)
-    back = km.from_spec(km.to_spec(model, params), "r2")
+    back = kt.from_spec(kt.to_spec(model, params), "r2")
     np.testing.assert_allclose(np.asarray(km.forward(back, back.nominal, q)),
                                np.asarray(km.forward(model, params, q)), atol=1e-9)
-    rows = km.table(model, params)
+    rows = kt.table(model, params)
     assert [r["name"] for r in rows] == ["J1", "J2", "J3", "J4", "J5", "J6", "base", "flange"]
     assert set(rows[0]) >= {"rx_deg", "tz_m", "axis", "point_m", "limits_deg"}
 
@@ -253,7 +254,7 @@ def test_poe_table_matches_a_global_product_of_exponentials():
         {"name": name, "type": t, "axis": axis, "point_m": point, "sign": sign,
          ("limits_deg" if t == "revolute" else "limits_mm"): [-90, 90]}
         for name, (axis, point, t, sign) in zip(("1", "j 2.x", "s"), joints)]}
-    model = km.from_spec(spec, "r")
+    model = kt.from_spec(spec, "r")
     assert model.joint_names == ("J1", "j2_x", "s")
     q = np.array([0.3, 0.5, 0.2])
     expected = home
@@ -309,7 +310,7 @@ BAD_SPECS = [
 @pytest.mark.parametrize("spec, message", BAD_SPECS)
 def test_from_spec_errors_name_source_robot_joint_and_field(spec, message):
     with pytest.raises(BadInputError, match=r"^cell.yaml: kinematics of robot 'r7'") as info:
-        km.from_spec(spec, "r7", source="cell.yaml")
+        kt.from_spec(spec, "r7", source="cell.yaml")
     assert info.match(message), str(info.value)
 
 

@@ -3,8 +3,6 @@ FK computed independently from the parsed XML), the refusals, and ``jcalib expor
 
 from __future__ import annotations
 
-import contextlib
-import io
 import math
 import xml.etree.ElementTree as ET
 
@@ -13,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from jcalib.app.cli import main
 from jcalib.errors import BadInputError
 from jcalib.geometry import kinematic_models as km
+from jcalib.geometry import kinematic_tables as kt
 from jcalib.io.export import export_result, kinematics_urdf, kinematics_yaml
 from jcalib.io.export.kinematics import CONTROLLER_OFFSET_CONVENTION, rpy_from_matrix
 from jcalib.io.result import CameraResult, KinematicsResult, ResultFile, load_result
@@ -38,7 +36,7 @@ TRACK_TABLE = {  # a prismatic axis moving by -q, then a revolute one turning by
 
 def _model(case: str) -> km.Kinematics:
     if case == "track":
-        return km.from_spec(TRACK_TABLE, "cell7")
+        return kt.from_spec(TRACK_TABLE, "cell7")
     kuka = km.PRESETS["kuka_kr10_r1100_sixx"]()
     return kuka if case == "dh" else km.convert(kuka, case)
 
@@ -52,10 +50,10 @@ def _entry(model: km.Kinematics, seed: int = 0, spec: bool = False) -> tuple[Kin
     std = 1e-4 * (1.0 + np.arange(len(calibrated)))
     held = {n: f"not separable from something ({i})" for i, n in enumerate(names[0::2])}
     extra = {"held": held, "repeatability": "pose_noise",
-             "controller_offsets": km.controller_offsets(model, params), "table": km.table(model, params),
+             "controller_offsets": km.controller_offsets(model, params), "table": kt.table(model, params),
              "correction_rms_translation_m": [1e-5, 2e-5, 3e-5], "correction_rms_rotation_deg": [1e-3, 2e-3, 3e-3]}
     if spec:
-        extra["spec"] = km.to_spec(model, params)
+        extra["spec"] = kt.to_spec(model, params)
     entry = KinematicsResult(model.convention, tuple(names), params, np.asarray(model.nominal), tuple(calibrated),
                              np.diag(std**2), extra)
     return entry, params
@@ -79,7 +77,7 @@ def test_yaml_table_reads_back_with_the_calibrated_fk(case):
     entry, params = _entry(model)
     doc = yaml.safe_load(kinematics_yaml(_file(arm=entry)))
     assert doc["schema"] == "jcalib.kinematics/1"
-    back = km.from_spec(doc["robots"]["arm"]["kinematics"], "arm")
+    back = kt.from_spec(doc["robots"]["arm"]["kinematics"], "arm")
     q = _joint_values(model, np.random.default_rng(1), 50)
     want = np.asarray(km.forward(model, jnp.asarray(params), jnp.asarray(q)))
     got = np.asarray(km.forward(back, back.nominal, jnp.asarray(q)))
@@ -119,7 +117,7 @@ def test_yaml_sigma_held_and_controller_offsets():
 def test_poe_needs_its_spec():
     model = _model("poe")
     entry, params = _entry(model, spec=True)
-    back = km.from_spec(yaml.safe_load(kinematics_yaml(_file(arm=entry)))["robots"]["arm"]["kinematics"], "arm")
+    back = kt.from_spec(yaml.safe_load(kinematics_yaml(_file(arm=entry)))["robots"]["arm"]["kinematics"], "arm")
     q = _joint_values(model, np.random.default_rng(2), 20)
     want = np.asarray(km.forward(model, jnp.asarray(params), jnp.asarray(q)))
     assert np.max(np.abs(np.asarray(km.forward(back, back.nominal, jnp.asarray(q))) - want)) < FK_TOL
@@ -232,39 +230,28 @@ def test_an_edited_table_is_refused():
         kinematics_urdf(_file(arm=edited))
 
 
-def _run(*args) -> tuple[int, str]:
-    out = io.StringIO()
-    with contextlib.redirect_stderr(out), contextlib.redirect_stdout(out):
-        try:
-            main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else 1
-    return code, out.getvalue()
-
-
-def test_cli_export_kinematics_and_urdf(tmp_path):
+def test_cli_export_kinematics_and_urdf(tmp_path, run_cli):
     model = _model("track")
     entry, params = _entry(model)
     path = tmp_path / "result.json"
     _file(cell7=entry).save(path)
     assert load_result(path).kinematics["cell7"].calibrated == entry.calibrated
-    code, text = _run("export", path, "-f", "kinematics", "-o", tmp_path / "k.yaml")
+    code, text = run_cli("export", path, "-f", "kinematics", "-o", tmp_path / "k.yaml")
     assert code == 0, text
     spec = yaml.safe_load((tmp_path / "k.yaml").read_text(encoding="utf-8"))["robots"]["cell7"]["kinematics"]
-    back = km.from_spec(spec, "cell7")
+    back = kt.from_spec(spec, "cell7")
     q = _joint_values(model, np.random.default_rng(6), 10)
     want = np.asarray(km.forward(model, jnp.asarray(params), jnp.asarray(q)))
     assert np.max(np.abs(np.asarray(km.forward(back, back.nominal, jnp.asarray(q))) - want)) < FK_TOL
-    code, text = _run("export", path, "-f", "urdf", "--robot", "cell7", "-o", tmp_path / "cell7.urdf")
+    code, text = run_cli("export", path, "-f", "urdf", "--robot", "cell7", "-o", tmp_path / "cell7.urdf")
     assert code == 0, text
     urdf = (tmp_path / "cell7.urdf").read_text(encoding="utf-8")
     assert np.max(np.abs(urdf_fk(urdf, dict(zip(model.joint_names, q[0].tolist()))) - want[0])) < FK_TOL
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cell7.urdf", "k.yaml", "result.json"]  # atomic writes
-    code, text = _run("export", path, "-f", "opencv", "--robot", "cell7", "-o", tmp_path / "x.yaml")
+    code, text = run_cli("export", path, "-f", "opencv", "--robot", "cell7", "-o", tmp_path / "x.yaml")
     assert code == 2 and "--robot applies to the kinematics and urdf formats" in text
     empty = tmp_path / "empty.json"
     ResultFile(stats={"num_residuals": 1}).save(empty)
-    code, text = _run("export", empty, "-f", "urdf", "-o", tmp_path / "y.urdf")
+    code, text = run_cli("export", empty, "-f", "urdf", "-o", tmp_path / "y.urdf")
     assert code == 2 and "no 'kinematics' section" in text and "Traceback" not in text
     assert not (tmp_path / "y.urdf").exists()

@@ -3,16 +3,13 @@ bad input and the result file (DESIGN.md: kinematics is a preset of the one buil
 
 from __future__ import annotations
 
-import contextlib
 import copy
-import io
 import json
 
 import numpy as np
 import pytest
 import yaml
 
-from jcalib.app.cli import main
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import kinematic_models
 from jcalib.geometry.se3 import invert
@@ -127,7 +124,7 @@ def test_arm_kinematics_recovered_and_held_out_poses_beat_the_nominal_model():
     assert held["calibrated"]["rotation_median_deg"] < 0.5 * held["nominal"]["rotation_median_deg"]
 
 
-def test_a_joint_that_never_moved_is_named_exit_3(tmp_path):
+def test_a_joint_that_never_moved_is_named_exit_3(tmp_path, run_cli):
     cell, obs, _ = synthetic_positioner_cell(4, num_stations=12, num_heldout=1, sigma_deg=0.0, sigma_m=0.0,
                                              scatter=False)
     still = copy.deepcopy(obs)
@@ -142,11 +139,9 @@ def test_a_joint_that_never_moved_is_named_exit_3(tmp_path):
     # the command line: exit 3, the message on stderr, no traceback
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
     (tmp_path / "obs.json").write_text(json.dumps(still))
-    out = io.StringIO()
-    with contextlib.redirect_stderr(out), contextlib.redirect_stdout(out), pytest.raises(SystemExit) as code:
-        main(["calibrate", str(tmp_path / "cell.yaml"), str(tmp_path / "obs.json"), "-o", str(tmp_path / "r.json")])
-    assert code.value.code == 3
-    assert "never moved" in out.getvalue() and "Traceback" not in out.getvalue()
+    code, text = run_cli("calibrate", tmp_path / "cell.yaml", tmp_path / "obs.json", "-o", tmp_path / "r.json")
+    assert code == 3
+    assert "never moved" in text and "Traceback" not in text
     assert not (tmp_path / "r.json").exists()
 
 

@@ -3,7 +3,6 @@ calibrated once (parameters free and held, controller offsets, flange correction
 
 from __future__ import annotations
 
-import contextlib
 import html
 import io
 import json
@@ -15,7 +14,6 @@ import pytest
 from rich.console import Console
 
 import jcalib
-from jcalib.app.cli import main
 from jcalib.report import render_report
 from jcalib.report.console import print_result
 from jcalib.report.kinematics import offset_rows, parameter_rows
@@ -95,21 +93,10 @@ def test_html_from_the_result_file_restores_the_solve(positioner):
     assert "Robot kinematics" in text and "needs the calibration's solve" not in text
 
 
-def _run(*args) -> tuple[int, str]:
-    out = io.StringIO()
-    with contextlib.redirect_stderr(out), contextlib.redirect_stdout(out):
-        try:
-            main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else 1
-    return code, out.getvalue()
-
-
-def test_cli_report_on_a_kinematic_result(positioner):
+def test_cli_report_on_a_kinematic_result(positioner, run_cli):
     """The result file alone: the joint covariance's kinematics block is read (correlations, weak directions)."""
     folder = positioner[0]
-    code, text = _run("report", folder / "result.json", "-o", folder / "report.html")
+    code, text = run_cli("report", folder / "result.json", "-o", folder / "report.html")
     assert code == 0, text
     page = _text((folder / "report.html").read_text(encoding="utf-8"))
     assert "Robot kinematics" in page and "tilt.alpha" in page

@@ -4,7 +4,7 @@ Both read a result's ``kinematics`` section (:class:`~jcalib.io.result.Kinematic
 without one is refused, so what was not calibrated is never exported as if it were.
 
 - ``kinematics`` (YAML, ``jcalib.kinematics/1``): per robot the calibrated model as a cell-spec
-  ``kinematics:`` table (:func:`jcalib.geometry.kinematic_models.to_spec` layout; ``from_spec`` of it has
+  ``kinematics:`` table (:func:`jcalib.geometry.kinematic_tables.to_spec` layout; ``from_spec`` of it has
   the FK of the calibrated parameters, so it can be pasted into the cell spec as the new nominal), every
   calibrated parameter with nominal, calibrated value, change and σ (mm / deg), the held parameters with
   the reason, and the controller joint-zero offsets (deg / mm) with their sign convention.
@@ -33,6 +33,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.geometry import kinematic_models as km
+from jcalib.geometry import kinematic_tables as kt
 from jcalib.io.atomic import write_text_atomic
 from jcalib.io.export._common import (
     checked_export,
@@ -124,7 +125,7 @@ def calibrated_model(k: KinematicsResult, robot: str) -> km.Kinematics:
         BadInputError: as :func:`kinematics_spec`, or an entry whose table does not match its values.
     """
     where = f"result: kinematics.{robot}"
-    model = km.from_spec(kinematics_spec(k, robot), robot, source="result")
+    model = kt.from_spec(kinematics_spec(k, robot), robot, source="result")
     n_joint = model.num_params - 12
     if model.convention != k.convention or tuple(model.param_names) != tuple(k.names):
         raise BadInputError(f"{where}: its table describes the parameters {list(model.param_names)} "
