@@ -51,7 +51,8 @@ def cell_case():
 
 @pytest.fixture(scope="session")
 def two_robot_case():
-    """Default options: a-posteriori noise with variance components (corners, tips) and two pose models."""
-    cell, obs, _ = synthetic_two_robot_cell(1, num_board_stations=8, num_r2_stations=8, num_cross_stations=5,
-                                            num_tool_stations=10)
+    """Default options: a-posteriori noise with variance components (corners, tips) and two pose models.
+    The generator's default sizes: the shape of the golden case ``cell_two_robots`` (tests/golden), so the
+    two share one compiled solve (no re-solve here adds a station)."""
+    cell, obs, _ = synthetic_two_robot_cell(1)
     return cell, obs, jcalib.calibrate(cell, obs)
