@@ -13,6 +13,10 @@ to the process (same shape bucket, and the next bucket).
 Budgets (this 2-core machine, medians): demo cell <= 15 s cold, <= 3 s warm; camera-only <= 8 s cold,
 <= 2.5 s warm; a new view count in a warm process <= 1 s.
 
+``jcalib`` runs as a user runs it, with the XLA:CPU flag that ``import jcalib`` adds to ``XLA_FLAGS``
+(``jcalib/__init__.py``); an ``XLA_FLAGS`` or ``JCALIB_XLA_DEFAULTS`` in this environment changes what is
+measured, and the table's title names them.
+
 Run: ``.venv/bin/python benchmarks/bench_budgets.py [--runs 5] [--cold-runs 3]`` (needs ``farm-bench``).
 """
 
@@ -91,6 +95,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5, help="warm runs per command")
     ap.add_argument("--cold-runs", type=int, default=3, help="cold runs per command")
     args = ap.parse_args()
+    # before camera_inputs imports jcalib (which adds its flag to this process's XLA_FLAGS)
+    env = "; ".join(f"{k}={os.environ[k]!r}" for k in ("XLA_FLAGS", "JCALIB_XLA_DEFAULTS") if k in os.environ)
     if shutil.which("farm-bench") is None:
         sys.exit("farm-bench is not installed: it times whole processes (start-up included)")
     work = Path(tempfile.mkdtemp(prefix="jcalib-budgets-"))
@@ -109,7 +115,8 @@ def main() -> None:
         warm = farm_bench(f"JCALIB_CACHE_DIR={warm_cache} {cmd}", args.runs, 1, 3600)
         rows.append((name, "cold (empty cache)", cold, cold_budget))
         rows.append((name, "warm", warm, warm_budget))
-    print(f"\njcalib calibrate, whole process (farm-bench wall s; {os.cpu_count()} CPUs)")
+    print(f"\njcalib calibrate, whole process (farm-bench wall s; {os.cpu_count()} CPUs; "
+          f"{env or 'jcalib default XLA flags'})")
     print(f"{'case':26s} {'cache':20s} {'min':>7s} {'median':>7s} {'max':>7s} {'budget':>7s}  met")
     for name, kind, t, budget in rows:
         print(f"{name:26s} {kind:20s} {t['min']:7.2f} {t['median']:7.2f} {t['max']:7.2f} {budget:7.2f}  "

@@ -18,7 +18,8 @@ defaults, so ``jcalib plan`` and ``jcalib simulate`` agree on one geometry for t
 - **flange target**: centre 30 mm along the tool axis, printed side facing along it.
 - **base camera**: looking at the first base target from 1.3 x its viewing distance, tilted 25 deg;
   without a base target it looks back (along -x) at a *presentation point* 0.2 m below and 0.1 m in
-  front of the home flange, where the robot presents a flange target facing +x.
+  front of the home flange, where the robot presents a flange target facing +x (from the target's viewing
+  distance; in a cell without targets, where it observes a tool, from 0.35 m).
 - **tool** (TCP): 150 mm along the tool axis; its z axis along the tool axis (``rotation_z_to``).
 
 A ``pose`` in the cell spec (camera, target) replaces the default. Lengths in metres.
@@ -38,6 +39,9 @@ from jcalib.errors import BadInputError
 
 DEFAULT_ROBOT = "kuka_kr10_r1100_sixx"
 DEFAULT_IMAGE_SIZE = (640, 480)
+#: A fixed camera of a cell without targets looks at the presentation point from this far, m (the distance
+#: at which ``plan --kind tcp`` holds a tool tip in front of a camera).
+TOOL_VIEW_DISTANCE_M = 0.35
 _DIST_LEN = {"pinhole": 0, "opencv4": 4, "opencv5": 5, "opencv8": 8, "opencv12": 12, "opencv14": 14, "fisheye": 4}
 
 
@@ -222,8 +226,9 @@ def cell_layout(
     for name, t in spec.targets.items():
         if t.mount == "free":
             raise BadInputError(f"{source}: targets.{name} has mount 'free': planning and simulation need a robot cell (mount flange or base)")
-    if not spec.targets:
-        raise BadInputError(f"{source}: the cell has no target; planning and simulation need one")
+    if not spec.targets and not any(spec.cameras[c].mount == "base" for t in spec.tools.values() for c in t.observed_by):
+        raise BadInputError(f"{source}: the cell has no target (and no tool seen by a fixed camera); planning and "
+                            "simulation need one")
 
     targets: dict[str, TargetLayout] = {}
     k_base = 0
@@ -279,8 +284,8 @@ def cell_layout(
                 d = t.pose[:3, :3] @ np.array([0.0, np.sin(np.radians(25.0)), -np.cos(np.radians(25.0))])
                 pose = look_at(c_base + D * d, c_base, t.pose[:3, :3][:, 0])
             else:
-                t = flange_targets[0]
-                D = tmp.viewing_distance(name, t.name)
+                # the presentation point; without a flange target, at the tool-viewing distance of a TCP plan
+                D = tmp.viewing_distance(name, flange_targets[0].name) if flange_targets else TOOL_VIEW_DISTANCE_M
                 p = T_home[:3, 3] + np.array([0.1, 0.0, -0.2])
                 pose = look_at(p + np.array([D, 0.0, 0.0]), p, np.array([0.0, -1.0, 0.0]))
         cameras[name] = CameraLayout(name, cam.model, cam.K, cam.dist, cam.image_size, cam.mount, np.asarray(pose, dtype=np.float64))

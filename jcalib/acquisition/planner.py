@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from jcalib.acquisition.layout import CellLayout, cell_layout, load_cell_dict, presentation_pose
+from jcalib.acquisition.layout import TOOL_VIEW_DISTANCE_M, CellLayout, cell_layout, load_cell_dict, presentation_pose
 from jcalib.io.plan import Plan, make_plan
 from jcalib.geometry.se3 import exp_so3, invert, make_pose, rot_z
 from jcalib.errors import BadInputError
@@ -81,9 +81,6 @@ IK_ITERATIONS = 100
 #: ``kinematics``: smallest singular value of an arm's joint Jacobian kept (rad/rad, m/rad): below it the
 #: arm is near a singularity (wrist stretched, axes 4 and 6 aligned), where joints flip unpredictably.
 MIN_JOINT_JACOBIAN_SV = 0.05
-#: ``tcp`` plans hold the tool tip this far in front of the base camera observing the tool, m (the
-#: simulated cell's backlit tool zone is centred there too: :mod:`jcalib.app.simcell`).
-TOOL_VIEW_DISTANCE_M = 0.35
 
 
 @dataclass
@@ -147,7 +144,7 @@ def side_on_direction(T_base_cam: np.ndarray) -> np.ndarray:
     return w / n if n > np.sin(np.radians(10.0)) else T_base_cam[:3, 1] / np.linalg.norm(T_base_cam[:3, 1])
 
 
-def _turn_onto(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+def turn_onto(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(3, 3) smallest rotation taking unit vector ``v`` onto unit vector ``w`` (half a turn when opposite)."""
     axis = np.cross(v, w)
     s, c = float(np.linalg.norm(axis)), float(np.dot(v, w))
@@ -314,7 +311,7 @@ def plan_cell(
         R_h = layout.T_base_flange_home[:3, :3]
         # the flange orientation that turns the tool axis onto w, placed so that the tip is at p_tip (the
         # TCP frame's own rotation does not matter: only where the tip is and where the shaft points)
-        R0 = _turn_onto(R_h @ layout.tool_axis, w) @ R_h
+        R0 = turn_onto(R_h @ layout.tool_axis, w) @ R_h
         T_flange0 = make_pose(R0, p_tip - R0 @ T_flange_tool[:3, 3])
         cands.append((start, T_flange0))
         m = n - 1
@@ -398,16 +395,18 @@ def _view_pair(spec, camera: str | None, target: str | None) -> tuple[str, str] 
     return None
 
 
-def _kinematic_views(rng: np.random.Generator, count: int, c: np.ndarray, D: float, amp: float) -> np.ndarray:
+def random_views(rng: np.random.Generator, count: int, c: np.ndarray, D: float, amp: float, jitter: float = 0.05,
+                 distance: tuple[float, float] = VIEW_DISTANCE) -> np.ndarray:
     """``(count, 4, 4)`` random ``T_target_cam``: looking at the target centre ``c`` from its printed side
-    within ``amp`` rad of its normal (uniform over the spherical cap), at :data:`VIEW_DISTANCE` x ``D``,
-    rolled by any angle about the optical axis and aimed with a jitter of 0.05 rad."""
+    within ``amp`` rad of its normal (uniform over the spherical cap), at ``distance`` (default
+    :data:`VIEW_DISTANCE`) x ``D``, rolled by any angle about the optical axis and aimed with a jitter of
+    ``jitter`` rad (normal, per axis: larger ones put the target off the image centre)."""
     out = np.empty((count, 4, 4))
     cos_tilt = rng.uniform(np.cos(amp), 1.0, count)
     azimuth = rng.uniform(-np.pi, np.pi, count)
-    dist = rng.uniform(*VIEW_DISTANCE, count) * D
+    dist = rng.uniform(*distance, count) * D
     roll = rng.uniform(-np.pi, np.pi, count)
-    jitter = rng.normal(scale=0.05, size=(count, 2))
+    jitter = rng.normal(scale=jitter, size=(count, 2))
     for k in range(count):
         frontal = make_pose(np.eye(3), c - dist[k] * np.array([0.0, 0.0, 1.0]))
         axis = np.array([np.cos(azimuth[k]), np.sin(azimuth[k]), 0.0])
@@ -417,7 +416,7 @@ def _kinematic_views(rng: np.random.Generator, count: int, c: np.ndarray, D: flo
     return out
 
 
-def _view_problem(layout: CellLayout, camera: str, target: str, T_cam_target: np.ndarray, D: float) -> str | None:
+def view_problem(layout: CellLayout, camera: str, target: str, T_cam_target: np.ndarray, D: float) -> str | None:
     """Why a view is not usable for calibration (None when it is): edge-on, too near or far, target cut."""
     tgt = layout.targets[target]
     c = T_cam_target[:3, :3] @ tgt.centre + T_cam_target[:3, 3]
@@ -432,7 +431,7 @@ def _view_problem(layout: CellLayout, camera: str, target: str, T_cam_target: np
     return None
 
 
-def _camera_frames(layout: CellLayout, camera: str, target: str, T_base_flange: np.ndarray):
+def camera_frames(layout: CellLayout, camera: str, target: str, T_base_flange: np.ndarray):
     """``(T_cam_target, T_cam_flange)`` ``(M, 4, 4)`` at flange poses ``T_base_flange (M, 4, 4)``."""
     cam, tgt = layout.cameras[camera], layout.targets[target]
     if cam.mount == "flange":
@@ -442,7 +441,7 @@ def _camera_frames(layout: CellLayout, camera: str, target: str, T_base_flange: 
     return T_cam_flange @ tgt.pose, T_cam_flange
 
 
-def _order(q: np.ndarray, start: np.ndarray) -> list[int]:
+def visit_order(q: np.ndarray, start: np.ndarray) -> list[int]:
     """Visit order of joint vectors ``q (M, n)``: nearest neighbour from ``start`` (short moves)."""
     left, order, at = list(range(len(q))), [], start
     while left:
@@ -542,7 +541,7 @@ def kinematic_candidates(
     if arm and pair is not None:
         cam, tgt = pair
         D = layout.viewing_distance(cam, tgt)
-        views = _kinematic_views(rng, m, layout.targets[tgt].centre, D, np.radians(amp_deg))
+        views = random_views(rng, m, layout.targets[tgt].centre, D, np.radians(amp_deg))
         flange = np.stack([presentation_pose(layout, cam, tgt, invert(T)) for T in views])
         dh = kd.ik_robot(model, rs.kinematics_spec)
         q0 = kd.joint_space_candidates(model, m, rng)
@@ -570,8 +569,8 @@ def kinematic_candidates(
     if pair is not None:
         cam, tgt = pair
         D = layout.viewing_distance(cam, tgt)
-        T_ct, T_cf = _camera_frames(layout, cam, tgt, T)
-        why = [(_view_problem(layout, cam, tgt, T_ct[i], D) if keep[i] else None) for i in range(len(q))]
+        T_ct, T_cf = camera_frames(layout, cam, tgt, T)
+        why = [(view_problem(layout, cam, tgt, T_ct[i], D) if keep[i] else None) for i in range(len(q))]
         for w in sorted({w for w in why if w}):
             keep &= drop(np.array([x != w for x in why]), w)
         if layout.targets[tgt].mount == "base":
@@ -678,7 +677,7 @@ def plan_kinematics(
               "from calibrate_kinematics"
         )
     arm = c.layout is not None and c.layout.home_rad.shape == (model.num_joints,)
-    order = chosen[_order(q[chosen], c.layout.home_rad if arm else 0.5 * (lo + hi))]
+    order = chosen[visit_order(q[chosen], c.layout.home_rad if arm else 0.5 * (lo + hi))]
     joints = kinematic_models.joints_to_controller(model, q[order])
     plan = make_plan(list(T[order]), joints_deg=[[float(v) for v in j] for j in joints])
     details = {

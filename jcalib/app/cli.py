@@ -272,14 +272,28 @@ def report(
         Optional[Path],
         typer.Option(help="Cell spec (jcalib.cell/1): with --observations, adds the cross-validation section."),
     ] = None,
+    plan: Annotated[
+        Optional[Path],
+        typer.Option(help="Goal-driven plan (`jcalib plan --kind optimal --goal ...`): adds the Goals table (goal, "
+                          "predicted σ, achieved σ, met), also printed here."),
+    ] = None,
 ) -> None:
     """Write a one-page, self-contained HTML report of a result (tables, warnings, plots)."""
-    check_outputs({"-o": out}, [result, observations, cell])
+    check_outputs({"-o": out}, [result, observations, cell, plan])
     _check_report_inputs(result, observations, cell)
+    rows = None
+    if plan is not None:
+        from rich.console import Console
+
+        from jcalib.report.goals import goal_rows, goals_table, plan_goals
+
+        goals, predicted = plan_goals(plan)
+        rows = goal_rows(goals, result, predicted)
+        Console().print(goals_table(rows))
     enable_compilation_cache()
     from jcalib.report.html import write_report
 
-    path = write_report(result, out, observations=observations, cell=cell)
+    path = write_report(result, out, observations=observations, cell=cell, goals=rows)
     typer.echo(f"wrote {path}")
 
 
@@ -430,7 +444,7 @@ def _check_report_inputs(result: Path, observations: Path | None, cell: Path | N
 @app.command()
 def plan(
     cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
-    kind: Annotated[str, typer.Option("--kind", help="viewsets, handeye, tcp or kinematics.")],
+    kind: Annotated[str, typer.Option("--kind", help="viewsets, handeye, tcp, kinematics or optimal.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Plan JSON (jcalib.plan/1) to write.")],
     robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
     stations: Annotated[Optional[int], typer.Option(help="Candidate stations (unreachable ones are dropped); "
@@ -442,32 +456,48 @@ def plan(
                                                                 "largest view angle from the target normal, 45).")] = None,
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
     candidates: Annotated[Optional[int], typer.Option(help="kinematics: candidate configurations to choose from "
-                                                           "(default 20 per station).")] = None,
-    seed: Annotated[int, typer.Option(help="kinematics: random seed of the candidates.")] = 0,
-    sigma_px: Annotated[Optional[float], typer.Option(help="kinematics: corner noise (px) assumed for the predicted "
-                                                           "σ (default 0.2).")] = None,
+                                                           "(default 20 per station); optimal: candidate stations "
+                                                           "(default 400).")] = None,
+    seed: Annotated[int, typer.Option(help="kinematics, optimal: random seed of the candidates.")] = 0,
+    sigma_px: Annotated[Optional[float], typer.Option(help="kinematics, optimal: corner noise (px) assumed for the "
+                                                           "predicted σ (default 0.2 / the calibration's 0.25).")] = None,
+    goal: Annotated[Optional[list[str]], typer.Option("--goal", help="optimal: what must be accurate, "
+                                                      "NAME:QUANTITY<=VALUE, e.g. T_flange_cam0:translation_mm<=0.05, "
+                                                      "T_flange_cam0:rotation_deg<=0.01, T_flange_torch:position_mm<=0.02, "
+                                                      "cam0:projection_px<=0.1 (repeatable; default: the cell's goals:).")] = None,
+    max_stations: Annotated[Optional[int], typer.Option(help="optimal: most stations to plan (default 20); the plan "
+                                                             "stops earlier when the goals are met.")] = None,
 ) -> None:
-    """Plan robot stations (flange poses) for camera, hand-eye, TCP or kinematic calibration.
+    """Plan robot stations (flange poses) for camera, hand-eye, TCP or kinematic calibration, or for goals.
 
     kinematics: joint configurations that determine the kinematic parameters the cell calibrates
     (robot kinematics: and calibrate_kinematics:), chosen D-optimally from random candidates within the
     joint limits (and, with a flange camera or a flange target, with the target in view); the plan
     records each station's joints_deg and the predicted σ per parameter group.
+
+    optimal: stations chosen to meet accuracy goals (--goal, or the cell's goals:): candidates within reach
+    and joint limits that show a target or a tool tip, the predicted σ of every goal from the calibration's own
+    builder, greedy selection with exchanges and a local refinement; prints the predicted σ after each station
+    and stops when the goals are met.
     """
     check_outputs({"-o": out}, [cell])
     _check_cell(cell)
     enable_compilation_cache()
-    from jcalib.app.commands import parse_image_size, run_plan
+    from jcalib.app.commands import check_plan_options, parse_image_size, run_plan
 
+    check_plan_options(kind, stations=stations, goal=goal, max_stations=max_stations, tool=tool, camera=camera,
+                       target=target, candidates=candidates, sigma_px=sigma_px)
     planned = run_plan(cell, kind, out, robot=robot, num_stations=stations, camera=camera, target=target,
                        tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size),
-                       num_candidates=candidates, seed=seed, sigma_px=sigma_px)  # fmt: skip
+                       num_candidates=candidates, seed=seed, sigma_px=sigma_px, goals=goal,
+                       max_stations=max_stations)  # fmt: skip
     for what, why in planned.dropped.items():
-        typer.echo(f"dropped {why}: {what}" if kind == "kinematics" else f"dropped {what}: {why}", err=True)
-    if kind == "kinematics":
-        from jcalib.app.commands import kinematic_plan_lines
+        typer.echo(f"dropped {why}: {what}" if kind in ("kinematics", "optimal") else f"dropped {what}: {why}",
+                   err=True)
+    if kind in ("kinematics", "optimal"):
+        from jcalib.app.commands import kinematic_plan_lines, optimal_plan_lines
 
-        for line in kinematic_plan_lines(planned):
+        for line in (kinematic_plan_lines if kind == "kinematics" else optimal_plan_lines)(planned):
             typer.echo(line)
     typer.echo(f"wrote {out}: {len(planned.plan)} stations ({kind})")
 
@@ -524,8 +554,8 @@ def simulate(
 def capture(
     robot: Annotated[str, typer.Option("--robot", help="kuka://HOST[:PORT] or abb://HOST[:PORT].")],
     camera: Annotated[list[str], typer.Option("--camera", help="NAME=gige://IPV4 (or replay://DIR), one per camera.")],
-    plan: Annotated[Path, typer.Option("--plan", help="Station plan (jcalib.plan/1).")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Session folder to write.")],
+    plan: Annotated[Optional[Path], typer.Option("--plan", help="Station plan (jcalib.plan/1); or --goal.")] = None,
     cell: Annotated[Optional[Path], typer.Option("--cell", help="Cell spec, stored in the session.")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the session in --out.")] = False,
     packet_size: Annotated[Optional[int], typer.Option(help="GigE packet size, bytes (jumbo: 8000+).")] = None,
@@ -538,9 +568,38 @@ def capture(
         str, typer.Option("--kind", help="stations (grab at each planned station) or tcp (servo the tool tip onto "
                           "the image centre at each station of a `plan --kind tcp` plan, then grab).")
     ] = "stations",
+    goal: Annotated[
+        Optional[list[str]],
+        typer.Option("--goal", help="NAME:QUANTITY<=VALUE, e.g. T_flange_cam0:translation_mm<=0.05 (repeatable): "
+                     "instead of --plan, choose each station as the capture goes, calibrate after each, stop when "
+                     "every goal is achieved (needs --cell; without --plan and --goal, the cell's goals: are used).")
+    ] = None,
+    max_stations: Annotated[Optional[int], typer.Option(help="--goal: most stations to capture [30].")] = None,
+    image_size: Annotated[Optional[str], typer.Option(help="--goal: WxH of cameras without intrinsics.")] = None,
+    seed: Annotated[int, typer.Option(help="--goal: random seed of the candidate stations.")] = 0,
+    candidates: Annotated[Optional[int], typer.Option(help="--goal: candidate stations to choose from [400].")] = None,
 ) -> None:
-    """Drive the robot through a plan, grab every camera at every station, write a session."""
+    """Drive the robot through a plan (--plan), or adaptively until accuracy goals are met (--goal), grab every
+    camera at every station, write a session."""
     check_output_dir("--out", out, [plan, cell], managed=("session.json", "stations.jsonl", ".lock", "images"))
+    if not goal and plan is None and cell is not None:  # the cell's goals: stand in for --goal
+        from jcalib.io.cell import load_cell
+
+        goal = [g.text for g in load_cell(cell).goals] or None
+    if goal:
+        from jcalib.app.adaptive import capture_command
+
+        capture_command(robot=robot, camera=camera, out=out, plan=plan, cell=cell, resume=resume,
+                        packet_size=packet_size, setting=setting, kind=kind, goal=goal, max_stations=max_stations,
+                        image_size=image_size, seed=seed, candidates=candidates, echo=typer.echo)
+        return
+    from jcalib.errors import BadInputError
+
+    if plan is None:
+        raise BadInputError("capture: give a station plan (--plan PLAN) or accuracy goals (--goal GOAL ...)")
+    if max_stations is not None or image_size is not None or candidates is not None:
+        raise BadInputError("--max-stations, --image-size and --candidates apply to adaptive capture (--goal); a "
+                            "--plan capture visits the plan's stations")
     if cell is not None:
         _check_cell(cell)
     from jcalib.io.plan import load_plan

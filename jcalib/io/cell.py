@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.io.goals import Goal, parse_goals
 from jcalib.io.schema.cell import validate_cell_document
 from jcalib.io.schema.reading import read_document
 
@@ -141,7 +142,8 @@ class CellSpec:
 
     ``robot`` is the robot of a one-robot cell (from ``robot:`` or a one-entry ``robots:``; None
     without a robot and with several robots); ``robots`` holds the named robots of ``robots:`` in
-    file order (empty for ``robot:``).
+    file order (empty for ``robot:``). ``goals``: accuracy goals for station planning and adaptive capture
+    (:mod:`jcalib.io.goals`); they do not change a calibration.
     """
 
     cameras: dict[str, CameraSpec]
@@ -152,6 +154,7 @@ class CellSpec:
     fixed: tuple[str, ...] = ()
     source: str = "<dict>"
     robots: dict[str, RobotSpec] = field(default_factory=dict)
+    goals: tuple[Goal, ...] = ()
 
     @property
     def multi_robot(self) -> bool:
@@ -435,7 +438,7 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
     schema = data.get("schema")
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
-    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed"}, source)
+    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed", "goals"}, source)
     robots = _parse_robots(data, source)
     cameras_in = data.get("cameras") or {}
     if not isinstance(cameras_in, dict) or not (cameras_in or data.get("tools") or data.get("points")):
@@ -481,6 +484,10 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
     fixed = data.get("fixed") or []
     if not isinstance(fixed, list) or not all(isinstance(f, str) for f in fixed):
         raise _fail(f"{source}: fixed", f"expected a list of parameter names, got {fixed!r}")
+    goals = data.get("goals") or []
+    if not isinstance(goals, list):
+        raise _fail(f"{source}: goals", f"expected a list of goals like 'T_flange_cam0:translation_mm<=0.05', got {goals!r}")
+    goals = parse_goals(goals, f"{source}: goals")
     needs_robot = any(c.mount != "free" for c in cameras.values()) or any(
         t.mount != "free" for t in targets.values()
     )
@@ -495,6 +502,7 @@ def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
         fixed=tuple(fixed),
         source=source,
         robots=robots,
+        goals=goals,
     )
 
 
@@ -554,6 +562,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
         out["robot"] = _robot_to_dict(cell.robot)
     if cell.fixed:
         out["fixed"] = list(cell.fixed)
+    if cell.goals:
+        out["goals"] = [g.text for g in cell.goals]
     return out
 
 

@@ -20,6 +20,7 @@ from typing import Any
 
 from jcalib.io.atomic import write_text_atomic
 from jcalib.report import findings, kinematics, sections
+from jcalib.report.goals import goals_html
 from jcalib.report.markup import CSS, esc, note
 
 __all__ = ["SECTIONS", "render_report", "write_report"]
@@ -63,6 +64,7 @@ def render_report(
     tolerances: Mapping[str, float] | None = None,
     options: Any = None,
     cross_validation: bool | None = None,
+    goals: Any = None,
 ) -> str:
     """The HTML text of the one-page report of a result.
 
@@ -79,6 +81,8 @@ def render_report(
         options: the calibration options (``CalibrationOptions`` or a dict; default: the file's provenance).
         cross_validation: calibrate the two halves of the stations again and compare (two more solves);
             default: when ``cell`` and ``observations`` are given.
+        goals: rows of :func:`jcalib.report.goals.goal_rows` (a goal-driven plan's goals against this
+            result): a "Goals" table in the summary.
 
     Returns:
         The HTML document (UTF-8 text, self-contained).
@@ -119,7 +123,7 @@ def render_report(
         sections.warnings(warnings),
         "<h2>Summary</h2>", sections.statistics(file.stats), sections.intrinsics(file), sections.transforms(file),
         sections.points(file),
-        sections.targets(file), kinematics.section(file),
+        sections.targets(file), kinematics.section(file), goals_html(goals) if goals else "",
         "<h2>Per-view reprojection error</h2>", sections.view_rms(file.stats),
         "<h2>Task-space uncertainty</h2>", sections.INCLUDES, sections.task_space(file),
         sections.tcps(file, reference, robot_of), "<h3>Projection uncertainty</h3>",
@@ -149,6 +153,7 @@ def write_report(
     tolerances: Mapping[str, float] | None = None,
     options: Any = None,
     cross_validation: bool | None = None,
+    goals: Any = None,
 ) -> Path:
     """Write :func:`render_report` to ``out`` atomically; returns the path.
 
@@ -156,4 +161,4 @@ def write_report(
         BadInputError: unreadable or invalid result, observations or cell.
     """
     return write_text_atomic(out, render_report(result, observations, title, cell, tolerances, options,
-                                                cross_validation))
+                                                cross_validation, goals))

@@ -28,6 +28,7 @@ __all__ = [
     "image_grid",
     "pixel_effect",
     "project",
+    "projection_jacobian",
     "projection_difference",
     "projection_sigma_at",
     "projection_sigma_map",
@@ -109,7 +110,9 @@ def unproject(cam: Any, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(rays)[:n], np.asarray(valid)[:n]
 
 
-def _projection_jacobian(cam: Any, p_cam: np.ndarray) -> np.ndarray:
+def projection_jacobian(cam: Any, p_cam: np.ndarray) -> np.ndarray:
+    """``(n, 2, p)``: how the pixels of fixed camera-frame points ``(n, 3)`` move with the intrinsics
+    (order ``param_names``); one compiled function per shape bucket."""
     import jax.numpy as jnp
 
     m = camera_model(cam)
@@ -130,7 +133,7 @@ def projection_sigma_at(cam: Any, pixels: np.ndarray, covariance: np.ndarray) ->
     ``(p, p)`` (order ``param_names``); NaN where a pixel has no valid ray."""
     rays, valid = unproject(cam, pixels)
     valid = valid & (rays[:, 2] > 1e-6)
-    J = _projection_jacobian(cam, rays)
+    J = projection_jacobian(cam, rays)
     cov_px = np.einsum("nip,pq,njq->nij", J, np.asarray(covariance, np.float64), J)
     eig = np.linalg.eigvalsh(0.5 * (cov_px + np.swapaxes(cov_px, -1, -2)))
     return np.where(valid, np.sqrt(np.maximum(eig[:, -1], 0.0)), np.nan)
@@ -177,7 +180,7 @@ def pixel_effect(cam: Any, grid: tuple[int, int] = (9, 7)) -> np.ndarray:
     u, v = image_grid(m.image_size, grid)
     rays, valid = unproject(m, np.stack([u.ravel(), v.ravel()], -1))
     ok = valid & (rays[:, 2] > 1e-6)
-    J = _projection_jacobian(m, rays[ok])
+    J = projection_jacobian(m, rays[ok])
     return np.max(np.linalg.norm(J, axis=1), axis=0)
 
 

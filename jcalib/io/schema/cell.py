@@ -191,6 +191,7 @@ class CellDocument(Closed):
     robot: Robot | None = None
     robots: dict[Name, Robot | None] | None = None
     fixed: list[str] | None = None
+    goals: list[str] | None = None
 
 
 def intrinsic_names(model: str, skew: bool) -> tuple[str, ...]:
