@@ -155,7 +155,7 @@ def _tool_axis(dh, q: np.ndarray) -> np.ndarray:
     return a / np.linalg.norm(a)
 
 
-def _frame_with_z(z: np.ndarray) -> np.ndarray:
+def frame_with_z(z: np.ndarray) -> np.ndarray:
     """(3, 3) rotation whose z column is ``z`` (a flange axis) and x the next flange axis cyclically."""
     i = int(np.argmax(np.abs(z)))
     x = np.zeros(3)
@@ -244,7 +244,7 @@ def cell_layout(
             pose = make_pose(R, work + np.array([0.0, 0.3 * k_base, 0.0]) - R @ centre)
             k_base += 1
         else:
-            R = _frame_with_z(-a)  # printed side (seen from -z) faces along the tool axis
+            R = frame_with_z(-a)  # printed side (seen from -z) faces along the tool axis
             pose = make_pose(R, 0.03 * a - R @ centre)
         targets[name] = TargetLayout(name, geom, t.mount, np.asarray(pose, dtype=np.float64), centre, radius)
 
@@ -271,7 +271,7 @@ def cell_layout(
         if c.pose is not None:
             pose = c.pose
         elif c.mount == "flange":
-            R = _frame_with_z(a)
+            R = frame_with_z(a)
             pose = make_pose(R, 0.05 * a + 0.08 * k_flange * R[:, 0])
             k_flange += 1
         else:

@@ -349,3 +349,20 @@ def rotation_z_to(a: np.ndarray) -> np.ndarray:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
     K = skew(v)
     return np.eye(3) + K + K @ K * ((1.0 - c) / s**2)
+
+
+#: Distances from a tool's tip (m) of the points on its shaft that a station shows along the imaged tool axis.
+SHAFT_POINTS_M = (0.01, 0.02, 0.03, 0.04)
+
+
+def shaft_points(T_flange_tool: np.ndarray, distances=SHAFT_POINTS_M) -> np.ndarray:
+    """``(k, 3)`` points of a tool's shaft in its TCP frame: on the TCP's z axis (the tool axis), ``distances``
+    (m) from the tip towards the flange (the side of the tip the tool is on, whichever way its z points).
+
+    Args:
+        T_flange_tool: (4, 4) the TCP in the flange frame, m.
+    """
+    T = np.asarray(T_flange_tool, np.float64)
+    flange_in_tool = -T[:3, :3].T @ T[:3, 3]
+    side = 1.0 if flange_in_tool[2] >= 0.0 else -1.0
+    return np.array([[0.0, 0.0, side * s] for s in distances], np.float64)

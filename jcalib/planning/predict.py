@@ -2,7 +2,7 @@
 
 A candidate station's observations are what the nominal cell (or a current estimate) predicts: the
 target's corners projected exactly, a tool's tip (and, when the tool's orientation is estimated, points
-along its axis). The station is built by the one builder (:func:`jcalib.problems.calibrate.prepare`) as
+along its shaft). The station is built by the one builder (:func:`jcalib.problems.calibrate.prepare`) as
 the only station of the cell, with the calibration's options and σ, and linearised at the nominal values
 by :func:`jcalib.solve.information`, which marginalises its own station unknowns (a robot's per-station
 flange correction under its pose noise). Stations add information independently of each other, so the
@@ -22,6 +22,7 @@ import numpy as np
 from jcalib.acquisition.candidates import Candidates
 from jcalib.acquisition.layout import CellLayout
 from jcalib.errors import BadInputError, JcalibError
+from jcalib.geometry.se3 import shaft_points
 from jcalib.io.goals import Goal, projection_grid, sigma_from_covariance
 from jcalib.io.observations import Detection, Observations, Station
 from jcalib.io.result import CameraResult, ResultFile, TransformResult
@@ -30,10 +31,7 @@ from jcalib.problems.options import CalibrationOptions
 from jcalib.report.taskspace import camera_model, project, projection_jacobian, unproject
 from jcalib.solve import information
 
-__all__ = ["AXIS_POINTS_M", "GoalMap", "Predictor", "RIDGE"]
-
-#: Points along a tool's z axis (m) whose images a candidate observes when the tool's orientation is estimated.
-AXIS_POINTS_M = (0.01, 0.02, 0.03, 0.04)
+__all__ = ["GoalMap", "Predictor", "RIDGE"]
 #: Ridge per coordinate, relative to a typical candidate's information on that coordinate: keeps the
 #: information of a few stations invertible (σ of what they leave undetermined comes out huge, not inf).
 RIDGE = 1e-8
@@ -134,8 +132,9 @@ class Predictor:
             pix = project(self.cameras[c], P @ T_ct[:3, :3].T + T_ct[:3, 3])
             det = Detection(camera=c, pixels=pix, target=thing, point_index=np.arange(len(P)))
         else:
-            T_ct = T_cam_base @ T_base_flange @ self.transforms[f"T_flange_{thing}"]
-            q = np.array([[0.0, 0.0, s] for s in (0.0,) + (AXIS_POINTS_M if self._tool_axis(thing) else ())])
+            T_ft = self.transforms[f"T_flange_{thing}"]
+            T_ct = T_cam_base @ T_base_flange @ T_ft
+            q = np.concatenate([np.zeros((1, 3)), shaft_points(T_ft) if self._tool_axis(thing) else np.zeros((0, 3))])
             pix = project(self.cameras[c], q @ T_ct[:3, :3].T + T_ct[:3, 3])
             det = Detection(camera=c, pixels=pix[:1], tool=thing, axis=pix[1:] if len(pix) > 1 else None)
         return Station(sid, (det,), T_base_flange=np.asarray(T_base_flange, np.float64), joints_deg=joints_deg)

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import equinox as eqx
 import numpy as np
 
-from jcalib.errors import BadInputError
+from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import conversions
 from jcalib.geometry.targets import warp_bow
 from jcalib.problems.graph import FREE, Graph
@@ -316,6 +316,11 @@ class _Builder:
             if fixed and spec.pose is None:
                 raise BadInputError(f"{cell.source}: fixed lists '{spec.name}' ({name}) but the cell gives it no pose; "
                                     "add pose: [[4x4]] (m) or remove it from fixed")
+            if name not in s.known:  # nothing observes it and the cell gives no pose
+                what = "camera" if spec.name in cell.cameras else "target"
+                raise NotObservableError(f"{cell.source}: {what} '{spec.name}' ({name}) is in the cell but no station "
+                                         "observes it, so nothing determines its pose; remove it from the cell or add "
+                                         "stations that show it", [name])
             self.transforms.append(name)
             self.calibrated[name] = [] if fixed else ["rx", "ry", "rz", "tx", "ty", "tz"]
             self.add(name, SE3(), start_params(s.known[name]), fixed=fixed)

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from jcalib.errors import JcalibError
+from jcalib.geometry.se3 import shaft_points
 from jcalib.io.observations import Contact, Detection, Station
 from jcalib.io.result import CameraResult, ResultFile, TransformResult
 from jcalib.report.model import LinearModel
@@ -51,9 +52,6 @@ STATION_KINDS = {
 _FREE_KINDS = ("tilt_x", "tilt_y", "closer", "corner")
 _ROBOT_KINDS = ("rot_x", "rot_y", "rot_z", "closer", "corner")
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-#: Points along a tool's z axis (m) whose images a candidate tool station observes when the tool's
-#: orientation is calibrated.
-AXIS_POINTS_M = (0.01, 0.02, 0.03, 0.04)
 
 
 @dataclass(frozen=True)
@@ -280,7 +278,7 @@ def _tip_candidates(where: _Cell, c: str, tool: str) -> list[Candidate]:
         R_w = W_c[:3, :3] @ _rot(_AXES[kind[-1]], math.radians(30.0)) @ W_c[:3, :3].T
         W_f_new = _pose(R_w, p - R_w @ p) @ W_f
         T_ct = np.linalg.inv(W_c) @ W_f_new @ T_ft
-        q = np.array([[0.0, 0.0, s] for s in (0.0,) + (AXIS_POINTS_M if with_axis else ())])
+        q = np.concatenate([np.zeros((1, 3)), shaft_points(T_ft) if with_axis else np.zeros((0, 3))])
         p_cam = q @ T_ct[:3, :3].T + T_ct[:3, 3]
         if not _fits(cam, p_cam, margin=5.0):
             continue

@@ -173,3 +173,41 @@ def test_kinematic_cell_plans_record_joints(layout):
     for s in planned.plan.stations:  # the nominal model's flange at the recorded joints (KUKA: degrees = model)
         q = np.radians(s.joints_deg)
         np.testing.assert_allclose(np.asarray(forward_kinematics(robot, q)), s.T_base_flange, atol=1e-6)
+
+
+def test_capture_needs_a_plan_or_goals(tmp_path, run_cli):
+    """Neither --plan nor --goal nor the cell's goals: refused before anything connects (exit 2)."""
+    import yaml
+
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(CELL))
+    for extra in ([], ["--cell", cell]):
+        code, text = run_cli("capture", "--robot", "kuka://127.0.0.1:9", "--camera", "cam0=gige://127.0.0.1",
+                             "--out", tmp_path / "session", *extra)
+        assert code == 2 and "give a station plan (--plan PLAN) or accuracy goals" in text, text
+
+
+def test_shaft_points_lie_between_tip_and_flange():
+    from jcalib.geometry.se3 import make_pose, rot_x, shaft_points
+
+    for R in (np.eye(3), rot_x(np.pi)):  # the TCP's z pointing away from the flange, or towards it
+        T_flange_tool = make_pose(R, np.array([0.0, 0.0, 0.15]))
+        for p in shaft_points(T_flange_tool):
+            p_flange = T_flange_tool[:3, :3] @ p + T_flange_tool[:3, 3]
+            assert 0.10 < p_flange[2] < 0.15  # on the shaft: between the flange (z 0) and the tip (z 0.15)
+
+
+def test_a_target_no_station_observes_is_named():
+    """A flange target in the cell that no station shows: not observable, named (was a bare KeyError)."""
+    from jcalib.errors import NotObservableError
+    from jcalib.planning.predict import Predictor
+
+    cell = {**CELL, "targets": {**CELL["targets"], "plate": {"type": "checkerboard", "cols": 5, "rows": 4,
+                                                             "square": 0.02, "mount": "flange"}}}
+    layout = cell_layout(cell)
+    pred = Predictor(layout, ())
+    fixed = plan_cell(layout, "handeye", camera="cam0", target="board")
+    stations = tuple(pred.station(s.T_base_flange, ("cam0", "board"), s.id) for s in fixed.plan.stations)
+    with pytest.raises(NotObservableError, match="target 'plate' .* no station observes it") as err:
+        jcalib.calibrate(layout.cell, Observations(dict(pred.sizes), dict(pred.targets), stations))
+    assert err.value.unknowns == ["T_flange_plate"]
