@@ -204,13 +204,9 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
                             options=options, seed=seed, num_candidates=num_candidates, on_progress=progress,
                             captured=captured)
     except DeviceError as e:
-        from jcalib.acquisition.capture import CaptureInterrupted
+        from jcalib.app.commands import raise_capture_failure
 
-        if isinstance(e, CaptureInterrupted) or "being written by another process" in str(e):
-            raise
-        if (out / "session.json").is_file():
-            raise DeviceError(f"{e}\nThe session in {out} is consistent; fix the cause, then resume: {hint}") from e
-        raise DeviceError(f"{e}\nNothing was captured yet; fix the cause and run the same command again.") from e
+        raise_capture_failure(e, out, hint)
     finally:
         for c in cams.values():
             c.close()

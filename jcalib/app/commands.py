@@ -174,13 +174,7 @@ def run_capture(
             resume_hint=hint, camera_settings=all_settings, adjust=adjust,
         )  # fmt: skip
     except DeviceError as e:
-        from jcalib.acquisition.capture import CaptureInterrupted
-
-        if isinstance(e, CaptureInterrupted) or "being written by another process" in str(e):
-            raise
-        if (Path(out) / "session.json").is_file():
-            raise DeviceError(f"{e}\nThe session in {out} is consistent; fix the cause, then resume: {hint}") from e
-        raise DeviceError(f"{e}\nNothing was captured yet; fix the cause and run the same command again.") from e
+        raise_capture_failure(e, out, hint)
     finally:
         for c in cams.values():
             c.close()
@@ -578,3 +572,16 @@ def run_simulated_cell(
                 pass
         except KeyboardInterrupt:
             pass
+
+
+def raise_capture_failure(e: DeviceError, out: str | Path, hint: str) -> None:
+    """Re-raise a device error of a capture with what to do next: resume the consistent session in ``out``
+    (``hint``: the command that resumes it), or run the command again when nothing was captured yet. An
+    interruption or a session held by another process is re-raised as it is."""
+    from jcalib.acquisition.capture import CaptureInterrupted
+
+    if isinstance(e, CaptureInterrupted) or "being written by another process" in str(e):
+        raise e
+    if (Path(out) / "session.json").is_file():
+        raise DeviceError(f"{e}\nThe session in {out} is consistent; fix the cause, then resume: {hint}") from e
+    raise DeviceError(f"{e}\nNothing was captured yet; fix the cause and run the same command again.") from e
