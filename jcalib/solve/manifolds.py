@@ -12,7 +12,7 @@ Every manifold maps one parameter row (``param_dim``) and one tangent vector (``
 Layouts (DESIGN.md): SO(3) parameters are a ``wxyz`` unit quaternion, tangent ``(rx, ry, rz)`` in
 radians. SE(3) parameters are ``wxyz_xyz`` (quaternion, then translation in metres), tangent
 ``(rx, ry, rz, tx, ty, tz)`` — rotation first, unlike jaxlie's ``(tx, ty, tz, rx, ry, rz)``; the
-reordering happens here and nowhere else.
+SE(3) exponential and logarithm are jcalib.geometry's, so no SE(3) tangent is ever handed to jaxlie.
 
 A partial fixed mask on a group element constrains each *step* ``δ`` in the element's local frame;
 only Euclidean coordinates and whole fixed group elements keep their values bit-for-bit.
@@ -22,35 +22,28 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-import jaxlie
 
-# jaxlie 1.5's multiply / inverse / apply mix int and float arrays and raise under JAX's strict
-# dtype promotion (tests/conftest.py); its exp / log do not. Compositions are therefore written
-# here with explicit quaternion algebra and jaxlie is used for exp / log only.
+from jcalib.geometry import lie_kernels as K
+
+# The group algebra is jcalib.geometry's (one SO(3)/SE(3) exp and log in the package, with series
+# branches below 0.01 rad). jaxlie 1.5's SE(3) exp is not usable here: under θ² = 1e-10 it takes the
+# rotation matrix ``I + W`` for ``V(ω) ≈ I + W/2``, so ``Log(Exp(δ))`` misses ``½ ω × v`` for
+# rotations under 1e-5 rad.
 
 
 def quat_multiply(a, b):
     """Hamilton product of ``wxyz`` quaternions ``a (4,)``, ``b (4,)``."""
-    aw, ax, ay, az = a[0], a[1], a[2], a[3]
-    bw, bx, by, bz = b[0], b[1], b[2], b[3]
-    return jnp.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ])
+    return K.quat_multiply(a, b, jnp)
 
 
 def quat_conjugate(q):
     """Inverse of a unit ``wxyz`` quaternion."""
-    return q * jnp.array([1.0, -1.0, -1.0, -1.0])
+    return K.quat_conjugate(q, jnp)
 
 
 def quat_rotate(q, v):
     """Rotate ``v (3,)`` by the unit ``wxyz`` quaternion ``q``: ``R(q) v``."""
-    w, u = q[0], q[1:]
-    t = 2.0 * jnp.cross(u, v)
-    return v + w * t + jnp.cross(u, t)
+    return K.quat_rotate(q, v, jnp)
 
 
 class Euclidean(eqx.Module):
@@ -103,7 +96,7 @@ class SO3(eqx.Module):
 
     def retract(self, x, delta):
         """``x (4,) wxyz``, ``delta (3,) rad`` -> ``x · Exp(delta) (4,)``."""
-        return quat_multiply(x, jaxlie.SO3.exp(delta).wxyz)
+        return quat_multiply(x, K.so3_exp(delta, jnp))
 
     def retract_linear(self, x, delta):
         """First-order ``x · Exp(δ) ≈ x ⊗ [1, δ/2]`` (exact value and derivative at ``δ = 0``; not unit norm)."""
@@ -111,20 +104,12 @@ class SO3(eqx.Module):
 
     def local(self, x, y):
         """``Log(x⁻¹ y) (3,) rad``."""
-        return jaxlie.SO3(quat_multiply(quat_conjugate(x), y)).log()
+        return K.so3_log(quat_multiply(quat_conjugate(x), y), jnp)
 
     def normalize(self, x):
         """Unit norm and ``w >= 0`` (the sign convention of DESIGN.md)."""
         q = x / jnp.linalg.norm(x)
         return jnp.where(q[0] < 0.0, -q, q)
-
-
-def _to_jaxlie_twist(delta):
-    return jnp.concatenate([delta[3:], delta[:3]])
-
-
-def _from_jaxlie_twist(twist):
-    return jnp.concatenate([twist[3:], twist[:3]])
 
 
 class SE3(eqx.Module):
@@ -147,9 +132,7 @@ class SE3(eqx.Module):
 
     def retract(self, x, delta):
         """``x (7,) wxyz_xyz``, ``delta (6,)`` -> ``x · Exp(delta) (7,)``."""
-        e = jaxlie.SE3.exp(_to_jaxlie_twist(delta)).wxyz_xyz
-        q, t = x[:4], x[4:]
-        return jnp.concatenate([quat_multiply(q, e[:4]), t + quat_rotate(q, e[4:])])
+        return K.se3_compose(x, K.se3_exp(delta, jnp), jnp)
 
     def retract_linear(self, x, delta):
         """First-order ``T · Exp(δ) ≈ (q ⊗ [1, ω/2], t + R(q) v)`` for ``δ = (ω, v)``.
@@ -163,9 +146,7 @@ class SE3(eqx.Module):
 
     def local(self, x, y):
         """``Log(x⁻¹ y) (6,)`` in the order ``(rx, ry, rz, tx, ty, tz)``."""
-        qi = quat_conjugate(x[:4])
-        rel = jnp.concatenate([quat_multiply(qi, y[:4]), quat_rotate(qi, y[4:] - x[4:])])
-        return _from_jaxlie_twist(jaxlie.SE3(rel).log())
+        return K.se3_log(K.se3_compose(K.se3_inverse(x, jnp), y, jnp), jnp)
 
     def normalize(self, x):
         """Unit quaternion with ``w >= 0``; translation unchanged."""
