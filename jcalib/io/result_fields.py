@@ -114,6 +114,8 @@ def field_json(value: Any, where: str) -> Any:
     if isinstance(value, (float, np.floating)):
         return field_float(value, where)
     if isinstance(value, np.ndarray):
+        if value.dtype.kind in "iu" or (value.dtype.kind == "f" and np.all(np.isfinite(value))):
+            return value.tolist()  # numbers, all finite: nothing to check one by one
         return field_json(value.tolist(), where)
     if isinstance(value, Mapping):
         out = {}
@@ -123,6 +125,8 @@ def field_json(value: Any, where: str) -> Any:
             out[k] = field_json(v, f"{where}.{k}")
         return out
     if isinstance(value, (list, tuple)):
+        if all(type(v) is float for v in value) and all(map(math.isfinite, value)):
+            return list(value)  # the common leaf: finite floats
         return [field_json(v, f"{where}[{i}]") for i, v in enumerate(value)]
     raise field_fail(
         where, f"expected a JSON value (number, string, bool, list, mapping), got {short_repr(value)}"

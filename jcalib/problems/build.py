@@ -462,11 +462,11 @@ class _Builder:
                 continue
             st_axis = np.repeat(st, counts)
             m = st_axis.size
-            fn = tool_axis(*self.camera_config(c), chain)
+            fn, jac = tool_axis(*self.camera_config(c), chain)
             name = f"axis:{c}/{tool}"
             f = FactorGroup(name, fn, (f"intrinsics:{c}",) + args, (np.zeros_like(st_axis),) + self.indices(args, st_axis),
                             (np.concatenate([a for a in tp.axis if len(a)]), np.full(m, AXIS_LENGTH_M), self.aspect(c, m)),
-                            sigma=self.o.axis_sigma_px, loss=loss)
+                            sigma=self.o.axis_sigma_px, loss=loss, jacobian=jac)
             self.factor(Group(name, "axis", (c, tool), st_axis, np.full(m, -1), np.arange(m), m, True), f, args)
 
     def contacts(self) -> None:

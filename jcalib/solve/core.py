@@ -27,7 +27,7 @@ import numpy as np
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.solve import linear, traced
 from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
-from jcalib.solve.lm import Observability, RawSolution, SolveOptions, Status, lm_solve
+from jcalib.solve.lm import Observability, RawSolution, SolveOptions, Status, after, lm_solve
 from jcalib.solve.problem import Problem
 from jcalib.solve.solution import Solution, marginal_information, unobservable_names
 
@@ -77,13 +77,13 @@ def _hat_traces(raw: RawSolution, sigma_ss, v_inv) -> jax.Array:
 def _core(problem: Problem, options: SolveOptions, traces: bool) -> Outcome:
     raw = lm_solve(problem, options, per_group=traces)
     S, v_inv = linear.reduced_system(raw.system, None, None)
+    # the Cholesky after the observability's eigen-decompositions: two batched LAPACK calls at once can
+    # deadlock XLA:CPU's 2-thread pool (both waiting in ParallelBatchMap; seen in a vmapped batch)
+    S = after(S, raw.observability)
     n = S.shape[0]
     sigma_ss = jsl.cho_solve(jsl.cho_factor(S, lower=True), jnp.eye(n, dtype=S.dtype)) if n else S
     residuals, chi2, count = [], [], []
-    for f in problem.factors:
-        rows = tuple(raw.values[a][i] for a, i in zip(f.args, f.indices))
-        r = jax.vmap(f.fn)(*rows, f.observations)
-        r = r.reshape(r.shape[0], -1)
+    for f, r in zip(problem.factors, raw.residuals):  # the loop's residuals at the estimate
         w = f.sqrt_weight
         s = jnp.sum((r * (w / f.sigma)[:, None]) ** 2, axis=-1)
         _, rho1 = f.loss.rho(s)
@@ -91,7 +91,8 @@ def _core(problem: Problem, options: SolveOptions, traces: bool) -> Outcome:
         chi2.append(jnp.sum(jnp.where(w > 0.0, rho1 * s, 0.0)))
         count.append(jnp.sum(jnp.where(w > 0.0, r.shape[-1], 0)))
     hat = _hat_traces(raw, sigma_ss, v_inv) if traces else jnp.zeros((len(problem.factors),))
-    raw = eqx.tree_at(lambda r: r.groups, raw, None, is_leaf=lambda x: x is None)  # not needed on the host
+    # not needed on the host (the residuals travel once, in the Outcome)
+    raw = eqx.tree_at(lambda r: (r.groups, r.residuals), raw, (None, None), is_leaf=lambda x: x is None)
     return Outcome(raw, tuple(residuals), sigma_ss, tuple(v_inv), jnp.stack(chi2), jnp.stack(count), hat)
 
 

@@ -95,25 +95,37 @@ def free_masks(problem: Problem) -> dict[str, jax.Array]:
 
 
 def retract_all(problem: Problem, values: dict, deltas: dict) -> dict:
-    """Apply ``x ⊞ δ`` entry-wise to every kind (re-normalised); fully fixed entries keep ``x`` bit for bit."""
+    """Apply ``x ⊞ δ`` entry-wise to every kind (re-normalised); fully fixed entries keep ``x`` bit for bit.
+
+    Kinds of one manifold class and parameter size are retracted together (their rows stacked): one
+    copy of the group's exponential in the compiled program, not one per kind.
+    """
+    groups: dict[tuple, list] = {}
     out = {}
     for v in problem.variables:
-        x = values[v.name]
         if v.constant:
-            out[v.name] = x
-            continue
-        new = jax.vmap(v.manifold.retract)(x, deltas[v.name])
-        normed = jax.vmap(v.manifold.normalize)(new)
-        any_free = jnp.any(~v.fixed, axis=-1)
-        out[v.name] = jnp.where(any_free[:, None], normed, x)
-    return out
+            out[v.name] = values[v.name]
+        else:
+            groups.setdefault((type(v.manifold), v.manifold.param_dim, v.manifold.tangent_dim), []).append(v)
+    for members in groups.values():
+        m = members[0].manifold
+        x = jnp.concatenate([values[v.name] for v in members])
+        new = jax.vmap(m.normalize)(jax.vmap(m.retract)(x, jnp.concatenate([deltas[v.name] for v in members])))
+        start = 0
+        for v in members:
+            n = v.num
+            any_free = jnp.any(~v.fixed, axis=-1)
+            out[v.name] = jnp.where(any_free[:, None], new[start:start + n], values[v.name])
+            start += n
+    return {v.name: out[v.name] for v in problem.variables}
 
 
-def _obs_residual(f, manifolds, first_order: bool = False):
+def _obs_residual(f, manifolds, first_order: bool = False, raw: bool = False):
     """Whitened residual of one observation as a function of the argument tangents.
 
     ``first_order=True`` uses the manifolds' ``retract_linear`` (right value and first derivative
-    at ``δ = 0`` only): for Gauss–Newton Jacobians, not for second derivatives.
+    at ``δ = 0`` only): for Gauss–Newton Jacobians, not for second derivatives. ``raw=True`` also
+    returns the unwhitened residual (the factor's own unit; also where the weight is 0).
     """
 
     def r_obs(rows, deltas, obs, w):
@@ -123,7 +135,8 @@ def _obs_residual(f, manifolds, first_order: bool = False):
             params = [m.retract(x, d) for m, x, d in zip(manifolds, rows, deltas)]
         r = jnp.asarray(f.fn(*params, obs))
         # weight 0 (padding, masked outliers): exact zero, finite derivatives even if r is not.
-        return jnp.where(w > 0.0, r * (w / f.sigma), jnp.zeros_like(r))
+        r_w = jnp.where(w > 0.0, r * (w / f.sigma), jnp.zeros_like(r))
+        return (r_w, r) if raw else r_w
 
     return r_obs
 
@@ -150,13 +163,15 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
     Returns:
         cost: scalar ``½ Σ ρ(s_k)``; H_obs ``(K, D, D)``; g_obs ``(K, D)``;
         r_w ``(K, m)`` whitened, reweighted residuals; J ``(K, m, D)`` reweighted Jacobian;
-        m_eff: number of residual components with nonzero weight. ``D`` = sum of the active
+        m_eff: number of residual components with nonzero weight; r_raw ``(K, m)`` the residuals in
+        the factor's own unit (weight 0 included: the estimate's residuals, without evaluating
+        ``f.fn`` again). ``D`` = sum of the active
         arguments' tangent dims. For a chunked group (``f.chunk``), ``H_obs`` and ``g_obs`` are
         per run ``(K / chunk, D, D)``, ``(K / chunk, D)``, summed by one batched product.
     """
     by_name, manifolds, dims = _factor_parts(problem, f)
     active = active_args(problem, f)
-    r_obs = _obs_residual(f, manifolds, first_order=True)
+    r_obs = _obs_residual(f, manifolds, first_order=True, raw=True)
     rows = tuple(values[a][i] for a, i in zip(f.args, f.indices))
     zeros = tuple(jnp.zeros((f.num_obs, dims[j]), jnp.float64) for j in active)
     n_args = len(f.args)
@@ -166,28 +181,28 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
             full = [jnp.zeros((dims[j],), jnp.float64) for j in range(n_args)]
             for j, d in zip(active, ds):
                 full[j] = d
-            r = r_obs(rows_k, full, obs_k, w_k)
-            return r, r
+            r, r_raw = r_obs(rows_k, full, obs_k, w_k)
+            return r, (r, r_raw)
 
         # reverse mode when the residual has fewer components than the tangent (e.g. 2 pixels vs
         # 15 tangent directions in camera calibration): m backward passes instead of D forward ones
         m = math.prod(jax.eval_shape(g, *deltas_k)[0].shape)
         D = sum(dims[j] for j in active)
         jac_fn = jax.jacrev if m < D else jax.jacfwd
-        jac, r = jac_fn(g, argnums=tuple(range(len(active))), has_aux=True)(*deltas_k)
-        return r, jnp.concatenate(jac, axis=-1)
+        jac, (r, r_raw) = jac_fn(g, argnums=tuple(range(len(active))), has_aux=True)(*deltas_k)
+        return r, jnp.concatenate(jac, axis=-1), r_raw
 
     def given_jacobian(rows_k, obs_k, w_k):  # the factor's hand-derived linearisation
         r, Js = f.jacobian(*rows_k, obs_k)
         J = jnp.concatenate([Js[j] for j in active], axis=-1)
         s = w_k / f.sigma
         return (jnp.where(w_k > 0.0, r * s, jnp.zeros_like(r)),
-                jnp.where(w_k > 0.0, J * s, jnp.zeros_like(J)))
+                jnp.where(w_k > 0.0, J * s, jnp.zeros_like(J)), r)
 
     if f.jacobian is not None and active:
-        r, J = jax.vmap(given_jacobian)(rows, f.observations, f.sqrt_weight)
+        r, J, r_raw = jax.vmap(given_jacobian)(rows, f.observations, f.sqrt_weight)
     else:
-        r, J = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
+        r, J, r_raw = jax.vmap(value_and_jac)(rows, zeros, f.observations, f.sqrt_weight)
     s = jnp.sum(r * r, axis=-1)
     rho, rho1 = f.loss.rho(s)
     sw = jnp.sqrt(rho1)
@@ -211,7 +226,7 @@ def factor_linearization(problem: Problem, values: dict, f, free: dict):
         H_obs = jnp.einsum("kmi,kmj->kij", J, J)
         g_obs = jnp.einsum("kmi,km->ki", J, r)
     m_eff = jnp.sum(jnp.where(f.sqrt_weight > 0.0, 1, 0)) * r.shape[-1]
-    return 0.5 * jnp.sum(rho), H_obs, g_obs, r, J, m_eff
+    return 0.5 * jnp.sum(rho), H_obs, g_obs, r, J, m_eff, r_raw.reshape(r_raw.shape[0], -1)
 
 
 def factor_exact_hessian(problem: Problem, values: dict, f, free: dict):
@@ -385,8 +400,10 @@ def add_fixed_identity(system: System, layout: Layout, free: dict) -> System:
     return System(H_ss, system.g_s, tuple(V), system.W, system.g_e)
 
 
-def linearize(problem: Problem, layout: Layout, values: dict, free: dict, per_group: bool = False):
-    """Gauss–Newton system at ``values``: returns ``(cost, System, m_eff, groups)``.
+def linearize(problem: Problem, layout: Layout, values: dict, free: dict, per_group: bool = False,
+              residuals: bool = False):
+    """Gauss–Newton system at ``values``: returns ``(cost, System, m_eff, groups)``, and with
+    ``residuals`` a fifth item: per factor group its ``(K, m)`` residuals in its own unit.
 
     ``groups`` is ``None``, or with ``per_group`` each factor group's own system (its share of
     ``JᵀJ``, without the fixed-coordinate identity), whose sum is the total.
@@ -394,9 +411,9 @@ def linearize(problem: Problem, layout: Layout, values: dict, free: dict, per_gr
     system = empty_system(layout)
     cost = jnp.zeros((), jnp.float64)
     m_eff = jnp.zeros((), jnp.int32)
-    groups = []
+    groups, raws = [], []
     for f in problem.factors:
-        c, H_obs, g_obs, _, _, m = factor_linearization(problem, values, f, free)
+        c, H_obs, g_obs, _, _, m, r_raw = factor_linearization(problem, values, f, free)
         if per_group:
             own = scatter_factor(empty_system(layout), layout, f, H_obs, g_obs, active_args(problem, f),
                                  f.chunk is not None)
@@ -406,7 +423,9 @@ def linearize(problem: Problem, layout: Layout, values: dict, free: dict, per_gr
             system = scatter_factor(system, layout, f, H_obs, g_obs, active_args(problem, f), f.chunk is not None)
         cost = cost + c
         m_eff = m_eff + m.astype(jnp.int32)
-    return cost, add_fixed_identity(system, layout, free), m_eff, (tuple(groups) if per_group else None)
+        raws.append(r_raw)
+    out = (cost, add_fixed_identity(system, layout, free), m_eff, (tuple(groups) if per_group else None))
+    return out + (tuple(raws),) if residuals else out
 
 
 def exact_system(problem: Problem, layout: Layout, values: dict, free: dict) -> System:
@@ -442,20 +461,21 @@ def _block_inverse(V):
     batched LAPACK calls (one per eliminated kind) at once on its intra-op pool, and each waits for
     sub-tasks it queued on that same pool, so on a 2-thread pool two of them deadlock (captured: both
     ``tf_XLAEigen`` threads in ``lapack_dtrsm_ffi`` → ``ParallelBatchMap`` waiting, the caller in
-    ``device_get``). ``d`` updates keep the compiled program small (an element-wise Cholesky is
+    ``device_get``). ``d`` updates in one loop keep the compiled program small (an element-wise Cholesky is
     ``O(d³)`` scalar operations).
     """
     d = V.shape[-1]
-    A = V
-    positive = jnp.ones(V.shape[:1], dtype=bool)
-    for k in range(d):
+    lanes = jnp.arange(d)
+
+    def update(k, carry):  # one pivot; a loop, not d unrolled copies, keeps the compiled program small
+        A, positive = carry
         pivot = A[:, k, k]
         positive = positive & (pivot > 0.0)
         inv_pivot = 1.0 / jnp.where(pivot > 0.0, pivot, 1.0)
         row = A[:, k, :] * inv_pivot[:, None]
         col = A[:, :, k]
-        in_row = (np.arange(d) == k)[None, :, None]  # replaced, not corrected: a correction of a
-        in_col = (np.arange(d) == k)[None, None, :]  # large entry would leave its rounding error behind
+        in_row = (lanes == k)[None, :, None]  # replaced, not corrected: a correction of a
+        in_col = (lanes == k)[None, None, :]  # large entry would leave its rounding error behind
         A = jnp.where(
             in_row & in_col,
             inv_pivot[:, None, None],
@@ -465,6 +485,9 @@ def _block_inverse(V):
                 jnp.where(in_col, -(col * inv_pivot[:, None])[:, :, None], A - col[:, :, None] * row[:, None, :]),
             ),
         )
+        return A, positive
+
+    A, positive = jax.lax.fori_loop(0, d, update, (V, jnp.ones(V.shape[:1], dtype=bool)))
     A = 0.5 * (A + jnp.swapaxes(A, -1, -2))
     return jnp.where(positive[:, None, None], A, jnp.nan)
 

@@ -25,6 +25,7 @@ slowest member finishes (see /work/shared/notes/calibration.md).
 from __future__ import annotations
 
 import enum
+import math
 
 import equinox as eqx
 import jax
@@ -116,6 +117,8 @@ class RawSolution(eqx.Module):
         system: undamped Gauss–Newton system at the estimate (for covariances).
         observability: :class:`Observability` at the estimate.
         groups: with ``per_group``, each factor group's own system at the estimate (else None).
+        residuals: per factor group ``(K, m)`` residuals at the estimate in the factor's own unit
+            (from the loop's last linearisation; weight-0 observations included).
     """
 
     values: dict[str, jax.Array]
@@ -127,9 +130,10 @@ class RawSolution(eqx.Module):
     system: linear.System
     observability: Observability
     groups: tuple | None = None
+    residuals: tuple | None = None
 
 
-def _after(x, previous):
+def after(x, previous):
     """``x``, computed only once ``previous`` is: one batched LAPACK call at a time.
 
     XLA:CPU runs independent operations at once on its intra-op pool, and a batched LAPACK call
@@ -157,7 +161,7 @@ def observability(system: linear.System, layout: linear.Layout, options: SolveOp
     ev_e, evec_e = [], []
     w = None
     for V in system.V:
-        w, U = _scaled_eigh(_after(V, w))
+        w, U = _scaled_eigh(after(V, w))
         ev_e.append(w)
         evec_e.append(U)
         bad = w < options.rank_rtol * jnp.max(w, axis=-1, keepdims=True)
@@ -168,7 +172,7 @@ def observability(system: linear.System, layout: linear.Layout, options: SolveOp
         # is already reported by the block analysis above).
         damp_e = tuple(1e-300 + jnp.zeros(V.shape[:-1], V.dtype) for V in system.V)
         S, _ = linear.reduced_system(system, None, damp_e)
-        w_s, U_s = _scaled_eigh(_after(S, w))
+        w_s, U_s = _scaled_eigh(after(S, w))
         deficient = deficient | jnp.any(w_s < options.rank_rtol * jnp.max(w_s)) | ~jnp.all(jnp.isfinite(w_s))
     else:
         w_s = jnp.ones((n,), jnp.float64)
@@ -198,6 +202,13 @@ def _grad_ratio(system, diag_jtj_s, diag_jtj_e, cost):
     return out
 
 
+def _residual_size(f, values: dict) -> int:
+    """Components of one observation's residual (``f.fn`` traced for its shape only)."""
+    rows = tuple(jax.ShapeDtypeStruct(values[a].shape[1:], values[a].dtype) for a in f.args)
+    obs = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape[1:], a.dtype), f.observations)
+    return math.prod(jax.eval_shape(f.fn, *rows, obs).shape)
+
+
 def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group: bool = False) -> RawSolution:
     """Pure, jit- and vmap-able Levenberg–Marquardt solve of ``problem`` from its start values.
 
@@ -216,7 +227,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group
     fixed_diag_s, fixed_diag_e = linear.diagonal(linear.add_fixed_identity(linear.empty_system(layout), layout, free))
 
     def lin(x):
-        return linear.linearize(problem, layout, x, free, per_group)
+        return linear.linearize(problem, layout, x, free, per_group, residuals=True)
 
     def jtj_diag(system):
         ds, de = linear.diagonal(system)
@@ -234,6 +245,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group
         x=x0,
         system=linear.empty_system(layout),
         groups=tuple(linear.empty_system(layout) for _ in problem.factors) if per_group else None,
+        residuals=tuple(jnp.zeros((f.num_obs, _residual_size(f, x0)), jnp.float64) for f in problem.factors),
         cost=jnp.asarray(jnp.inf, jnp.float64),
         mu=jnp.asarray(options.mu0, jnp.float64),
         nu=jnp.asarray(2.0, jnp.float64),
@@ -265,7 +277,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group
         h_e = tuple(jnp.where(h_ok & ~first, h, 0.0) for h in h_e)
         x_new = linear.retract_all(problem, st["x"], linear.deltas_to_dict(h_s, h_e, layout))
         x_new = jax.tree.map(lambda a, b: jnp.where(first, a, b), st["x"], x_new)
-        cost_new, sys_new, m_eff, groups_new = lin(x_new)
+        cost_new, sys_new, m_eff, groups_new, res_new = lin(x_new)
         Hh_s, Hh_e = linear.matvec(system, h_s, h_e)
         hHh = _dot(h_s, h_e, Hh_s, Hh_e)
         gh = _dot(system.g_s, system.g_e, h_s, h_e)
@@ -318,6 +330,7 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group
             x=pick(x_new, st["x"]),
             system=pick(sys_new, system),
             groups=pick(groups_new, st["groups"]) if per_group else None,
+            residuals=jax.tree.map(lambda u, v: jnp.where(accept | first, u, v), res_new, st["residuals"]),
             cost=jnp.where(accept | first, cost_new, cost),
             mu=new_mu,
             nu=new_nu,
@@ -351,4 +364,5 @@ def lm_solve(problem: Problem, options: SolveOptions = SolveOptions(), per_group
         system=st["system"],
         observability=obs,
         groups=st["groups"],
+        residuals=st["residuals"],
     )
