@@ -125,6 +125,30 @@ def _check_view(points: np.ndarray, pixels: np.ndarray, label: str) -> None:
             )
 
 
+def _check_views(pts_list: list, pix_list: list, view_names) -> None:
+    """:func:`_check_view` of every view, one batch per point count; a view the batch flags is checked on
+    its own, which raises naming it (the first such view in order)."""
+    by_size: dict[int, list[int]] = {}
+    for i, p in enumerate(pix_list):
+        by_size.setdefault(p.shape[0], []).append(i)
+    flagged = []
+    for n, idx in by_size.items():
+        ok = np.full(len(idx), n >= 4)
+        for arr in (np.stack([pts_list[i] for i in idx]), np.stack([pix_list[i] for i in idx])):
+            with np.errstate(invalid="ignore", over="ignore"):
+                c = arr - arr.mean(axis=1, keepdims=True)
+                sxx, syy = np.sum(c[..., 0] ** 2, axis=1), np.sum(c[..., 1] ** 2, axis=1)
+                sxy = np.sum(c[..., 0] * c[..., 1], axis=1)
+                half_gap = np.hypot(0.5 * (sxx - syy), sxy)
+                lam_max = 0.5 * (sxx + syy) + half_gap
+                lam_min = np.maximum(0.5 * (sxx + syy) - half_gap, 0.0)
+                ok &= np.all(np.isfinite(arr), axis=(1, 2)) & (lam_max > 0.0) & (
+                    np.sqrt(lam_min) > _COLLINEAR_RTOL * np.sqrt(lam_max))
+        flagged += [i for i, good in zip(idx, ok) if not good]
+    for i in sorted(flagged):
+        _check_view(pts_list[i], pix_list[i], _view_label(view_names, i))
+
+
 def _dlt_matrix(xn: np.ndarray, un: np.ndarray) -> np.ndarray:
     """(..., N, 2) normalised target points and pixels -> (..., 2N, 9) DLT matrix."""
     x, y = xn[..., 0], xn[..., 1]
@@ -287,8 +311,8 @@ def estimate_homographies(
                 f"{label}: {pts_list[i].shape[0]} target points but {pix_list[i].shape[0]} pixels; "
                 "they must correspond one to one"
             )
-        if not _checked:
-            _check_view(pts_list[i], pix_list[i], label)
+    if not _checked:
+        _check_views(pts_list, pix_list, view_names)
 
     H = np.empty((V, 3, 3))
     by_size: dict[int, list[int]] = {}

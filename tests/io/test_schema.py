@@ -209,3 +209,47 @@ def test_observation_files_of_jcalib_itself_round_trip(tmp_path):
     obs = parse_observations(OBS, "obs.json")
     again = load_observations(save_observations(tmp_path / "o.json", obs))
     assert json.loads((tmp_path / "o.json").read_text()) == again.to_dict() == obs.to_dict()
+
+
+_ODD_NUMBERS = [True, False, None, "812.4", float("nan"), float("inf"), np.float64(812.4), np.int64(812), 2**80, 812,
+                812.4, [812.4], {"u": 1.0}]
+
+
+@pytest.mark.parametrize("where", ["pixel", "row", "pixels", "index", "index list"])
+@pytest.mark.parametrize("odd", range(len(_ODD_NUMBERS)), ids=[repr(v)[:12] for v in _ODD_NUMBERS])
+def test_the_fast_number_check_refuses_whatever_the_schema_refuses(where, odd):
+    """Detections whose numbers pass a quick check skip pydantic's per-number validation: every value the
+    schema refuses must still be refused, with the schema's own message and key path."""
+    from jcalib.io.schema.base import validate
+    from jcalib.io.schema.observations import ObservationsDocument
+
+    o = copy.deepcopy(OBS)
+    det = o["stations"][0]["detections"][0]
+    value = copy.deepcopy(_ODD_NUMBERS[odd])
+    if where == "pixel":
+        det["pixels"][1][0] = value
+    elif where == "row":
+        det["pixels"][1] = [value, 601.0, 3.0] if isinstance(value, float) else value
+    elif where == "pixels":
+        det["pixels"] = value
+    elif where == "index":
+        det["point_index"][1] = value
+    else:
+        det["point_index"] = value
+    try:
+        validate(ObservationsDocument, o, "obs.json")  # the schema alone, every number through pydantic
+        schema_says = None
+    except SchemaError as e:
+        schema_says = str(e)
+    try:
+        validate_observations_document(o, "obs.json")
+        ours = None
+    except SchemaError as e:
+        ours = str(e)
+    except BadInputError:  # refused later, by the plausibility checks, never accepted where the schema refuses
+        ours = "refused"
+    if schema_says is not None:
+        assert ours is not None, f"accepted what the schema refuses: {schema_says}"
+        if ours != "refused":
+            # same key path and reason (ours names the station by its id, not its index)
+            assert ours.split("detections[0]", 1)[-1] == schema_says.split("detections[0]", 1)[-1], (ours, schema_says)
