@@ -211,7 +211,7 @@ def test_observation_files_of_jcalib_itself_round_trip(tmp_path):
     assert json.loads((tmp_path / "o.json").read_text()) == again.to_dict() == obs.to_dict()
 
 
-_ODD_NUMBERS = [True, False, None, "812.4", float("nan"), float("inf"), np.float64(812.4), np.int64(812), 2**80, 812,
+_ODD_NUMBERS = [True, False, None, "812.4", float("nan"), float("inf"), np.float64(812.4), np.int64(812), 2**80, 10**400, 812,
                 812.4, [812.4], {"u": 1.0}]
 
 

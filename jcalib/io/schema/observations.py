@@ -16,6 +16,8 @@ or a mapping robot -> list, as sessions record them) and ``poses: [{camera, targ
 
 from __future__ import annotations
 
+import itertools
+
 import warnings
 from typing import Annotated, Any, Literal
 
@@ -239,12 +241,17 @@ def _numbers_checked(det: Any) -> bool:
     if not isinstance(det, dict) or "tool" in det:
         return False
     px, idx = det.get("pixels"), det.get("point_index")
-    if type(px) is not list or type(idx) is not list or not all(type(i) is int for i in idx):
+    if type(px) is not list or type(idx) is not list or not set(map(type, idx)) <= {int}:
         return False
-    for row in px:
-        if type(row) is not list or len(row) != 2 or not all(type(v) is float or type(v) is int for v in row):
-            return False
-    return bool(np.all(np.isfinite(np.array(px, dtype=np.float64)))) if px else True
+    # exact types (bool is not int here, numpy scalars go the long way), C-speed iteration
+    if not set(map(type, px)) <= {list} or not set(map(len, px)) <= {2}:
+        return False
+    if not set(map(type, itertools.chain.from_iterable(px))) <= {float, int}:
+        return False
+    try:
+        return bool(np.all(np.isfinite(np.array(px, dtype=np.float64)))) if px else True
+    except OverflowError:  # an int beyond float range: the schema says what is wrong
+        return False
 
 
 def _skeleton(data: Any) -> Any:
