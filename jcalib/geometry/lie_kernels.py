@@ -25,9 +25,11 @@ __all__ = [
     "se3_from_matrix",
     "se3_inverse",
     "se3_log",
+    "se3_right_jacobian_inverse",
     "se3_to_matrix",
     "skew",
     "so3_exp",
+    "so3_right_jacobian_inverse",
     "so3_log",
     "so3_log_parts",
 ]
@@ -253,3 +255,57 @@ def se3_to_matrix(pose, xp):
 def se3_from_matrix(mat, xp):
     """Poses ``(..., 7)`` (``w >= 0``) of 4x4 homogeneous matrices ``(..., 4, 4)`` (bottom row not read)."""
     return xp.concatenate([matrix_to_quat(mat[..., :3, :3], xp), mat[..., :3, 3]], axis=-1)
+
+
+#: Below this squared angle (rad^2, angle < 0.1 rad) the SE(3) Jacobian's coefficients use series to
+#: theta^6 (first dropped term < 1e-16 relative); above it the closed forms lose at most ~1e-10 of the
+#: (theta^3-sized) terms they multiply to cancellation.
+_JACOBIAN_SERIES_SQ = 1e-2
+
+
+def _jr_inverse_d(t2, small, xp):
+    """``D = (1 - (theta/2) cot(theta/2)) / theta^2`` (series below ``_JACOBIAN_SERIES_SQ``)."""
+    t2s = xp.where(small, 1.0, t2)
+    half = 0.5 * xp.sqrt(t2s)
+    return xp.where(small, 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0 + t2 * t2 * t2 / 1209600.0,
+                    (1.0 - half * xp.cos(half) / xp.sin(half)) / t2s)
+
+
+def so3_right_jacobian_inverse(omega, xp):
+    """``J_r(omega)^-1 = I + W/2 + D W^2 (..., 3, 3)``: ``Log(Exp(omega) Exp(d)) = omega + J_r^-1 d + O(d^2)``."""
+    t2 = dot(omega, omega, xp)
+    W = skew(omega, xp)
+    d = _jr_inverse_d(t2, t2 < _JACOBIAN_SERIES_SQ, xp)
+    return xp.broadcast_to(xp.eye(3), W.shape) + 0.5 * W + d[..., None, None] * (W @ W)
+
+
+def se3_right_jacobian_inverse(xi, xp):
+    """``J_r(xi)^-1 (..., 6, 6)`` of tangents ``xi = (omega, v) (..., 6)``: ``Log(Exp(xi) Exp(d)) = xi +
+    J_r(xi)^-1 d + O(d^2)``, the derivative of a pose's logarithm under a right perturbation.
+
+    Block form in the ``(omega, v)`` order: ``[[A, 0], [-A Q A, A]]`` with ``A`` the inverse right
+    Jacobian of SO(3) (:func:`so3_right_jacobian_inverse`) and ``Q = Q_l(-omega, -v)``, Barfoot's
+    coupling block of the left Jacobian. The left one is ``J_l(xi)^-1 = se3_right_jacobian_inverse(-xi)``.
+    """
+    omega, v = xi[..., :3], xi[..., 3:]
+    t2 = dot(omega, omega, xp)
+    small = t2 < _JACOBIAN_SERIES_SQ
+    t2s = xp.where(small, 1.0, t2)
+    th = xp.sqrt(t2s)
+    s, c = xp.sin(th), xp.cos(th)
+    t4, t6 = t2 * t2, t2 * t2 * t2
+    c1 = xp.where(small, 1.0 / 6.0 - t2 / 120.0 + t4 / 5040.0 - t6 / 362880.0, (th - s) / (t2s * th))
+    c2 = xp.where(small, 1.0 / 24.0 - t2 / 720.0 + t4 / 40320.0 - t6 / 3628800.0,
+                  (t2s + 2.0 * c - 2.0) / (2.0 * t2s * t2s))
+    c3 = xp.where(small, 1.0 / 120.0 - t2 / 2520.0 + t4 / 120960.0 - t6 / 9979200.0,
+                  (2.0 * th - 3.0 * s + th * c) / (2.0 * t2s * t2s * th))
+    W, P = skew(omega, xp), skew(v, xp)
+    WP, PW = W @ P, P @ W
+    WPW = WP @ W
+    # Q_l(-omega, -v): every product of k skew factors changes sign k times
+    Q = (-0.5 * P + c1[..., None, None] * (WP + PW - WPW) + c2[..., None, None] * (-(W @ WP) - PW @ W + 3.0 * WPW)
+         + c3[..., None, None] * (WPW @ W + W @ WPW))
+    A = xp.broadcast_to(xp.eye(3), W.shape) + 0.5 * W + _jr_inverse_d(t2, small, xp)[..., None, None] * (W @ W)
+    zero = xp.zeros_like(A)
+    return xp.concatenate([xp.concatenate([A, zero], axis=-1),
+                           xp.concatenate([-(A @ Q @ A), A], axis=-1)], axis=-2)

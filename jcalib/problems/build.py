@@ -285,9 +285,10 @@ class _Builder:
                  coord_names=list(model.param_names), entry_label=f"{g.label(r)} kinematics", prior_mean=nominal,
                  prior_sqrt_info=np.diag(np.where(sel.free, 1.0 / kinematic_prior_sigma(model), 0.0)))
         n = stations.size
+        fn, jac = kinematic(model)
         self.factors.append(FactorGroup(
-            f"kinematic:{r}", kinematic(model), (kname, name), (np.zeros(n, np.int32), np.arange(n, dtype=np.int32)),
-            (q, np.broadcast_to(S, (n, 6, 6)).copy())))
+            f"kinematic:{r}", fn, (kname, name), (np.zeros(n, np.int32), np.arange(n, dtype=np.int32)),
+            (q, np.broadcast_to(S, (n, 6, 6)).copy()), jacobian=jac))
         self.chains.append((name,))
 
     def shared_variables(self) -> None:

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jcalib.geometry import kinematic_models, lie
+from jcalib.geometry.lie_kernels import se3_right_jacobian_inverse
 from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian, chain_pose
 from jcalib.residuals.reprojection import recipe
 
@@ -82,7 +83,7 @@ def _model_key(model) -> str:
 
 
 def kinematic(model):
-    """A robot's flange pose against its kinematics, whitened, ``(6,)``.
+    """A robot's flange pose against its kinematics, whitened, ``(6,)``: ``(fn, jacobian)``.
 
     ``fn(params (P,), T_base_flange (7,), obs)`` with ``obs = (q (n,), S (6, 6))``: ``S · Log(FK(params, q)⁻¹ ·
     T_base_flange)``, the station's flange pose as a right perturbation of the pose that the kinematic
@@ -90,6 +91,11 @@ def kinematic(model):
     values ``q`` (rad, m), whitened by the square-root information ``S`` of the robot's repeatability.
     With the flange poses eliminated per station, this factor carries each station's evidence about
     the flange (from the cameras, contacts, pose sensors) into the kinematic parameters.
+
+    ``jacobian`` is the Lie-group chain rule: with ``ξ = Log(M⁻¹ F)``, ``∂r/∂δ_F = S J_r(ξ)⁻¹`` and
+    ``∂r/∂params = −S J_l(ξ)⁻¹ E``, ``E`` the model's own derivative ``(M⁻¹ ∂M/∂params)∨`` by forward-mode
+    autodiff of the forward kinematics only (not through the matrix-to-quaternion branches and the
+    logarithm's series, which made this factor half of a kinematic cell's compiled program).
     """
     key = _model_key(model)
     if key not in _KINEMATIC:
@@ -98,7 +104,20 @@ def kinematic(model):
             T_model = lie.se3_from_matrix(kinematic_models.forward(model, params, q))
             return S @ lie.se3_log(lie.se3_compose(lie.se3_inverse(T_model), T_base_flange))
 
+        def jacobian(params, T_base_flange, obs):
+            q, S = obs
+            M, tangent = jax.linearize(lambda p: kinematic_models.forward(model, p, q), params)  # one primal pass
+            dM = jnp.moveaxis(jax.vmap(tangent)(jnp.eye(params.shape[0], dtype=params.dtype)), 0, -1)  # (4, 4, P)
+            R = M[:3, :3]
+            Z = jnp.einsum("ji,jkp->ikp", R, dM[:3, :3])  # Rᵀ ∂R: skew per parameter
+            w = 0.5 * jnp.stack([Z[2, 1] - Z[1, 2], Z[0, 2] - Z[2, 0], Z[1, 0] - Z[0, 1]])
+            E = jnp.concatenate([w, jnp.einsum("ji,jp->ip", R, dM[:3, 3])])  # (6, P)
+            xi = lie.se3_log(lie.se3_compose(lie.se3_inverse(lie.se3_from_matrix(M)), T_base_flange))
+            J_F = S @ se3_right_jacobian_inverse(xi, jnp)
+            J_p = -(S @ se3_right_jacobian_inverse(-xi, jnp) @ E)
+            return S @ xi, (J_p, J_F)
+
         fn.__name__ = "kinematic"
-        fn.__jcalib_key__ = recipe("kinematic", key)
-        _KINEMATIC[key] = fn
+        fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("kinematic", key)
+        _KINEMATIC[key] = (fn, jacobian)
     return _KINEMATIC[key]

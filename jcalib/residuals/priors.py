@@ -31,3 +31,17 @@ def gaussian_prior_residual(manifold) -> Callable:
     prior.__name__ = f"gaussian_prior_{type(manifold).__name__}"
     prior.__jcalib_key__ = repr(("gaussian_prior", type(manifold).__name__, manifold.param_dim))
     return prior
+
+
+@functools.cache
+def gaussian_prior_jacobian(manifold) -> Callable:
+    """The hand-derived linearisation of :func:`gaussian_prior_residual` (``FactorGroup.jacobian``):
+    ``(r, (S · ∂ local(mean, x ⊞ δ)/∂δ,))``, the manifold's own ``local_jacobian`` (SE(3)'s inverse right
+    Jacobian) instead of autodiff through its logarithm's series branches."""
+
+    def jacobian(x, obs):
+        mean, sqrt_info = obs
+        return jnp.matmul(sqrt_info, manifold.local(mean, x)), (jnp.matmul(sqrt_info, manifold.local_jacobian(mean, x)),)
+
+    jacobian.__jcalib_key__ = repr(("gaussian_prior_jacobian", type(manifold).__name__, manifold.param_dim))
+    return jacobian

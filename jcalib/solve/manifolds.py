@@ -75,6 +75,10 @@ class Euclidean(eqx.Module):
         """``y - x (dim,)``."""
         return y - x
 
+    def local_jacobian(self, x, y):
+        """``∂ local(x, y ⊞ δ) / ∂δ`` at ``δ = 0``: the identity."""
+        return jnp.eye(self.dim, dtype=y.dtype)
+
     def normalize(self, x):
         return x
 
@@ -105,6 +109,10 @@ class SO3(eqx.Module):
     def local(self, x, y):
         """``Log(x⁻¹ y) (3,) rad``."""
         return K.so3_log(quat_multiply(quat_conjugate(x), y), jnp)
+
+    def local_jacobian(self, x, y):
+        """``∂ local(x, y · Exp(δ)) / ∂δ`` at ``δ = 0``: SO(3)'s inverse right Jacobian at ``local(x, y)``."""
+        return K.so3_right_jacobian_inverse(self.local(x, y), jnp)
 
     def normalize(self, x):
         """Unit norm and ``w >= 0`` (the sign convention of DESIGN.md)."""
@@ -147,6 +155,10 @@ class SE3(eqx.Module):
     def local(self, x, y):
         """``Log(x⁻¹ y) (6,)`` in the order ``(rx, ry, rz, tx, ty, tz)``."""
         return K.se3_log(K.se3_compose(K.se3_inverse(x, jnp), y, jnp), jnp)
+
+    def local_jacobian(self, x, y):
+        """``∂ local(x, y · Exp(δ)) / ∂δ`` at ``δ = 0``: SE(3)'s inverse right Jacobian at ``local(x, y)``."""
+        return K.se3_right_jacobian_inverse(self.local(x, y), jnp)
 
     def normalize(self, x):
         """Unit quaternion with ``w >= 0``; translation unchanged."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.residuals.losses import Loss, TrivialLoss
-from jcalib.residuals.priors import gaussian_prior_residual
+from jcalib.residuals.priors import gaussian_prior_jacobian, gaussian_prior_residual
 from jcalib.solve.manifolds import SE3, SO3, Euclidean
 
 
@@ -333,6 +333,7 @@ class Problem(eqx.Module):
                         (v.name,),
                         (np.arange(v.num, dtype=np.int32),),
                         (v.prior_mean, v.prior_sqrt_info),
+                        jacobian=gaussian_prior_jacobian(v.manifold),
                     )
                 )
                 v = eqx.tree_at(lambda w: (w.prior_mean, w.prior_sqrt_info), v, (None, None),

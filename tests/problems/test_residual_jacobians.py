@@ -302,3 +302,105 @@ def test_tool_axis_jacobian_equals_autodiff_through_the_foot(name, offset_px, al
     for mine, theirs in zip(hand, ref):
         # equal at the exact foot; the foot's three Gauss–Newton steps leave far less than this
         np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-8 * scale)
+
+
+@st.composite
+def _tangents(draw):
+    """SE(3) tangents with rotations from 0 through the series threshold (0.1 rad) to near π."""
+    axis = np.array(draw(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)))
+    n = np.linalg.norm(axis)
+    axis = axis / n if n > 1e-3 else np.array([0.0, 0.0, 1.0])
+    angle = draw(st.sampled_from([0.0, 1e-8, 1e-4, 0.05, 0.0999, 0.1001, 0.5, 2.0, 3.0]))
+    v = np.array(draw(st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3)))
+    return np.r_[angle * axis, v]
+
+
+@jax.jit
+def _jr_inv_both(xi):
+    from jcalib.geometry import lie_kernels as K
+
+    T = K.se3_exp(xi, jnp)
+    ref = jax.jacfwd(lambda d: K.se3_log(K.se3_compose(T, K.se3_exp(d, jnp), jnp), jnp))(jnp.zeros(6))
+    return K.se3_right_jacobian_inverse(xi, jnp), ref, K.so3_right_jacobian_inverse(xi[:3], jnp)
+
+
+@given(_tangents())
+def test_se3_right_jacobian_inverse_is_the_derivative_of_the_log(xi):
+    """``J_r(ξ)⁻¹`` (closed form and series) against autodiff of ``Log(Exp(ξ) Exp(δ))`` at ``δ = 0``."""
+    mine, ref, so3 = _jr_inv_both(jnp.asarray(xi))
+    np.testing.assert_allclose(mine, ref, rtol=0, atol=1e-12 * max(1.0, float(np.abs(xi[3:]).max())))
+    np.testing.assert_allclose(so3, mine[:3, :3], rtol=0, atol=1e-15)
+
+
+@functools.cache
+def _prior_both(manifold):
+    from jcalib.residuals.priors import gaussian_prior_jacobian, gaussian_prior_residual
+
+    fn, jac = gaussian_prior_residual(manifold), gaussian_prior_jacobian(manifold)
+
+    def both(x, obs):
+        r, (J,) = jac(x, obs)
+        ref = jax.jacfwd(lambda d: fn(manifold.retract(x, d), obs))(jnp.zeros(manifold.tangent_dim))
+        return r, J, fn(x, obs), ref
+
+    return jax.jit(both)
+
+
+@given(st.sampled_from(["se3", "so3", "euclidean"]), st.floats(0.0, 3.0), st.integers(0, 2**31 - 1))
+def test_prior_jacobian_equals_autodiff(kind, angle, seed):
+    from jcalib.solve import SO3
+
+    rng = np.random.default_rng(seed)
+    if kind == "euclidean":
+        m, mean, x = Euclidean(4), rng.standard_normal(4), rng.standard_normal(4)
+    else:
+        m = SE3() if kind == "se3" else SO3()
+        mean = _pose(rng, 0.5)[: m.param_dim]
+        w = rng.standard_normal(3)
+        d = np.r_[angle * w / np.linalg.norm(w), 0.3 * rng.standard_normal(3)][: m.tangent_dim]
+        x = np.asarray(m.retract(jnp.asarray(mean), jnp.asarray(d)))
+    S = np.triu(rng.standard_normal((m.tangent_dim, m.tangent_dim))) + 3.0 * np.eye(m.tangent_dim)
+    r, J, r_ref, ref = _prior_both(m)(jnp.asarray(x), (jnp.asarray(mean), jnp.asarray(S)))
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(J, ref, rtol=0, atol=1e-10)
+
+
+@functools.cache
+def _kinematic_both(preset):
+    from jcalib.geometry import kinematic_models
+    from jcalib.residuals.pose import kinematic
+
+    model = kinematic_models.PRESETS[preset]()
+    fn, jac = kinematic(model)
+
+    def both(params, F, obs):
+        r, hand = jac(params, F, obs)
+
+        def through_retract(dp, dF):
+            return fn(params + dp, SE3().retract(F, dF), obs)
+
+        ref = jax.jacfwd(through_retract, argnums=(0, 1))(jnp.zeros_like(params), jnp.zeros(6))
+        return r, hand, fn(params, F, obs), ref
+
+    return model, jax.jit(both)
+
+
+@given(st.integers(0, 2**31 - 1))
+def test_kinematic_jacobian_equals_autodiff(seed):
+    """A flange pose against a 6-axis arm's kinematics: the Lie chain rule (forward-mode FK only) against
+    autodiff of the whole residual, at perturbed parameters and a flange pose off the model's."""
+    from jcalib.geometry import kinematic_models
+
+    model, both = _kinematic_both("kuka_kr10_r1100_sixx")
+    rng = np.random.default_rng(seed)
+    params = np.asarray(model.nominal, np.float64) + 1e-3 * rng.standard_normal(model.num_params)
+    q = rng.uniform(-1.5, 1.5, 6)
+    M = np.asarray(kinematic_models.forward(model, jnp.asarray(params), jnp.asarray(q)))
+    off = np.asarray(SE3().retract(jnp.asarray(np.r_[1.0, 0, 0, 0, 0, 0, 0]), jnp.asarray(0.05 * rng.standard_normal(6))))
+    F = np.asarray(lie.se3_compose(lie.se3_from_matrix(jnp.asarray(M)), jnp.asarray(off)))
+    S = np.diag(1.0 / np.r_[np.full(3, 1e-4), np.full(3, 2e-5)])
+    r, hand, r_ref, ref = both(jnp.asarray(params), jnp.asarray(F), (jnp.asarray(q), jnp.asarray(S)))
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-9 * float(np.abs(r_ref).max()))
+    for mine, theirs in zip(hand, ref):
+        scale = float(jnp.max(jnp.abs(theirs)))
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-9 * scale)
