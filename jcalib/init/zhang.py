@@ -552,28 +552,35 @@ def _focal_spread(closed: _Closed, H: np.ndarray, K: np.ndarray, check: bool, ma
     if sigma == 0.0 or not check:
         return 0.0 if sigma == 0.0 else float("nan")
     rng = np.random.default_rng(0)
-    if len({p.shape[0] for p in closed.pix}) == 1:
-        pix = np.stack(closed.pix)
-        draws = pix[None] + sigma * rng.standard_normal((_MC_DRAWS,) + pix.shape)
-    else:
-        draws = [[p + sigma * rng.standard_normal(p.shape) for p in closed.pix] for _ in range(_MC_DRAWS)]
+    same_count = len({p.shape[0] for p in closed.pix}) == 1
+
+    def draw(num, pix_list):  # noisy copies of the views' pixels, drawn only when needed
+        if same_count:
+            pix = np.stack(pix_list)
+            return pix[None] + sigma * rng.standard_normal((num,) + pix.shape)
+        return [[p + sigma * rng.standard_normal(p.shape) for p in pix_list] for _ in range(num)]
 
     def spread(fx):  # of 1/fx^2 (linear in B: finite, also when the focal length runs off to infinity)
         w = 1.0 / np.asarray(fx) ** 2
         return float(0.5 * np.std(w, ddof=1) * K[0, 0] ** 2) if len(fx) >= 2 else float("inf")
 
     V = len(closed.pts)
-    if V > _MC_SCREEN_VIEWS:
+    subset = V > _MC_SCREEN_VIEWS
+    if subset:
         idx = np.linspace(0, V - 1, _MC_SCREEN_VIEWS).round().astype(int)
         screen = _Closed([closed.pts[i] for i in idx], [closed.pix[i] for i in idx], closed.refine,
                          None, closed.kw)
-        screen_draws = draws[:_MC_SCREEN_DRAWS, idx] if isinstance(draws, np.ndarray) else [
-            [d[i] for i in idx] for d in draws[:_MC_SCREEN_DRAWS]]
     else:
-        screen, screen_draws = closed, draws[:_MC_SCREEN_DRAWS]
+        screen = closed
+    screen_draws = draw(_MC_SCREEN_DRAWS, screen.pix)
     fx, failures = _fx_of_draws(screen, screen_draws)
     rel = spread(fx)
     if failures or rel > 0.25 * max_rel_std:
+        if subset:
+            draws = draw(_MC_DRAWS, closed.pix)
+        else:  # the screening draws and the rest of the same stream
+            rest = draw(_MC_DRAWS - _MC_SCREEN_DRAWS, closed.pix)
+            draws = np.concatenate([screen_draws, rest]) if same_count else screen_draws + rest
         fx, failures = _fx_of_draws(closed, draws)
         rel = spread(fx)
     if failures > _MC_DRAWS // 4 or rel > max_rel_std:

@@ -178,7 +178,9 @@ def _flange_pose(value: Any, where: str) -> np.ndarray:
     return T
 
 
-def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict) -> Detection:
+def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict,
+                     pixels: np.ndarray | None = None) -> Detection:
+    """One detection; ``pixels``: its pixel array when the schema check already made it."""
     if not isinstance(d, dict):
         raise _fail(where, "a detection must be a mapping")
     camera = d.get("camera")
@@ -199,7 +201,8 @@ def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict) -
     target = d.get("target")
     if target not in obs_targets:
         raise _fail(where, f"target {target!r} is not listed in 'targets' ({', '.join(obs_targets)})")
-    pixels = _array(d.get("pixels"), where + ".pixels", ndim=2, last=2)
+    if pixels is None:
+        pixels = _array(d.get("pixels"), where + ".pixels", ndim=2, last=2)
     try:
         index = np.asarray(d.get("point_index"), dtype=np.int64)
     except (TypeError, ValueError):
@@ -232,7 +235,7 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
         raise _fail(source, f"expected a mapping with 'schema: {SCHEMA}'")
     if data.get("schema") != SCHEMA:
         raise _fail(source, f"schema is {data.get('schema')!r}; expected '{SCHEMA}'")
-    validate_observations_document(data, source)  # types, keys, pixels in the image, units (io.schema)
+    checked = validate_observations_document(data, source)  # types, keys, pixels in the image, units (io.schema)
     cameras: dict[str, tuple[int, int]] = {}
     for name, entry in (data.get("cameras") or {}).items():
         size = (entry or {}).get("image_size")
@@ -269,7 +272,7 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
                                                      f"(T_<robot>_flange, m), got {str(fp)[:80]}")
             flange_poses = {r: _flange_pose(v, f"{where}.flange_poses.{r}") for r, v in fp.items()}
         dets = tuple(
-            _parse_detection(d, f"{where}.detections[{j}]", cameras, targets)
+            _parse_detection(d, f"{where}.detections[{j}]", cameras, targets, checked.get(id(d)))
             for j, d in enumerate(s.get("detections") or [])
         )
         contacts = tuple(

@@ -3,6 +3,7 @@ the value received and what was expected."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -125,8 +126,12 @@ def field_json(value: Any, where: str) -> Any:
             out[k] = field_json(v, f"{where}.{k}")
         return out
     if isinstance(value, (list, tuple)):
-        if all(type(v) is float for v in value) and all(map(math.isfinite, value)):
+        if set(map(type, value)) <= {float} and all(map(math.isfinite, value)):
             return list(value)  # the common leaf: finite floats
+        if value and set(map(type, value)) <= {list, tuple}:  # rows of finite floats (matrices)
+            flat = list(itertools.chain.from_iterable(value))
+            if set(map(type, flat)) <= {float} and all(map(math.isfinite, flat)):
+                return [list(row) for row in value]
         return [field_json(v, f"{where}[{i}]") for i, v in enumerate(value)]
     raise field_fail(
         where, f"expected a JSON value (number, string, bool, list, mapping), got {short_repr(value)}"

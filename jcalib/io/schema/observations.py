@@ -174,7 +174,7 @@ def warn_pixels_outside(source: str, outside: dict[str, list]) -> None:
 
 
 def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, problems: list,
-                   outside: dict) -> None:
+                   outside: dict, checked: dict[int, np.ndarray]) -> None:
     where = f"stations[{i}]"
     poses = {"T_base_flange": st["T_base_flange"]} if st.get("T_base_flange") is not None else {}
     poses.update({f"flange_poses.{r}": T for r, T in (st.get("flange_poses") or {}).items()})
@@ -203,7 +203,10 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
                 problems.append((f"{at}.target", f"target {tgt!r} is not listed in 'targets'"
                                                  f"{did_you_mean(tgt, targets)} (listed: {', '.join(targets) or 'none'})"))
                 continue
-            index, px, key = det["point_index"], np.asarray(det["pixels"], dtype=np.float64).reshape(-1, 2), "pixels"
+            px = checked.get(id(det))
+            if px is None:
+                px = np.asarray(det["pixels"], dtype=np.float64).reshape(-1, 2)
+            index, key = det["point_index"], "pixels"
             if len(index) != len(px):
                 problems.append((at, f"point_index has {len(index)} entries but pixels has {len(px)} rows; they pair "
                                      "one to one"))
@@ -234,45 +237,53 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
                     entry[2], entry[3] = f"{at}.{key}" + ("" if key == "pixel" else f"[{k}]"), px[k]
 
 
-def _numbers_checked(det: Any) -> bool:
-    """Whether a target detection's ``pixels`` and ``point_index`` pass what the schema asks of them (lists
-    of ``[u, v]`` finite numbers, not bools; a list of ints), checked without pydantic (its per-number
-    validation was a quarter of a 400-view calibration's host time)."""
+def _numbers_checked(det: Any) -> np.ndarray | None:
+    """A target detection's ``pixels`` as an ``(N, 2)`` array when they and ``point_index`` pass what the
+    schema asks of them (lists of ``[u, v]`` finite numbers, not bools; a list of ints), else None.
+    Checked without pydantic, whose per-number validation was a quarter of a 400-view calibration's host
+    time."""
     if not isinstance(det, dict) or "tool" in det:
-        return False
+        return None
     px, idx = det.get("pixels"), det.get("point_index")
-    if type(px) is not list or type(idx) is not list or not set(map(type, idx)) <= {int}:
-        return False
+    if type(px) is not list or not px or type(idx) is not list or not set(map(type, idx)) <= {int}:
+        return None  # (an empty list takes the long way, to the parser's message)
     # exact types (bool is not int here, numpy scalars go the long way), C-speed iteration
     if not set(map(type, px)) <= {list} or not set(map(len, px)) <= {2}:
-        return False
+        return None
     if not set(map(type, itertools.chain.from_iterable(px))) <= {float, int}:
-        return False
+        return None
     try:
-        return bool(np.all(np.isfinite(np.array(px, dtype=np.float64)))) if px else True
+        arr = np.array(px, dtype=np.float64).reshape(-1, 2)
     except OverflowError:  # an int beyond float range: the schema says what is wrong
-        return False
+        return None
+    return arr if np.all(np.isfinite(arr)) else None
 
 
-def _skeleton(data: Any) -> Any:
+def _skeleton(data: Any) -> tuple[Any, dict[int, np.ndarray]]:
     """``data`` with the number lists of target detections that :func:`_numbers_checked` accepts emptied
-    (shallow copies: the document is not changed); pydantic checks the rest."""
+    (shallow copies: the document is not changed), for pydantic to check the rest; and those detections'
+    pixel arrays by ``id`` of the detection mapping."""
+    checked: dict[int, np.ndarray] = {}
     stations = data.get("stations") if isinstance(data, dict) else None
     if type(stations) is not list:
-        return data
+        return data, checked
     out = []
     for st in stations:
         dets = st.get("detections") if isinstance(st, dict) else None
-        checked = [_numbers_checked(d) for d in dets] if type(dets) is list else []
-        if any(checked):
-            st = {**st, "detections": [{**d, "pixels": [], "point_index": []} if ok else d
-                                        for d, ok in zip(dets, checked)]}
+        arrays = [_numbers_checked(d) for d in dets] if type(dets) is list else []
+        if any(a is not None for a in arrays):
+            checked.update((id(d), a) for d, a in zip(dets, arrays) if a is not None)
+            st = {**st, "detections": [d if a is None else {**d, "pixels": [], "point_index": []}
+                                        for d, a in zip(dets, arrays)]}
         out.append(st)
-    return {**data, "stations": out}
+    return {**data, "stations": out}, checked
 
 
-def validate_observations_document(data: Any, source: str = "<dict>") -> None:
+def validate_observations_document(data: Any, source: str = "<dict>") -> dict[int, np.ndarray]:
     """Check an observations document (a loaded JSON mapping) against the schema and for plausibility.
+
+    Returns the ``(N, 2)`` pixel arrays it made of target detections, by ``id`` of the detection mapping
+    (valid while ``data`` is unchanged), so that the parser does not convert them again.
 
     Raises:
         SchemaError: naming ``source``, the station id and key path, and what to do.
@@ -283,7 +294,8 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> None:
             f"; this looks like a {other} file, not observations")
         raise SchemaError(source, [("schema", f"expected {SCHEMA!r}, got {other!r}{hint}")])
     try:
-        validate(ObservationsDocument, _skeleton(data), source)
+        skeleton, checked = _skeleton(data)
+        validate(ObservationsDocument, skeleton, source)
         problems: list[tuple[str, str]] = []
         sizes = {c: tuple(e["image_size"]) for c, e in (data.get("cameras") or {}).items()}
         targets = {t: len(e["points"]) for t, e in (data.get("targets") or {}).items()}
@@ -301,7 +313,7 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> None:
             if sid in seen:
                 problems.append((f"stations[{i}].id", f"duplicate station id {sid!r} (also stations[{seen[sid]}])"))
             seen.setdefault(sid, i)
-            _check_station(i, st, sizes, targets, reach, problems, outside)
+            _check_station(i, st, sizes, targets, reach, problems, outside, checked)
             if len(problems) >= 20:
                 break
         for cam, (n, size, where, px, total) in outside.items():
@@ -316,3 +328,4 @@ def validate_observations_document(data: Any, source: str = "<dict>") -> None:
                           total=e.total) from None
     warn_pixels_outside(source, {c: [n, size, station_label(data, w), px]
                                  for c, (n, size, w, px, total) in outside.items() if n})
+    return checked
