@@ -102,7 +102,8 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
     """
     from jcalib.acquisition.capture import capture
     from jcalib.acquisition.layout import cell_layout
-    from jcalib.app.commands import capture_settings, open_camera, open_robot
+    from jcalib.app.commands import (capture_settings, close_devices, open_camera, open_robot,
+                                     raise_capture_failure)
     from jcalib.io.cell import parse_cell
     from jcalib.io.observations import Observations, save_observations
     from jcalib.io.plan import make_plan
@@ -204,14 +205,9 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
                             options=options, seed=seed, num_candidates=num_candidates, on_progress=progress,
                             captured=captured)
     except DeviceError as e:
-        from jcalib.app.commands import raise_capture_failure
-
         raise_capture_failure(e, out, hint)
     finally:
-        for c in cams.values():
-            c.close()
-        if robot is not None:
-            robot.close()
+        close_devices(cams, robot)
 
 
 def capture_command(*, robot: str, camera: Sequence[str], out: Path, plan: Path | None, cell: Path | None,

@@ -176,10 +176,7 @@ def run_capture(
     except DeviceError as e:
         raise_capture_failure(e, out, hint)
     finally:
-        for c in cams.values():
-            c.close()
-        if robot is not None:
-            robot.close()
+        close_devices(cams, robot)
 
 
 def tcp_servo_adjust(robot: Robot, cameras: Mapping[str, Camera], cell: str | Path, plan_path: str | Path, *,
@@ -585,3 +582,11 @@ def raise_capture_failure(e: DeviceError, out: str | Path, hint: str) -> None:
     if (Path(out) / "session.json").is_file():
         raise DeviceError(f"{e}\nThe session in {out} is consistent; fix the cause, then resume: {hint}") from e
     raise DeviceError(f"{e}\nNothing was captured yet; fix the cause and run the same command again.") from e
+
+
+def close_devices(cameras: Mapping[str, Camera], robot: Robot | None) -> None:
+    """Close a capture's cameras, then its robot (``None`` when it was never opened)."""
+    for c in cameras.values():
+        c.close()
+    if robot is not None:
+        robot.close()
