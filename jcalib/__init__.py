@@ -1,8 +1,8 @@
 """jcalib: calibrate industrial robot cells as one joint least-squares problem in JAX.
 
 Importing jcalib turns on JAX's float64 mode (``jax_enable_x64``): calibration needs double
-precision; it also adds an XLA:CPU compile-time flag to ``XLA_FLAGS`` (below; ``JCALIB_XLA_DEFAULTS=0``
-turns that off). The import itself stays light (JAX is imported on first use), so ``jcalib --help`` is
+precision; it also adds an XLA:CPU compile-time flag to ``XLA_FLAGS`` where the installed jaxlib knows it
+(below; ``JCALIB_XLA_DEFAULTS=0`` turns that off). The import itself stays light (JAX is imported on first use), so ``jcalib --help`` is
 instant.
 """
 
@@ -20,10 +20,32 @@ __version__ = "0.1.0"
 # and the same results (to ~1e-9 relative). Appended to the user's XLA_FLAGS, never overriding a flag
 # they name; CPU-only (GPU backends ignore it); JCALIB_XLA_DEFAULTS=0 turns it off. Not
 # --xla_backend_optimization_level=0 (scripts/test uses it): it compiles faster but solves 2-2.4x slower.
-_XLA_DEFAULTS = ("--xla_cpu_use_fusion_emitters=false",)
+# Only for the jaxlib versions where each flag was checked: XLA aborts the whole process on a flag it does
+# not know (jaxlib 0.11.2 no longer has this one: "Unknown flag in XLA_FLAGS", then SIGABRT at the first
+# computation), so a newer or older jaxlib runs with XLA's own defaults.
+_XLA_DEFAULTS = (("--xla_cpu_use_fusion_emitters=false", ((0, 10),)),)
+
+
+def _jaxlib_version() -> tuple[int, int] | None:
+    """``(major, minor)`` of the installed jaxlib, without importing it (None when unknown)."""
+    try:
+        from importlib.metadata import version
+
+        major, minor = version("jaxlib").split(".")[:2]
+        return int(major), int(minor)
+    except Exception:  # noqa: BLE001 - not installed, or an unusual version string
+        return None
+
+
+def _default_xla_flags(user_flags: str, jaxlib: tuple[int, int] | None) -> list[str]:
+    """The default flags to append: those this jaxlib knows and the user's ``XLA_FLAGS`` does not name."""
+    return [f for f, versions in _XLA_DEFAULTS
+            if jaxlib in versions and f.split("=")[0].lstrip("-") not in user_flags]
+
+
 if os.environ.get("JCALIB_XLA_DEFAULTS", "1").strip().lower() not in ("0", "false", "no", "off"):
     _user_flags = os.environ.get("XLA_FLAGS", "")
-    _added = [f for f in _XLA_DEFAULTS if f.split("=")[0].lstrip("-") not in _user_flags]
+    _added = _default_xla_flags(_user_flags, _jaxlib_version())
     if _added:
         os.environ["XLA_FLAGS"] = " ".join([_user_flags.strip(), *_added]).strip()
     del _user_flags, _added
