@@ -30,7 +30,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import equinox as eqx
 import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
@@ -41,7 +40,7 @@ from jcalib.problems.start import Start
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
 from jcalib.residuals.pose import axis_translation_prior, contact, kinematic, pose_measurement
 from jcalib.residuals.reprojection import reprojection, tool_axis, warped_reprojection
-from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable
+from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable, replace
 
 #: Residual kinds and their unit.
 KINDS = {"corner": "px", "corner_mean": "px", "tip": "px", "axis": "px", "contact": "m",
@@ -144,9 +143,9 @@ class Built:
                 if views and gr.name in views:
                     w[gr.pad] /= np.sqrt(views[gr.name])
                 sigma = self.sigma[gr.kind] * (1.0 if scale is None else float(np.sqrt(scale.get(gr.kind, 1.0))))
-                f = eqx.tree_at(lambda x: (x.sqrt_weight, x.sigma), f, (w, np.asarray(sigma, np.float64)))
+                f = replace(f, sqrt_weight=w, sigma=np.asarray(sigma, np.float64))
             factors.append(f)
-        return eqx.tree_at(lambda p: p.factors, self.problem, tuple(factors))
+        return replace(self.problem, factors=tuple(factors))
 
     def unit_weights(self) -> dict[str, np.ndarray]:
         return {gr.name: np.ones(gr.stations.shape[0]) for gr in self.groups}
@@ -159,6 +158,22 @@ class Built:
                 out[gr.name] = np.array([factors.get(f"{gr.key[0]}/{station_ids[int(k)]}", 1.0)
                                          for k in gr.stations])
         return out
+
+
+def _lookup(entry: dict[int, int], stations: np.ndarray) -> np.ndarray:
+    """``entry[k]`` of every station index ``k`` (a table lookup: there is one per corner)."""
+    if not len(entry):
+        if np.size(stations):
+            raise KeyError(int(np.ravel(stations)[0]))
+        return np.zeros(np.shape(stations), np.int32)
+    keys = np.fromiter(entry.keys(), np.int64, len(entry))
+    table = np.full(int(keys.max()) + 1, -1, np.int32)
+    table[keys] = np.fromiter(entry.values(), np.int64, len(entry))
+    st = np.asarray(stations, np.int64)
+    out = np.where((st >= 0) & (st < table.size), table[np.clip(st, 0, table.size - 1)], -1)
+    if np.any(out < 0):
+        raise KeyError(int(st[out < 0].ravel()[0]))
+    return out.astype(np.int32)
 
 
 def loss_of(options):
@@ -395,8 +410,7 @@ class _Builder:
             elif kind[0] == "flange":
                 out.append(self.flange_entry[kind[1]][stations].astype(np.int32))
             else:
-                entry = self.free_entry[kind[1]]
-                out.append(np.asarray([entry[int(k)] for k in stations], np.int32))
+                out.append(_lookup(self.free_entry[kind[1]], stations))
         return tuple(out)
 
     def aspect(self, cam: str, n: int) -> np.ndarray:

@@ -17,6 +17,7 @@ Everything here is NumPy on the host; the solve refines it.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,6 +95,12 @@ def intrinsics_fixed_mask(model: AbstractCameraModel, fix) -> np.ndarray:
     return mask
 
 
+@functools.lru_cache(maxsize=32)
+def _template(model_name: str, image_size: tuple, skew: bool) -> AbstractCameraModel:
+    """The model with its default parameters (immutable: made once per model, size and skew)."""
+    return camera_model_from_name(model_name, image_size, skew=skew)
+
+
 def initial_model(name: str, model_name: str, image_size, skew: bool, fix, K0, dist0,
                   points: list[np.ndarray], pixels: list[np.ndarray]) -> tuple[AbstractCameraModel, list[np.ndarray]]:
     """Start intrinsics (``K0``/``dist0`` when given, else Zhang) and one target pose per view.
@@ -133,7 +140,7 @@ def initial_model(name: str, model_name: str, image_size, skew: bool, fix, K0, d
                            image_size=image_size, estimate_distortion=False, distortion_iterations=0,
                            refine_homographies=False, view_names=view_names)
             K, dist_given, zhang_poses = z.K, np.zeros(0), z.T_cam_target
-    template = camera_model_from_name(model_name, image_size, skew=skew)
+    template = _template(model_name, tuple(image_size), bool(skew))
     names = template.param_names
     values = dict(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
     if skew:

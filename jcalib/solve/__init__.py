@@ -24,7 +24,7 @@ from jcalib.solve.core import information, solve, solve_many
 from jcalib.solve.implicit import solve_differentiable
 from jcalib.solve.lm import RawSolution, SolveOptions, Status, lm_solve
 from jcalib.solve.manifolds import SE3, SO3, Euclidean
-from jcalib.solve.problem import FactorGroup, Problem, Variable
+from jcalib.solve.problem import FactorGroup, Problem, Variable, replace
 from jcalib.solve.solution import Solution
 
 __all__ = [
@@ -44,6 +44,7 @@ __all__ = [
     "information",
     "lm_solve",
     "pad_problem",
+    "replace",
     "solve",
     "solve_differentiable",
     "solve_many",

@@ -7,12 +7,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jcalib.solve.problem import Problem
+from jcalib.solve.problem import Problem, replace
 
 
 def bucket_size(n: int) -> int:
@@ -62,7 +61,7 @@ def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size, *
             m = xp(v.value, v.fixed)
             value = m.concatenate([v.value, m.broadcast_to(v.value[:1], (extra, v.value.shape[1]))])
             fixed = m.concatenate([v.fixed, m.ones((extra, v.fixed.shape[1]), dtype=bool)])
-            v = eqx.tree_at(lambda w: (w.value, w.fixed), v, (value, fixed))
+            v = replace(v, value=value, fixed=fixed)
         new_vars.append(v)
     new_factors = []
     for f in problem.factors:
@@ -76,18 +75,15 @@ def pad_problem(problem: Problem, size_fn: Callable[[int], int] = bucket_size, *
                 m = xp(a)
                 return m.concatenate([a, m.broadcast_to(a[:1], (extra,) + a.shape[1:])])
 
-            f = eqx.tree_at(
-                lambda g: (g.indices, g.observations, g.sqrt_weight),
+            f = replace(
                 f,
-                (
-                    tuple(xp(i).concatenate([i, xp(i).zeros((extra,), i.dtype)]) for i in f.indices),
-                    jax.tree.map(pad, f.observations),
-                    xp(f.sqrt_weight).concatenate([f.sqrt_weight, xp(f.sqrt_weight).zeros((extra,), np.float64)]),
-                ),
-                is_leaf=lambda x: x is None,
+                indices=tuple(xp(i).concatenate([i, xp(i).zeros((extra,), i.dtype)]) for i in f.indices),
+                observations=jax.tree.map(pad, f.observations),
+                sqrt_weight=xp(f.sqrt_weight).concatenate([f.sqrt_weight,
+                                                           xp(f.sqrt_weight).zeros((extra,), np.float64)]),
             )
         new_factors.append(f)
-    return eqx.tree_at(lambda p: (p.variables, p.factors), problem, (tuple(new_vars), tuple(new_factors)))
+    return replace(problem, variables=tuple(new_vars), factors=tuple(new_factors))
 
 
 def stack_problems(problems: Sequence[Problem]) -> Problem:

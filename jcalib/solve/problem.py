@@ -14,6 +14,7 @@ buckets so that data sets of similar size do too.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -37,6 +38,19 @@ def _array(x, dtype):
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x)):
         return jnp.asarray(x, dtype=dtype)
     return np.asarray(x, dtype=dtype)
+
+
+def replace(module: eqx.Module, **changes) -> eqx.Module:
+    """A copy of ``module`` with the named fields replaced (what ``eqx.tree_at`` does for top-level
+    fields, without walking the tree: ~40 µs less per call, and the build and padding make several per
+    solve). Like ``tree_at`` it runs no ``__init__`` checks: the caller passes valid values."""
+    new = object.__new__(type(module))
+    old = module.__dict__
+    for f in dataclasses.fields(module):
+        object.__setattr__(new, f.name, changes.pop(f.name) if f.name in changes else old[f.name])
+    if changes:
+        raise TypeError(f"{type(module).__name__} has no field(s) {sorted(changes)}")
+    return new
 
 
 class Variable(eqx.Module):
