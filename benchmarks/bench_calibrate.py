@@ -1,7 +1,7 @@
 """Camera calibration speed: the public ``jcalib.calibrate`` against ``cv2.calibrateCamera`` and mrcal on identical corners.
 
 Synthetic 9x6 board (30 mm), opencv5 lens, 0.2 px corner noise, N views (``random_calibration_views``).
-Prints tables (medians of ``--repeats`` interleaved runs; timings on a shared 2-core box move ±30–50 %):
+Prints tables (medians of ``--repeats`` runs; timings on a shared 2-core box move ±30–50 %):
 
 1. per N: ``jcalib.calibrate(cell, observations)`` first call (compilation or the persistent cache) and
    steady state (the whole public call: checks, graph, closed-form start, the compiled solve with its
@@ -10,7 +10,10 @@ Prints tables (medians of ``--repeats`` interleaved runs; timings on a shared 2-
    iterations stop early at 400 views), mrcal's own OPENCV5 fit (``seed_stereographic``, then
    ``mrcal.optimize`` on the intrinsics core, then with the distortions, as mrcal-calibrate-cameras does;
    run by ``/usr/bin/python3`` in a subprocess on the same corners, timed inside it; skipped with a note
-   when mrcal is absent: ``apt-get install python3-mrcal``), and the ratios;
+   when mrcal is absent: ``apt-get install python3-mrcal``), and the ratios. jcalib runs twice: interleaved
+   with the OpenCV calls (the ratios to OpenCV), and back to back as mrcal's loop runs (the ratio to mrcal):
+   a call that follows other work, or even a sleep, takes ~2-3 ms longer at 25 views (caches and XLA's
+   thread pool gone cold), so each comparison runs both sides alike;
 2. Monte Carlo: ``--mc`` calibrations at N=25 via ``jcalib.calibrate_batch`` (every refinement round
    vmapped over the data sets, :func:`jcalib.solve.batch_width` per call: 8 on the CPU, all on a GPU)
    split into its host preparation (graph, closed-form start, problem), the batched rounds and the result
@@ -162,23 +165,30 @@ def bench_views(views, repeats, use_mrcal):
             cv.append(timed(lambda: cv2.calibrateCamera(obj, img, SIZE, None, None, criteria=CRITERIA))[0])
             cvx.append(timed(lambda: cv2.calibrateCameraExtended(obj, img, SIZE, None, None, criteria=CRITERIA))[0])
         rms_cv, K_cv = cv2.calibrateCamera(obj, img, SIZE, None, None, criteria=CRITERIA)[:2]
+        # back to back, as mrcal's own loop runs (a call right after another finds caches and the XLA
+        # thread pool warm: ~2-3 ms less at 25 views than one after 20 ms of other work, even sleep)
+        b2b = [timed(lambda: jcalib.calibrate(cell, obs))[0] for _ in range(repeats)]
         mr = run_mrcal(pixels, repeats) if use_mrcal else None
         o, c, cx = statistics.median(ours), statistics.median(cv), statistics.median(cvx)
+        ob = statistics.median(b2b)
         m = statistics.median(mr["times"]) if mr else float("nan")
         cal = res.details
         fx = float(cal.cameras["cam"].params[0])
-        rows.append((n, t_first, o, c, cx, m, cal.iterations, cal.rms_px, rms_cv, fx, K_cv[0, 0],
+        rows.append((n, t_first, o, ob, c, cx, m, cal.iterations, cal.rms_px, rms_cv, fx, K_cv[0, 0],
                      mr["intrinsics"][0] if mr else float("nan")))
-    print(f"\nSteady state (median of {repeats}, interleaved); OpenCV criteria: {CRITERIA_TEXT}")
+    print(f"\nSteady state (medians of {repeats}); OpenCV criteria: {CRITERIA_TEXT}")
     print("jcalib = the public jcalib.calibrate (checks, start, solve + covariance, outlier round, result file); "
           "mrcal = seed_stereographic + 2 optimize passes (OPENCV5), /usr/bin/python3" + ("" if use_mrcal else
                                                                                         " (not run: mrcal absent)"))
-    print(f"{'N':>5} {'first s':>8} {'jcalib ms':>10} {'cv ms':>8} {'cv ext ms':>10} {'mrcal ms':>9} "
+    print("jcalib ms: interleaved with the two OpenCV calls (/cv, /cv ext); b2b ms: back to back, as mrcal's loop "
+          "times itself (/mrcal)")
+    print(f"{'N':>5} {'first s':>8} {'jcalib ms':>10} {'b2b ms':>7} {'cv ms':>8} {'cv ext ms':>10} {'mrcal ms':>9} "
           f"{'/cv':>6} {'/cv ext':>8} {'/mrcal':>7} {'iters':>6} {'rms jcalib':>11} {'rms cv':>9} "
           f"{'fx jcalib':>10} {'fx cv':>9} {'fx mrcal':>9}")
-    for n, tf, o, c, cx, m, it, rms, rcv, fx, fxc, fxm in rows:
-        print(f"{n:>5} {tf:>8.2f} {o * 1e3:>10.1f} {c * 1e3:>8.1f} {cx * 1e3:>10.1f} {m * 1e3:>9.1f} {o / c:>6.2f} "
-              f"{o / cx:>8.2f} {o / m:>7.2f} {it:>6} {rms:>11.5f} {rcv:>9.5f} {fx:>10.3f} {fxc:>9.3f} {fxm:>9.3f}")
+    for n, tf, o, ob, c, cx, m, it, rms, rcv, fx, fxc, fxm in rows:
+        print(f"{n:>5} {tf:>8.2f} {o * 1e3:>10.1f} {ob * 1e3:>7.1f} {c * 1e3:>8.1f} {cx * 1e3:>10.1f} {m * 1e3:>9.1f} "
+              f"{o / c:>6.2f} {o / cx:>8.2f} {ob / m:>7.2f} {it:>6} {rms:>11.5f} {rcv:>9.5f} {fx:>10.3f} {fxc:>9.3f} "
+              f"{fxm:>9.3f}")
 
 
 def _device_line() -> str:
