@@ -27,13 +27,18 @@ _XLA_DEFAULTS = (("--xla_cpu_use_fusion_emitters=false", ((0, 10),)),)
 
 
 def _jaxlib_version() -> tuple[int, int] | None:
-    """``(major, minor)`` of the installed jaxlib, without importing it (None when unknown)."""
+    """``(major, minor)`` of the installed jaxlib, without importing it (None when unknown): read from its
+    ``version.py`` (0.2 ms; ``importlib.metadata`` takes 20-50 ms, and ``jcalib --help`` stays instant)."""
     try:
-        from importlib.metadata import version
+        import importlib.util
+        import re
 
-        major, minor = version("jaxlib").split(".")[:2]
-        return int(major), int(minor)
-    except Exception:  # noqa: BLE001 - not installed, or an unusual version string
+        spec = importlib.util.find_spec("jaxlib")
+        path = os.path.join(list(spec.submodule_search_locations)[0], "version.py")
+        with open(path, encoding="utf-8") as f:
+            match = re.search(r"^_version\s*=\s*[\"']([0-9]+)\.([0-9]+)", f.read(), re.M)
+        return (int(match.group(1)), int(match.group(2))) if match else None
+    except Exception:  # noqa: BLE001 - not installed, or laid out differently: XLA's defaults
         return None
 
 

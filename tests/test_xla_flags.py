@@ -34,3 +34,9 @@ def test_a_fresh_process_computes_with_the_flags_jcalib_chose():
     assert total == "6.0"
     expected = FLAG if jcalib._jaxlib_version() == (0, 10) else None
     assert eval(flags) == expected  # noqa: S307 - our own repr
+
+
+def test_the_version_read_without_importing_jaxlib_is_jaxlibs_own():
+    import jaxlib
+
+    assert jcalib._jaxlib_version() == tuple(int(x) for x in jaxlib.__version__.split(".")[:2])
