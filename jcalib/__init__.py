@@ -2,8 +2,8 @@
 
 Importing jcalib turns on JAX's float64 mode (``jax_enable_x64``): calibration needs double
 precision; it also adds an XLA:CPU compile-time flag to ``XLA_FLAGS`` where the installed jaxlib knows it
-(below; ``JCALIB_XLA_DEFAULTS=0`` turns that off). The import itself stays light (JAX is imported on first use), so ``jcalib --help`` is
-instant.
+(below; ``JCALIB_XLA_DEFAULTS=0`` turns that off). The import itself stays light (JAX is imported on first
+use), so ``jcalib --help`` is instant.
 """
 
 from __future__ import annotations

@@ -138,11 +138,10 @@ def grid_error(corners: np.ndarray, cols: int, rows: int) -> float:
     dr, dc = np.divmod(np.arange(9), 3)
     blocks = g[i0[:, None] + dr[None], j0[:, None] + dc[None]]  # (N, 9, 2)
     k = 3 * (I - i0) + (J - j0)  # the corner's place in its block
-    steps = np.concatenate([np.linalg.norm(blocks.reshape(-1, 3, 3, 2)[:, 1:] - blocks.reshape(-1, 3, 3, 2)[:, :-1],
-                                           axis=-1).reshape(len(I), -1),
-                            np.linalg.norm(blocks.reshape(-1, 3, 3, 2)[:, :, 1:] - blocks.reshape(-1, 3, 3, 2)[:, :, :-1],
-                                           axis=-1).reshape(len(I), -1)], axis=1)
-    spacing = np.median(steps, axis=1)
+    b = blocks.reshape(-1, 3, 3, 2)
+    down = np.linalg.norm(b[:, 1:] - b[:, :-1], axis=-1).reshape(len(I), -1)
+    across = np.linalg.norm(b[:, :, 1:] - b[:, :, :-1], axis=-1).reshape(len(I), -1)
+    spacing = np.median(np.concatenate([down, across], axis=1), axis=1)  # of the block's 12 neighbour steps
     if not np.all(np.isfinite(blocks)) or np.any(spacing <= 0.0):
         return float("inf")
     u = (blocks - blocks.mean(axis=1, keepdims=True)) / spacing[:, None, None]  # pixels, block-normalised
