@@ -16,6 +16,7 @@ equations.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -101,12 +102,17 @@ _core_jit = eqx.filter_jit(_core)
 
 def _outcome_treedef(problem: Problem):
     """The pytree structure of :func:`_core`'s output for ``problem``, from a skeleton (no tracing)."""
-    e = linear.make_layout(problem).num_elim
+    names = tuple(v.name for v in problem.variables)
+    return _skeleton_treedef(names, sum(bool(v.eliminate) for v in problem.variables), len(problem.factors))
+
+
+@functools.lru_cache(maxsize=256)
+def _skeleton_treedef(names: tuple[str, ...], e: int, num_factors: int):
     z = 0
     system = linear.System(z, z, (z,) * e, (z,) * e, (z,) * e)
     obs = Observability(z, z, (z,) * e, (z,) * e, z)
-    raw = RawSolution({v.name: z for v in problem.variables}, z, z, z, z, z, system, obs, None)
-    return jax.tree.structure(Outcome(raw, (z,) * len(problem.factors), z, (z,) * e, z, z, z))
+    raw = RawSolution(dict.fromkeys(names, z), z, z, z, z, z, system, obs, None)
+    return jax.tree.structure(Outcome(raw, (z,) * num_factors, z, (z,) * e, z, z, z))
 _core_vmap_jit = eqx.filter_jit(eqx.filter_vmap(_core, in_axes=(0, None, None)))
 
 
