@@ -41,7 +41,8 @@ class SessionFailure:
     Attributes:
         station: station id.  camera: camera id (None: the whole station).
         target: target id, tool id (a tool-tip search), or None.
-        reason: short keyword ("skipped", "missing_image", "not_found", "partially_visible",
+        reason: short keyword ("skipped", "excluded" (the session's ``exclusions.json``, see
+            :mod:`jcalib.io.exclusions`), "missing_image", "not_found", "partially_visible",
             "too_blurred", "unreadable"; for a tool also "tip_outside_image", "ambiguous").
         message: the full explanation.
     """
@@ -90,8 +91,10 @@ def detect_session(
         BadInputError: not a session, no cell spec, an unknown target or tool, a station image naming
             a camera the cell lacks, or images of one camera with different sizes.
     """
-    from jcalib.io.session import read_session
     from jcalib.io.cell import load_cell
+    from jcalib.io.exclusions import FILENAME as EXCLUSIONS_FILE
+    from jcalib.io.exclusions import load_exclusions
+    from jcalib.io.session import read_session
     from jcalib.io.observations import Detection, Observations, Station
     from jcalib.pipeline.images import retry_note
     from jcalib.vision import detect_many
@@ -117,13 +120,20 @@ def detect_session(
 
     failures: list[SessionFailure] = []
     jobs: list[tuple[str, str, Path]] = []  # (station, camera, image path)
+    excluded = load_exclusions(d)
     for rec in records:
         sid = str(rec["id"])
         status = str(rec.get("status", "ok"))
         if status != "ok":
             failures.append(SessionFailure(sid, None, None, "skipped", status))
             continue
+        if excluded.excludes(sid):
+            failures.append(SessionFailure(sid, None, None, "excluded", f"left out by {d / EXCLUSIONS_FILE}"))
+            continue
         for cam, rel in (rec.get("images") or {}).items():
+            if excluded.excludes(sid, cam):
+                failures.append(SessionFailure(sid, cam, None, "excluded", f"left out by {d / EXCLUSIONS_FILE}"))
+                continue
             if cam not in spec.cameras:
                 raise BadInputError(
                     f"session {d}: station {sid} has an image of camera {cam!r}, which the cell spec "
@@ -293,7 +303,8 @@ def detect_session_to_file(
     for what, note in notes.items():
         console.print(f"retried {what}: {note}", highlight=False, markup=False)
     for f in failures:
-        console.print(f"[yellow]skipped[/] {escape(str(f))}", highlight=False)
+        word = "[cyan]excluded[/]" if f.reason == "excluded" else "[yellow]skipped[/]"
+        console.print(f"{word} {escape(str(f))}", highlight=False)
     if not obs.stations:
         raise BadInputError(
             f"session {session_dir}: the target was found in no image ({len(failures)} failures); check the "
