@@ -418,6 +418,7 @@ def run_simulate(
     on_ready: Callable[[dict], None] | None = None,
     kinematic_errors: int | None = None,
     kinematic_error_scale: float = 1.0,
+    fast_noise: bool = False,
 ) -> None:
     """``jcalib simulate``: serve the cell's nominal layout (robot + fake GigE cameras) until ``stop``.
 
@@ -443,6 +444,8 @@ def run_simulate(
             preset's): the controller plans and reports with the preset, the cameras see the true arm
             (:func:`jcalib.app.simcell.simulated_kinematics`); ``truth`` then holds the true parameters.
         kinematic_error_scale: factor on the errors' σ (1: a real arm's, ~0.05 deg and 0.5 mm).
+        fast_noise: the cameras draw sensor noise by its normal approximation
+            (:class:`jcalib.sim.render.RenderOptions` ``fast_noise``), for live views.
     """
     import ipaddress
 
@@ -468,7 +471,7 @@ def run_simulate(
                 f"--camera {name}: the simulator serves on loopback IPv4 addresses (127.x.y.z) only, got {addr!r}"
             )
     try:
-        options = RenderOptions.preset(noise)
+        options = RenderOptions.preset(noise, fast_noise=bool(fast_noise))
     except BadInputError as e:
         raise BadInputError(f"--noise: {e}") from None
     layout = cell_layout(cell, robot=robot, image_size=image_size)
