@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -78,31 +77,6 @@ KINEMATIC_STATIONS = 20
 #: Tool stations appended to the hand-eye plan (``tcp`` planner).
 TOOL_STATIONS = 7
 ADDRESSES = {"cam_hand": "127.0.0.1", "cam_fixed": "127.0.0.2"}
-_NETNS_ENV = "JCALIB_DEMO_IN_NETNS"
-
-
-def _in_private_namespace() -> bool:
-    return os.environ.get(_NETNS_ENV) == "1"
-
-
-def _reexec_in_namespace(argv: list[str]) -> int:
-    """Run ``python -m jcalib.app.demo_cell ARGV`` in a new network namespace with 127.0.0.2 on lo."""
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        raise DeviceError(
-            "the demo's second fake camera needs a private network namespace (util-linux `unshare` and "
-            "iproute2 `ip`); install them (./scripts/setup does) or run `jcalib demo --camera-only`"
-        )
-    flags = "-n" if os.geteuid() == 0 else "-rn"
-    inner = f"ip link set lo up && ip addr add 127.0.0.2/8 dev lo && exec {sys.executable} -m jcalib.app.demo_cell "
-    inner += " ".join(_quote(a) for a in argv)
-    env = {**os.environ, _NETNS_ENV: "1"}
-    return subprocess.call(["unshare", flags, "sh", "-c", inner], env=env)
-
-
-def _quote(s: str) -> str:
-    import shlex
-
-    return shlex.quote(s)
 
 
 def run_cell_demo(
@@ -423,11 +397,15 @@ def main(argv: list[str] | None = None) -> int:
 def demo(out_dir: Path, *, stations: int = 16, protocol: str = "kuka", image_size: str = "640x480",
          seed: int = 0, kinematic_errors: bool = False) -> None:
     """The ``jcalib demo`` command body: enter a private network namespace, then run the demo there."""
+    from jcalib.acquisition.netns import in_private_namespace, run_in_private_namespace
+
     args = [str(out_dir), str(int(stations)), protocol, image_size, str(int(seed)), str(int(bool(kinematic_errors)))]
-    if _in_private_namespace():
+    if in_private_namespace():
         main(args)
         return
-    code = _reexec_in_namespace(args)
+    code = run_in_private_namespace([sys.executable, "-m", "jcalib.app.demo_cell", *args],
+                                    addresses=[a for a in ADDRESSES.values() if a != "127.0.0.1"],
+                                    what="the demo's second fake camera")  # fmt: skip
     if code != 0:
         raise DeviceError(f"the demo failed (exit status {code}); see the messages above")
 
