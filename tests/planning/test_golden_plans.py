@@ -147,9 +147,9 @@ TASKSPACE_PREDICTED = {"T_flange_cam0:translation_mm<=0.5": 0.4, "cam0:projectio
 def run_taskspace(result: dict, tmp: Path) -> dict:
     """The task-space numbers of the result: what the report and the goal-driven planner compute from it."""
     from jcalib.io.result import load_result
-    from jcalib.report.goals import achieved_sigmas, goal_rows
-    from jcalib.report.taskspace import (pixel_effect, project, projection_difference, projection_sigma_at,
-                                           projection_sigma_map, transform_sigma, unproject)
+    from jcalib.problems.goals import achieved_sigmas, goal_rows
+    from jcalib.problems.taskspace import (pixel_effect, project, projection_difference, projection_sigma_at,
+                                          projection_sigma_map, transform_sigma, unproject)
 
     path = tmp / "result.json"
     path.write_text(json.dumps(result))
