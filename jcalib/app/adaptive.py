@@ -42,7 +42,7 @@ def progress_lines(goals: Sequence[Goal], num_stations: int, achieved: Mapping[s
 
 
 def _cell(cell: str | Path | None, out: Path, resume: bool) -> dict:
-    from jcalib.acquisition.layout import load_cell_dict
+    from jcalib.planning.layout import load_cell_dict
 
     if cell is not None:
         return load_cell_dict(cell)[0]
@@ -101,7 +101,7 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
             plan; DeviceError / CaptureInterrupted: a device failed (the session is consistent; resume).
     """
     from jcalib.acquisition.capture import capture
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.app.commands import (capture_settings, close_devices, open_camera, open_robot,
                                      raise_capture_failure)
     from jcalib.io.cell import parse_cell

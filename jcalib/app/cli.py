@@ -285,7 +285,9 @@ def report(
     if plan is not None:
         from rich.console import Console
 
-        from jcalib.report.goals import goal_rows, goals_table, plan_goals
+        from jcalib.io.plan import plan_goals
+        from jcalib.problems.goals import goal_rows
+        from jcalib.report.goals import goals_table
 
         goals, predicted = plan_goals(plan)
         rows = goal_rows(goals, result, predicted)

@@ -197,7 +197,7 @@ def tcp_servo_adjust(robot: Robot, cameras: Mapping[str, Camera], cell: str | Pa
     import json
 
     from jcalib.acquisition.capture import SkipStation
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.acquisition.robots.base import MotionRefusedError
     from jcalib.acquisition.servo import servo_tool_tip
     from jcalib.errors import DetectionError
@@ -295,17 +295,17 @@ def run_plan(
     goals: list[str] | None = None,
     max_stations: int | None = None,
 ):
-    """``jcalib plan``: plan stations for the cell (:func:`jcalib.acquisition.planner.plan_cell`,
-    :func:`~jcalib.acquisition.planner.plan_kinematics` for ``kinematics``, or
+    """``jcalib plan``: plan stations for the cell (:func:`jcalib.planning.stations.plan_cell`,
+    :func:`~jcalib.planning.stations.plan_kinematics` for ``kinematics``, or
     :func:`jcalib.planning.optimal.plan_optimal` for ``optimal``), write them.
 
     Returns:
-        The :class:`~jcalib.acquisition.planner.PlannedStations` written to ``out`` (``jcalib.plan/1``
+        The :class:`~jcalib.planning.stations.PlannedStations` written to ``out`` (``jcalib.plan/1``
         JSON with an extra ``planner`` key: kind, robot, camera / target / tool, dropped candidates;
         ``kinematics``: also the prediction and the joint spans).
     """
-    from jcalib.acquisition.layout import cell_layout
-    from jcalib.acquisition.planner import plan_cell, plan_kinematics
+    from jcalib.planning.layout import cell_layout
+    from jcalib.planning.stations import plan_cell, plan_kinematics
     from jcalib.io.atomic import write_json_atomic
 
     if kind == "kinematics":  # the layout is built only where a camera view is planned (not for external axes)
@@ -348,7 +348,7 @@ PLAN_OPTIONS = {
 
 def check_plan_options(kind: str, **given) -> None:
     """Refuse a ``jcalib plan`` option that ``kind`` does not use (naming it and the kinds that do)."""
-    from jcalib.acquisition.planner import KINDS
+    from jcalib.planning.stations import KINDS
 
     if kind not in KINDS + ("optimal",):
         raise BadInputError(f"--kind: expected one of {', '.join(KINDS + ('optimal',))}, got {kind!r}")
@@ -428,12 +428,12 @@ def run_simulate(
     robot's true pose. Everything listens on loopback only.
 
     Args:
-        cell: cell spec (path or mapping); see :func:`jcalib.acquisition.layout.cell_layout`.
+        cell: cell spec (path or mapping); see :func:`jcalib.planning.layout.cell_layout`.
         robot_protocol: "kuka" or "abb".
         robot_port: TCP port (0: any free one; the ready info says which).
         camera_addresses: camera id -> 127.x.y.z address.
         truth: write the ground truth (:func:`jcalib.app.simcell.layout_truth`) here.
-        robot, image_size: passed to :func:`~jcalib.acquisition.layout.cell_layout`.
+        robot, image_size: passed to :func:`~jcalib.planning.layout.cell_layout`.
         time_scale: motion-time scale (0: instantaneous moves).
         seed: noise seed (robot repeatability, sensor noise).
         noise: image formation preset of the cameras (:meth:`jcalib.sim.render.RenderOptions.preset`):
@@ -449,7 +449,7 @@ def run_simulate(
     """
     import ipaddress
 
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.acquisition.robots.model import preset_model
     from jcalib.app.simcell import layout_truth, scene_from_layout
     from jcalib.io.atomic import write_json_atomic

@@ -2,7 +2,7 @@
 
 The chain is the one a cell integrator runs on hardware, with simulators standing in for it:
 
-1. plan stations for the cell (:func:`jcalib.acquisition.planner.plan_cell`): hand-eye stations
+1. plan stations for the cell (:func:`jcalib.planning.stations.plan_cell`): hand-eye stations
    (``cam_hand`` over the board), then tool stations (``tcp``: the tip of the tool ``torch`` held in
    front of ``cam_fixed``, the tool turned about two axes), appended to one plan (ids ``s…``, ``t…``);
 2. serve a simulated robot controller (KUKAVARPROXY or ABB line protocol) and two fake GigE Vision
@@ -310,9 +310,9 @@ def plan_demo(
     Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key per part). Returns the number of
     hand-eye, tool and kinematic stations kept (reachable, in view).
     """
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.io.plan import make_plan
-    from jcalib.acquisition.planner import plan_cell
+    from jcalib.planning.stations import plan_cell
     from jcalib.io.atomic import write_json_atomic
 
     layout = cell_layout(cell_path, robot=robot, image_size=image_size)

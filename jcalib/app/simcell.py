@@ -8,7 +8,7 @@ over real GigE Vision) or :class:`~jcalib.acquisition.cameras.SimulatedCamera` (
 **Tools.** A cell's tool (``tools: {torch: {observed_by: [cam1]}}``) is simulated the way a backlit
 tool camera sees it: each base camera that observes the tool has a *tool zone*, a ball of radius
 ``zone_radius_m`` (default 0.05 m) centred ``zone_distance_m`` in front of it on its optical axis
-(default :data:`jcalib.acquisition.planner.TOOL_VIEW_DISTANCE_M`, where the ``tcp`` planner holds the
+(default :data:`jcalib.planning.stations.TOOL_VIEW_DISTANCE_M`, where the ``tcp`` planner holds the
 tip). While the tool tip (the true TCP) is inside the zone, the camera renders the tool's silhouette on
 a backlight (:func:`jcalib.sim.tool.render_tool_image`; the backlight hides the rest of the scene);
 otherwise it renders the targets as usual. The tool is a :class:`jcalib.sim.tool.SymmetricTool`
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.acquisition.cameras.base import FrameRequest, FrameSource
-from jcalib.acquisition.planner import TOOL_VIEW_DISTANCE_M
+from jcalib.planning.stations import TOOL_VIEW_DISTANCE_M
 from jcalib.geometry.se3 import check_pose, invert, make_pose
 from jcalib.errors import BadInputError
 
@@ -317,7 +317,7 @@ def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> Ce
     nominal TCP to the flange, shown by the base cameras of its ``observed_by`` (module docstring).
 
     Args:
-        layout: a :class:`jcalib.acquisition.layout.CellLayout`.
+        layout: a :class:`jcalib.planning.layout.CellLayout`.
         texture_px_per_square: resolution of the printed targets, texels per grid spacing.
 
     Returns:

@@ -29,7 +29,7 @@ tools:
 
 
 def test_capture_kind_tcp_servoes_the_tip_onto_the_image_centre(aravis, tmp_path):
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.vision.tooltip import detect_tool_tip
 
     import cv2
