@@ -13,8 +13,10 @@ from jcalib.acquisition.layout import CellLayout, cell_layout
 from jcalib.acquisition.planner import PlannedStations, plan_cell
 from jcalib.acquisition.robocalib import RoboCalibPlan, handeye_stations, viewset_stations
 from jcalib.acquisition.servo import ServoResult, servo_tool_tip
+from jcalib.acquisition.capture import CaptureControl
 
 __all__ = [
+    "CaptureControl",
     "CaptureInterrupted",
     "CaptureResult",
     "CellLayout",

@@ -17,11 +17,21 @@ capture every station again over its images. A capture holds its robot
 (:class:`jcalib.acquisition.robots.lock.RobotLock`): a second capture of the same robot is refused.
 Camera settings (GenICam feature names, e.g. ``{"cam0": {"ExposureTime": 5000}}``) are applied before
 the first station and recorded in ``session.json``.
+
+Operator control (:class:`CaptureControl`, from any thread): *pause* finishes the station in flight and
+waits before the next one until *resume*; *abort* finishes the station in flight and ends the capture
+(:attr:`CaptureResult.aborted`); *STOP* stops the robot at once through its driver (:meth:`Robot.stop
+<jcalib.acquisition.robots.base.Robot.stop>`) and ends the capture without recording the station in flight
+(:class:`CaptureInterrupted`). A stopped or aborted session is consistent and ``resume`` continues it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -29,7 +39,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from jcalib.acquisition.cameras.base import Camera, UnsupportedFeatureError
-from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
 from jcalib.acquisition.robots.lock import RobotLock, needs_lock
 from jcalib.errors import BadInputError, DeviceError
 from jcalib.geometry.se3 import pose_distance
@@ -38,7 +48,9 @@ from jcalib.io.session import SessionWriter, utc_now
 
 #: ``check(camera_id, image, station) -> None`` when the image is usable, else the reason it is not.
 QualityCheck = Callable[[str, np.ndarray, Station], "str | None"]
-#: ``listener(event, station_id, detail)``; events: "start", "moved", "grabbed", "done", "skipped", "stopped".
+#: ``listener(event, station_id, detail)``; events: "start", "moved", "grabbed", "done", "skipped", "stopped"
+#: (detail: the reason), and with a :class:`CaptureControl` "paused", "resumed" (before the station named),
+#: "aborted" (the capture ends before the station named).
 EventListener = Callable[[str, str, str], None]
 #: ``adjust(station, state) -> (state, record fields)``: runs after the move and the pose check, may move
 #: the robot again (e.g. :func:`jcalib.acquisition.servo.servo_tool_tip`); the images are taken at the
@@ -62,6 +74,164 @@ class CaptureInterrupted(DeviceError):
         self.session_dir, self.station_id, self.num_done = session_dir, station_id, num_done
 
 
+#: :attr:`CaptureControl.state` values.
+CONTROL_STATES = ("running", "paused", "aborting", "stopped", "done")
+
+
+class CaptureControl:
+    """The operator's buttons for a running :func:`capture`: pause, resume, abort, STOP. Thread-safe.
+
+    Pass one as ``capture(..., control=...)`` and call its methods from any thread. :attr:`state` is one of
+    :data:`CONTROL_STATES`: "running"; "paused" (the capture finishes the station in flight, then waits);
+    "aborting" (it finishes the station in flight, then ends: ``CaptureResult.aborted``); "stopped"
+    (:meth:`stop`); "done" once the capture has returned or raised, unless stopped. One control serves
+    one capture run (an adaptive capture's one-station captures count as one run, see :meth:`active`).
+
+    Attributes:
+        keepalive_s: while paused, the capture reads the robot's state this often, s (a controller or
+            simulator drops a connection that stays idle for long).
+    """
+
+    keepalive_s = 5.0
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._state = "running"
+        self._aborted = False
+        self._depth = 0
+        self._robot: Robot | None = None
+
+    @property
+    def state(self) -> str:
+        """One of :data:`CONTROL_STATES`."""
+        with self._cond:
+            return self._state
+
+    @property
+    def stop_requested(self) -> bool:
+        """:meth:`stop` was called while the capture ran."""
+        with self._cond:
+            return self._state == "stopped"
+
+    @property
+    def abort_requested(self) -> bool:
+        """:meth:`abort` was called (stays True after the capture ended)."""
+        with self._cond:
+            return self._aborted
+
+    def _set(self, state: str, *, when: tuple[str, ...]) -> None:
+        with self._cond:
+            if self._state in when:
+                self._state = state
+                self._aborted = self._aborted or state == "aborting"
+                self._cond.notify_all()
+
+    def pause(self) -> None:
+        """Finish the station in flight, then wait before the next one (no effect unless running)."""
+        self._set("paused", when=("running",))
+
+    def resume(self) -> None:
+        """Continue after :meth:`pause` (no effect unless paused)."""
+        self._set("running", when=("paused",))
+
+    def abort(self) -> None:
+        """Finish the station in flight, then end the capture (``CaptureResult.aborted``); resumable."""
+        self._set("aborting", when=("running", "paused"))
+
+    def stop(self, robot: Robot | None = None) -> None:
+        """The STOP button: ``robot.stop()`` at once, from this thread, and end the capture now.
+
+        The station in flight is not recorded and :func:`capture` raises :class:`CaptureInterrupted`
+        ("stopped by the operator"); a stop between two moves prevents the next one. ``robot``: the robot to
+        stop; default the robot of the run in progress (:meth:`active`), none before the run has started
+        (the capture then ends before its first move). The robot is stopped even when the capture is done.
+
+        Raises:
+            DeviceError: the robot's driver could not deliver the stop (the capture still ends): stop the
+                robot at the teach pendant.
+        """
+        self._set("stopped", when=("running", "paused", "aborting"))
+        robot = robot if robot is not None else self._robot
+        if robot is not None:
+            robot.stop()
+
+    @contextlib.contextmanager
+    def active(self, robot: Robot | None = None) -> Iterator["CaptureControl"]:
+        """Marks a capture run driving ``robot``: the outermost block's end sets the state to "done" (unless
+        stopped), and :meth:`stop` stops ``robot`` meanwhile.
+
+        :func:`capture` enters it; a caller that runs several captures as one (adaptive capture: one
+        station per :func:`capture`) enters it around all of them. Entering a control that is "done"
+        starts a new run ("running")."""
+        with self._cond:
+            if self._depth == 0 and self._state == "done":
+                self._state, self._aborted = "running", False
+            self._depth += 1
+            self._robot = robot if robot is not None else self._robot
+        try:
+            yield self
+        finally:
+            with self._cond:
+                self._depth -= 1
+                if self._depth == 0:
+                    self._robot = None
+                    if self._state != "stopped":
+                        self._state = "done"
+                self._cond.notify_all()
+
+    def checkpoint(self, station_id: str, emit: "EventListener", keepalive: Callable[[], object]) -> str:
+        """Before a station: wait while paused; then "go", "abort" or "stop".
+
+        Emits "paused" when it starts to wait and "resumed" when it goes on; calls ``keepalive`` (e.g.
+        ``robot.state``) every :attr:`keepalive_s` while paused (its DeviceError propagates)."""
+        with self._cond:
+            paused = self._state == "paused"
+        if paused:
+            emit("paused", station_id, "")
+            while True:
+                with self._cond:
+                    self._cond.wait_for(lambda: self._state != "paused", timeout=self.keepalive_s)
+                    if self._state != "paused":
+                        break
+                keepalive()
+            if self.state == "running":
+                emit("resumed", station_id, "")
+        with self._cond:
+            return {"stopped": "stop", "aborting": "abort"}.get(self._state, "go")
+
+
+@contextlib.contextmanager
+def stop_on_sigint(control: CaptureControl, robot: Robot | None = None) -> Iterator[None]:
+    """Within the block, the first Ctrl-C (SIGINT) is the STOP button (:meth:`CaptureControl.stop` from a
+    helper thread: the main thread may hold the driver's locks); a second one interrupts as usual.
+
+    A no-op outside the main thread (signal handlers can only be set there)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def on_sigint(signum, frame):
+        signal.signal(signal.SIGINT, previous if callable(previous) else signal.default_int_handler)
+        threading.Thread(target=_stop_quietly, args=(control, robot), name="jcalib-stop", daemon=True).start()
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _stop_quietly(control: CaptureControl, robot: Robot | None) -> None:
+    import sys
+
+    print("jcalib: Ctrl-C: stopping the robot (press Ctrl-C again to quit at once)", file=sys.stderr, flush=True)
+    try:
+        control.stop(robot)
+    except DeviceError as e:
+        print(f"jcalib: the stop could not be delivered: {e}", file=sys.stderr, flush=True)
+
+
 class SkipStation(DeviceError):
     """Raised by a :data:`StationAdjust` to skip the station; the message is recorded as the reason."""
 
@@ -77,6 +247,8 @@ class CaptureResult:
         skipped: id -> reason, for stations skipped by this run.
         already_done: stations that were in the session before this run (resume).
         elapsed_s: wall time of this run, s.
+        aborted: the capture ended early by :meth:`CaptureControl.abort` (the session is consistent;
+            ``resume`` continues it).
     """
 
     session_dir: Path
@@ -85,6 +257,7 @@ class CaptureResult:
     skipped: dict[str, str] = field(default_factory=dict)
     already_done: int = 0
     elapsed_s: float = 0.0
+    aborted: bool = False
 
 
 def _device_settings(robot: Robot, cameras: Mapping[str, Camera], requested: Mapping[str, Mapping[str, Any]]) -> dict:
@@ -177,6 +350,7 @@ def capture(
     pose_tolerance_deg: float = 0.1,
     adjust: StationAdjust | None = None,
     lock_robot: bool = True,
+    control: CaptureControl | None = None,
 ) -> CaptureResult:
     """Execute ``plan`` and write (or extend) the session in ``session_dir``.
 
@@ -201,17 +375,19 @@ def capture(
             after a move and the commanded one (mm, deg); beyond, the capture stops.
         adjust: optional step after the move (see :data:`StationAdjust`).
         lock_robot: hold the robot's capture lock (:class:`~jcalib.acquisition.robots.lock.RobotLock`).
+        control: the operator's pause / resume / abort / STOP (:class:`CaptureControl`).
 
     Returns:
-        A :class:`CaptureResult`.
+        A :class:`CaptureResult` (``aborted`` after :meth:`CaptureControl.abort`).
 
     Raises:
         BadInputError: no cameras, a session exists and ``resume`` is False, the plan or the camera
             settings differ from the session's, a session to resume without ``stations.jsonl``, or
             camera settings a camera refuses.
         DeviceError: another capture drives the robot.
-        CaptureInterrupted: lost robot connection, camera failure, or a reached pose that is not the
-            commanded one (session consistent; resume).
+        CaptureInterrupted: lost robot connection, camera failure, a reached pose that is not the
+            commanded one, a stop (:meth:`CaptureControl.stop`, or ``robot.stop()`` from elsewhere)
+            (session consistent; resume).
     """
     if not cameras:
         raise BadInputError("cameras: expected at least one camera")
@@ -257,6 +433,69 @@ def capture(
             n,
         )
 
+    def operator_stop(station: Station) -> CaptureInterrupted:
+        n = len(writer.stations)
+        emit("stopped", station.id, "stopped by the operator")
+        return CaptureInterrupted(
+            f"capture stopped by the operator (STOP) at station {station.id}: the robot stands where it braked and "
+            f"station {station.id} was not recorded.\n{n} of {len(plan)} stations are saved in {session_dir}; the "
+            f"session can be resumed. Check the cell, then resume: {hint}.",
+            session_dir,
+            station.id,
+            n,
+        )
+
+    def stopped() -> bool:
+        return control is not None and control.stop_requested
+
+    def run_station(station: Station) -> None:
+        """Move, check, adjust, grab, write one station; a stop anywhere before the write ends the capture."""
+        emit("start", station.id, "")
+        status(f"{station.id}: moving ({station.move})")
+        seen = robot.num_stops  # before the check: a stop after this read refuses the moves below
+        if stopped():
+            raise operator_stop(station)
+        with robot.stop_guard(seen):
+            try:
+                state = robot.move(station.T_base_flange, kind=station.move, settle_timeout_s=settle_timeout_s)
+                why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
+                if why:  # read once more: a robot still creeping in
+                    state = robot.wait_settled(timeout_s=settle_timeout_s)
+                    why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
+            except MotionRefusedError as e:
+                reason = f"unreachable: {e}"
+                finish(station, {"id": station.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(),
+                                 "images": {}, "status": f"skipped: {reason}"}, reason)  # fmt: skip
+                return
+            except DeviceError as e:
+                if stopped():
+                    raise operator_stop(station) from e
+                what = "robot stopped by a stop request" if isinstance(e, MotionStoppedError) else "robot"
+                raise interrupted(station, what, e) from e
+            if stopped():
+                raise operator_stop(station)
+            if why:
+                raise interrupted(station, "robot", DeviceError(why))
+            emit("moved", station.id, "")
+            extra: dict = {}
+            if adjust is not None:
+                try:
+                    state, extra = adjust(station, state)
+                except SkipStation as e:
+                    finish(station, _record(station, state, {}, f"skipped: {e}"), str(e))
+                    return
+                except DeviceError as e:
+                    if stopped():
+                        raise operator_stop(station) from e
+                    raise interrupted(station, "adjust", e) from e
+        images, reject = _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted)
+        emit("grabbed", station.id, reject)
+        if stopped():
+            raise operator_stop(station)
+        status(f"{station.id}: writing")
+        paths = {} if reject else {cid: writer.write_image(cid, station.id, img) for cid, img in images.items()}
+        finish(station, _record(station, state, paths, f"skipped: {reject}" if reject else "ok", extra), reject)
+
     def finish(station: Station, record: dict, reason: str) -> None:
         if station.id in retakes:
             record["retake"] = True
@@ -271,40 +510,21 @@ def capture(
             bar.advance(task)
 
     try:
-        for station in todo:
-            emit("start", station.id, "")
-            status(f"{station.id}: moving ({station.move})")
-            try:
-                state = robot.move(station.T_base_flange, kind=station.move, settle_timeout_s=settle_timeout_s)
-                why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
-                if why:  # read once more: a robot still creeping in
-                    state = robot.wait_settled(timeout_s=settle_timeout_s)
-                    why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
-            except MotionRefusedError as e:
-                reason = f"unreachable: {e}"
-                finish(station, {"id": station.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(),
-                                 "images": {}, "status": f"skipped: {reason}"}, reason)  # fmt: skip
-                continue
-            except DeviceError as e:
-                raise interrupted(station, "robot", e) from e
-            if why:
-                raise interrupted(station, "robot", DeviceError(why))
-            emit("moved", station.id, "")
-            extra: dict = {}
-            if adjust is not None:
-                try:
-                    state, extra = adjust(station, state)
-                except SkipStation as e:
-                    finish(station, _record(station, state, {}, f"skipped: {e}"), str(e))
-                    continue
-                except DeviceError as e:
-                    raise interrupted(station, "adjust", e) from e
-            images, reject = _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted)
-            emit("grabbed", station.id, reject)
-            status(f"{station.id}: writing")
-            paths = {} if reject else {cid: writer.write_image(cid, station.id, img) for cid, img in images.items()}
-            finish(station, _record(station, state, paths, f"skipped: {reject}" if reject else "ok", extra), reject)
-        status("done")
+        with control.active(robot) if control is not None else contextlib.nullcontext():
+            for station in todo:
+                if control is not None:
+                    try:
+                        verdict = control.checkpoint(station.id, emit, robot.state)
+                    except DeviceError as e:
+                        raise interrupted(station, "robot (while paused)", e) from e
+                    if verdict == "abort":
+                        result.aborted = True
+                        emit("aborted", station.id, "")
+                        status("aborted")
+                        break
+                run_station(station)
+            else:
+                status("done")
     finally:
         if bar is not None:
             bar.stop()
@@ -313,7 +533,6 @@ def capture(
             robot_lock.release()
     result.elapsed_s = time.monotonic() - t_start
     return result
-
 
 def _record(station: Station, state: RobotState, paths: dict, status: str, extra: dict | None = None) -> dict:
     """The stations.jsonl line of a station reached at ``state``."""
