@@ -341,3 +341,52 @@ def test_cli_capture_ctrl_c_stops_the_robot_exit_4_then_resume(tmp_path):
         done = subprocess.run(cmd + ["--resume"], env=env, capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
     _check_complete(tmp_path / "s", plan)
+
+
+def test_adaptive_capture_pauses_aborts_and_stops_through_the_same_control(tmp_path):
+    """``capture --goal`` runs one capture per station: one CaptureControl covers them all."""
+    from jcalib.app.adaptive import run_adaptive_capture
+    from jcalib.io.goals import parse_goals
+
+    cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "opencv5", "mount": "flange"}},
+            "targets": {"board": {"type": "checkerboard", "cols": 8, "rows": 5, "square": 0.02, "mount": "base"}}}
+    (tmp_path / "img").mkdir()
+    for i in range(8):  # blank frames: nothing is detected, every station is replaced by the next candidate
+        cv2.imwrite(str(tmp_path / "img" / f"{i}.png"), np.full((240, 320), 100, np.uint8))
+    ctrl = SimulatedController(time_scale=0.0)
+    with KukaSimServer(ctrl) as srv:
+        kw = dict(robot_url=f"kuka://127.0.0.1:{srv.port}", camera_urls={"cam0": f"replay://{tmp_path / 'img'}"},
+                  cell=None, goals=parse_goals(["T_flange_cam0:translation_mm<=1"]), max_stations=6,
+                  out=tmp_path / "s", image_size=(320, 240), num_candidates=40, echo=lambda line: None)  # fmt: skip
+        import yaml
+
+        (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+        kw["cell"] = tmp_path / "cell.yaml"
+        control, events = CaptureControl(), []
+
+        def listener(event, sid, detail):
+            events.append((event, sid))
+            if event == "done" and sid == "s000":
+                control.pause()  # held across the detection and the choice of the next station
+            if event == "paused":
+                threading.Timer(0.1, control.resume).start()
+            if event == "start" and sid == "s001":
+                control.abort()  # s001 is finished, then the run ends
+
+        out = run_adaptive_capture(**kw, control=control, listener=listener)
+        assert events[4:6] == [("paused", "s001"), ("resumed", "s001")], events
+        assert events[-1] == ("aborted", "s002"), events
+        assert out.message.startswith("aborted by the operator after 0 station(s)") and "--resume" in out.message
+        assert control.state == "done" and control.abort_requested
+        assert [s["id"] for s in read_session(tmp_path / "s")[1]] == ["s000", "s001"]
+        moves = ctrl.num_moves
+
+        control = CaptureControl()
+
+        def press_stop(event, sid, detail):
+            if event == "start":
+                control.stop()
+
+        with pytest.raises(CaptureInterrupted, match="stopped by the operator .*s002"):
+            run_adaptive_capture(**kw, resume=True, control=control, listener=press_stop)
+        assert control.state == "stopped" and ctrl.num_moves == moves

@@ -103,11 +103,13 @@ class AbbSimServer(ThreadedTcpServer):
 
     def request_stop(self) -> bool:
         """What the stop task does on ``STOP``: bump ``jc_stop_seq`` (the motion task's interrupt then brakes
-        a motion in progress); True when a motion was braking."""
+        a motion in progress); True when a move request was being served (``jc_moving``)."""
         with self._stop_lock:
             self._stop_seq += 1
             moving = self._moving
-        return self.controller.halt() if moving else False
+        if moving:
+            self.controller.halt()
+        return moving
 
     def handle(self, line: str) -> tuple[str, bool]:
         """One request line -> (reply line, keep the connection open)."""
