@@ -5,8 +5,8 @@ Run: ``.venv/bin/python benchmarks/bench_stop.py [--stops 20] [--seed 0]``.
 Each driver talks to its simulator over its real protocol on 127.0.0.1 (KUKAVARPROXY, the ABB line
 protocol with its stop port; the in-process simulated robot without a socket), motion times realistic
 (``time_scale=1``). A move to a random station (joint and linear alternately, 0.3-0.9 s long) starts in a
-thread; at a random 20-80 % of its motion time the main thread calls ``robot.stop()``. Measured from
-just before that call:
+thread; at a random 20-70 % of its motion time the main thread calls ``robot.stop()`` (on a loaded machine
+that call may come after the arrival: such stops are counted, not timed). Measured from just before it:
 
 - **stop call**: until ``stop()`` returns (the controller has the request);
 - **standstill**: until the simulated controller's joints stop changing (sampled every 1 ms in-process:
@@ -92,14 +92,15 @@ def one_stop(robot, ctrl: SimulatedController, T: np.ndarray, kind: str, fractio
     time.sleep(0.05)
     done.set()
     sampler.join()
-    if result.get("error") is None:
-        raise RuntimeError(f"the move was not stopped ({result})")
+    if result.get("error") is None:  # the stop came after the arrival (a loaded machine slept too long)
+        return {}
     last = samples[-1][1]
     still = next(i for i in range(len(samples)) if all(np.array_equal(q, last) for _, q in samples[i:]))
     return {"call": t_call - t0, "standstill": max(0.0, samples[still][0] - t0), "raise": result["t_raise"] - t0}
 
 
-def bench_driver(protocol: str, reply_delay_s: float, stops: int, seed: int) -> list[dict]:
+def bench_driver(protocol: str, reply_delay_s: float, stops: int, seed: int, late: list[int]) -> list[dict]:
+    """``stops`` stopped moves; ``late[0]`` counts stops that came after the arrival (not timed)."""
     rng = np.random.default_rng(seed)
     ctrl = SimulatedController(time_scale=1.0, seed=seed)
     srv, robot = _connect(protocol, ctrl, reply_delay_s)
@@ -113,7 +114,11 @@ def bench_driver(protocol: str, reply_delay_s: float, stops: int, seed: int) -> 
             duration = _duration(ctrl, T, kind)
             if duration is None or not 0.3 <= duration <= 0.9:
                 continue
-            rows.append(one_stop(robot, ctrl, T, kind, float(rng.uniform(0.2, 0.8))))
+            row = one_stop(robot, ctrl, T, kind, float(rng.uniform(0.2, 0.7)))
+            if row:
+                rows.append(row)
+            else:
+                late[0] += 1
             ctrl.time_scale = 0.0  # back home at once
             robot.move(home, settle=False)
             ctrl.time_scale = 1.0
@@ -146,16 +151,17 @@ def main() -> None:
     load = os.getloadavg()
     t = Table(title=f"Robot.stop() at time_scale=1, {a.stops} stops per driver, 127.0.0.1 "
                     f"(load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}); ms, median / max")  # fmt: skip
-    for col in ("driver", "stop call", "standstill", "move() raises", "standstill <= 200 ms"):
+    for col in ("driver", "stop call", "standstill", "move() raises", "standstill <= 200 ms", "stops after arrival"):
         t.add_column(col)
     for label, protocol, delay in DRIVERS:
-        rows = bench_driver(protocol, delay, a.stops, a.seed)
+        late = [0]
+        rows = bench_driver(protocol, delay, a.stops, a.seed, late)
         cells = []
         for key in ("call", "standstill", "raise"):
             v = [1e3 * r[key] for r in rows]
             cells.append(f"{statistics.median(v):.1f} / {max(v):.1f}")
         ok = sum(r["standstill"] <= 0.2 for r in rows)
-        t.add_row(label, *cells, f"{ok} of {len(rows)}")
+        t.add_row(label, *cells, f"{ok} of {len(rows)}", str(late[0]))
     Console(width=160).print(t)
 
 
