@@ -167,7 +167,7 @@ def test_kuka_program_semantics_of_jc_stop():
         # a KRL program older than JC_STOP: moves work, stop() refuses and says what to do
         del srv.vars["JC_STOP"]
         old = KukaRobot("127.0.0.1", srv.port)
-        assert not old.has_stop
+        assert not old.can_stop
         with pytest.raises(DeviceError, match="no JC_STOP .*teach pendant"):
             old.stop()
         assert pose_distance(old.move(_offset(T, [0.01, 0, 0])).T_base_flange, _offset(T, [0.01, 0, 0]))[0] < 1e-4
@@ -202,6 +202,7 @@ def test_abb_stop_port_survives_junk_and_a_version_1_server_cannot_stop():
         robot.close()
         srv.handle = lambda line: ("OK JCALIB 1", True) if line == "PING" else AbbSimServer.handle(srv, line)
         old = AbbRobot("127.0.0.1", srv.port)
+        assert not old.can_stop and robot.can_stop
         with pytest.raises(DeviceError, match="protocol 1 .*FlexPendant"):
             old.stop()
         old.close()
@@ -343,31 +344,39 @@ def test_cli_capture_ctrl_c_stops_the_robot_exit_4_then_resume(tmp_path):
     _check_complete(tmp_path / "s", plan)
 
 
-def test_adaptive_capture_pauses_aborts_and_stops_through_the_same_control(tmp_path):
-    """``capture --goal`` runs one capture per station: one CaptureControl covers them all."""
+def test_adaptive_capture_pauses_aborts_and_stops_through_the_same_control(tmp_path, monkeypatch):
+    """``capture --goal`` runs one capture per station: one CaptureControl covers them all. The station choice
+    (run_adaptive, tested in tests/planning) is replaced by a fixed sequence of stations here."""
+    import yaml
+
+    import jcalib.planning.adaptive as adaptive
     from jcalib.app.adaptive import run_adaptive_capture
     from jcalib.io.goals import parse_goals
 
+    T0 = SimulatedRobot(SimulatedController(time_scale=0.0)).state().T_base_flange
+
+    def fixed_stations(layout, goals, *, acquire, calibrate, max_stations, captured=(), **kw):
+        got = [acquire(j, _offset(T0, [0.02 * j, -0.01 * j, 0.0]), ("cam0", "board")) for j in range(4)]
+        return adaptive.AdaptiveOutcome(list(captured) + [g for g in got if g], [], [], False, None, "all tried")
+
+    monkeypatch.setattr(adaptive, "run_adaptive", fixed_stations)
     cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "opencv5", "mount": "flange"}},
             "targets": {"board": {"type": "checkerboard", "cols": 8, "rows": 5, "square": 0.02, "mount": "base"}}}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
     (tmp_path / "img").mkdir()
-    for i in range(8):  # blank frames: nothing is detected, every station is replaced by the next candidate
+    for i in range(8):  # blank frames: nothing is detected (each station "choosing another")
         cv2.imwrite(str(tmp_path / "img" / f"{i}.png"), np.full((240, 320), 100, np.uint8))
     ctrl = SimulatedController(time_scale=0.0)
     with KukaSimServer(ctrl) as srv:
         kw = dict(robot_url=f"kuka://127.0.0.1:{srv.port}", camera_urls={"cam0": f"replay://{tmp_path / 'img'}"},
-                  cell=None, goals=parse_goals(["T_flange_cam0:translation_mm<=1"]), max_stations=6,
-                  out=tmp_path / "s", image_size=(320, 240), num_candidates=40, echo=lambda line: None)  # fmt: skip
-        import yaml
-
-        (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
-        kw["cell"] = tmp_path / "cell.yaml"
+                  cell=tmp_path / "cell.yaml", goals=parse_goals(["T_flange_cam0:translation_mm<=1"]), max_stations=6,
+                  out=tmp_path / "s", image_size=(320, 240), echo=lambda line: None)  # fmt: skip
         control, events = CaptureControl(), []
 
         def listener(event, sid, detail):
             events.append((event, sid))
             if event == "done" and sid == "s000":
-                control.pause()  # held across the detection and the choice of the next station
+                control.pause()  # held across the detection of s000 and the choice of the next station
             if event == "paused":
                 threading.Timer(0.1, control.resume).start()
             if event == "start" and sid == "s001":
@@ -377,9 +386,8 @@ def test_adaptive_capture_pauses_aborts_and_stops_through_the_same_control(tmp_p
         assert events[4:6] == [("paused", "s001"), ("resumed", "s001")], events
         assert events[-1] == ("aborted", "s002"), events
         assert out.message.startswith("aborted by the operator after 0 station(s)") and "--resume" in out.message
-        assert control.state == "done" and control.abort_requested
+        assert control.state == "done" and control.abort_requested and ctrl.num_moves == 2
         assert [s["id"] for s in read_session(tmp_path / "s")[1]] == ["s000", "s001"]
-        moves = ctrl.num_moves
 
         control = CaptureControl()
 
@@ -389,4 +397,4 @@ def test_adaptive_capture_pauses_aborts_and_stops_through_the_same_control(tmp_p
 
         with pytest.raises(CaptureInterrupted, match="stopped by the operator .*s002"):
             run_adaptive_capture(**kw, resume=True, control=control, listener=press_stop)
-        assert control.state == "stopped" and ctrl.num_moves == moves
+        assert control.state == "stopped" and ctrl.num_moves == 2

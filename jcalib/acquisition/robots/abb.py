@@ -153,7 +153,9 @@ class AbbRobot(Robot):
         version = reply[2] if reply[:2] == ["OK", "JCALIB"] and len(reply) >= 3 else None
         if version == "2" and len(reply) == 4 and reply[3].isdigit() and 0 < int(reply[3]) < 65536:
             self.stop_port = int(reply[3])
-        elif version != "1":
+        elif version == "1":
+            self.can_stop = False
+        else:
             self.close()
             raise DeviceError(
                 f"{self.address} answered PING with {' '.join(reply)!r}, expected 'OK JCALIB "
@@ -224,7 +226,7 @@ class AbbRobot(Robot):
         self._request(f"{cmd} {format_pose_args(T_base_flange)}", timeout_s=self.motion_timeout_s, motion=cmd)
 
     def _stop(self) -> None:
-        if self.stop_port is None:
+        if not self.can_stop:
             raise DeviceError(
                 f"robot at {self.address}: its RAPID server speaks protocol 1 (no stop task), so jcalib cannot stop "
                 "the robot: stop it at the FlexPendant, then install robot/abb/JcalibServer.mod and JcalibStop.mod "

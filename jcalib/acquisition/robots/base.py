@@ -72,6 +72,9 @@ class Robot(abc.ABC):
     settle_tol_m: float = 2e-6
     settle_tol_rad: float = 5e-6
     settle_poll_s: float = 0.02
+    #: False when the program on the controller predates jcalib's stop (:meth:`stop` then refuses): a user
+    #: interface should say so before it starts a motion.
+    can_stop: bool = True
 
     def __init__(self) -> None:
         #: How many times :meth:`stop` was called on this driver.

@@ -243,11 +243,11 @@ class KukaRobot(Robot):
         self.poll_s = float(poll_s)
         try:  # JCALIB_MOVE older than JC_STOP: moves work, stop() refuses
             self._stop_set = self.client.read("JC_STOP").strip().upper() != "FALSE"
-            self.has_stop = True
+            self.can_stop = True
         except DeviceError:
             if not self.client.connected:  # the connection itself failed, not the read
                 raise
-            self._stop_set, self.has_stop = False, False
+            self._stop_set, self.can_stop = False, False
         if velocity_percent is not None:
             self.client.write("JC_VEL", str(int(np.clip(velocity_percent, 1, 100))))
 
@@ -312,7 +312,7 @@ class KukaRobot(Robot):
         self._command(None, what)
 
     def _stop(self) -> None:
-        if not self.has_stop:
+        if not self.can_stop:
             raise DeviceError(
                 f"robot at {self.address}: the KRL program JCALIB_MOVE on the controller has no JC_STOP variable "
                 "(an older version), so jcalib cannot stop the robot: stop it at the teach pendant, then install "
