@@ -298,6 +298,8 @@ class SimulatedController:
             s0 = (now - tr.t0) / tr.duration if tr.duration > 0 else 1.0
             if s0 >= 1.0:
                 return False
+            if not tr.ring:  # already braking
+                return True
             s0 = max(s0, 0.0)
             brake = self.stop_time_s * self.time_scale
             rate = 1.0 / tr.duration  # path parameter per second
