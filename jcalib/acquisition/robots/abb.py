@@ -25,7 +25,7 @@ the robot did not move), 3 RANGE (argument out of range), 4 MOTION (failed while
 
 ``STOP`` goes to the stop port (``jc_stop_port``, 5516 by default), served by a second RAPID task
 (``JcalibStop.mod``) while the motion task waits for a move: one request per connection, answered ``OK
-STOPPED`` (a motion was braking) or ``OK IDLE``, then the task closes it. :meth:`AbbRobot.stop` sends it
+STOPPED`` (a move was in progress) or ``OK IDLE``, then the task closes it. :meth:`AbbRobot.stop` sends it
 and, while its own move has no reply yet and the answer was ``OK IDLE`` (the request overtook the move on
 its way to the controller), sends it again every 10 ms. A version-1 server (no stop task) still moves the
 robot; :meth:`AbbRobot.stop` then refuses with the update to make.
