@@ -13,8 +13,9 @@ starts while ``JC_STOP`` is TRUE does not move (``JC_ERR = 5``).
 Values are checked the way the KRL types check them: the INT variables take integer literals in the
 32-bit range, ``JC_STOP`` the BOOL literals ``TRUE`` / ``FALSE``, ``JC_POS`` a FRAME whose six components
 are finite REALs; anything else (``"nan"``, ``1e999``) is a failed write and leaves the variable as it was.
-The program loop survives whatever a command leads to (it reports ``JC_ERR = 4`` and clears ``JC_FLAG``). A request that is not
-KUKAVARPROXY framing closes that client's connection; idle clients time out (``idle_timeout_s``).
+The program loop survives whatever a command leads to (it reports ``JC_ERR = 4`` and clears ``JC_FLAG``).
+A request that is not KUKAVARPROXY framing closes that client's connection; idle clients time out
+(``idle_timeout_s``).
 
 Start it in-process with ``KukaSimServer(...).start()`` or as a subprocess with
 ``python -m jcalib.acquisition.robots.serve --protocol kuka``.
