@@ -11,8 +11,10 @@ into observations (``jcalib detect --session``).
 
 from jcalib.acquisition.capture import CaptureInterrupted, CaptureResult, SkipStation, apply_camera_settings, capture
 from jcalib.acquisition.servo import ServoResult, servo_tool_tip
+from jcalib.acquisition.capture import CaptureControl
 
 __all__ = [
+    "CaptureControl",
     "CaptureInterrupted",
     "CaptureResult",
     "ServoResult",

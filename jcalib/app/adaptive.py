@@ -15,6 +15,13 @@ Wires :func:`jcalib.planning.adaptive.run_adaptive` to the devices:
 The session's ``session.json`` has no ``plan`` (the stations are chosen as the capture goes) and an
 ``adaptive`` key (goals, max stations, seed, candidates). ``--resume`` continues it: the stations already
 in the session are detected and count towards ``--max-stations``; new stations get the next free ids.
+
+Operator control: every one-station capture gets the same :class:`~jcalib.acquisition.capture.CaptureControl`
+(one run: :meth:`~jcalib.acquisition.capture.CaptureControl.active` around them all), so *pause* waits
+before the next station (also while a calibration runs: the wait comes before the next move), *STOP*
+raises :class:`~jcalib.acquisition.capture.CaptureInterrupted` as in ``jcalib capture``, and *abort* ends
+the run after the station in flight: the outcome then has the stations and calibrations so far and a
+message saying it was aborted (``control.abort_requested``). The first Ctrl-C is the STOP button.
 """
 
 from __future__ import annotations
@@ -85,13 +92,20 @@ def _check_image_sizes(layout, cams: Mapping[str, Any]) -> None:
                                 f"--image-size {size[0]}x{size[1]}")
 
 
+class _Aborted(Exception):
+    """The operator aborted: ends :func:`~jcalib.planning.adaptive.run_adaptive` from inside ``acquire``."""
+
+
 def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell: str | Path | None,
                          goals: Sequence[Goal], max_stations: int, out: str | Path, resume: bool = False,
                          packet_size: int | None = None, settings: Mapping[str, Mapping[str, Any]] | None = None,
                          image_size: tuple[int, int] | None = None, seed: int = 0, num_candidates: int | None = None,
-                         options: Any = None, echo: Callable[[str], None] = print):
+                         options: Any = None, echo: Callable[[str], None] = print, control: Any = None,
+                         listener: Callable[[str, str, str], None] | None = None):
     """``jcalib capture --goal``: open the devices, capture adaptively into the session ``out`` (module
-    docstring), close the devices; progress lines go to ``echo``.
+    docstring), close the devices; progress lines go to ``echo``; ``control`` (a
+    :class:`~jcalib.acquisition.capture.CaptureControl`) and ``listener`` (capture events) as for
+    :func:`jcalib.app.commands.run_capture`.
 
     Returns:
         The :class:`~jcalib.planning.adaptive.AdaptiveOutcome`.
@@ -100,7 +114,7 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
         BadInputError: bad URLs, goals, cell, a session that exists (without ``resume``) or was captured from a
             plan; DeviceError / CaptureInterrupted: a device failed (the session is consistent; resume).
     """
-    from jcalib.acquisition.capture import capture
+    from jcalib.acquisition.capture import CaptureControl, capture, stop_on_sigint
     from jcalib.planning.layout import cell_layout
     from jcalib.app.commands import (capture_settings, close_devices, open_camera, open_robot,
                                      raise_capture_failure)
@@ -145,6 +159,8 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
     robot = None
     cams: dict[str, Any] = {}
     latest: dict[str, Observations] = {}
+    control = control if control is not None else CaptureControl()
+    so_far: dict[str, list] = {"stations": [], "candidates": [], "history": [], "result": [None]}
 
     def detect() -> Observations:
         obs, failures = detect_session(out, cell_dict, progress=False)
@@ -158,7 +174,9 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
             k += 1
         sid = f"s{k:03d}"
         res = capture(make_plan([T_base_flange], ids=[sid]), robot, cams, out, resume=True, progress=False,
-                      resume_hint=hint, camera_settings=all_settings)
+                      resume_hint=hint, camera_settings=all_settings, control=control, listener=listener)
+        if res.aborted:
+            raise _Aborted()
         if sid in res.skipped:
             echo(f"station {sid} ({pair[0]} / {pair[1]}): skipped: {res.skipped[sid]}; choosing another")
             return None
@@ -167,6 +185,9 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
             why = sorted({f"{f.camera} {f.target}: {f.reason}" for f in latest["failures"] if f.station == sid})
             echo(f"station {sid} ({pair[0]} / {pair[1]}): nothing detected ({'; '.join(why) or 'no image'}); "
                  "choosing another")
+        else:
+            so_far["stations"].append(st)
+            so_far["candidates"].append(index)
         return st
 
     def calibrate(stations):
@@ -175,9 +196,13 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
         save_observations(out / "observations.json", obs)
         result = run_calibrate(spec, obs, options)
         result.to_json(out / "result.json")
+        so_far["result"][0] = result.file
         return result.file
 
     def progress(n, achieved, predicted, met):
+        from jcalib.planning.adaptive import AdaptiveStep
+
+        so_far["history"].append(AdaptiveStep(n, dict(achieved), dict(predicted), met))
         for line in progress_lines(goals, n, achieved, predicted):
             echo(line)
 
@@ -201,9 +226,20 @@ def run_adaptive_capture(*, robot_url: str, camera_urls: Mapping[str, str], cell
             SessionWriter.create(out, cell=cell_dict, devices=devices, plan=None, extra={"adaptive": {
                 "goals": [g.text for g in goals], "max_stations": int(max_stations), "seed": int(seed),
                 "candidates": num_candidates}}).close()
-        return run_adaptive(layout, goals, acquire=acquire, calibrate=calibrate, max_stations=max_stations,
-                            options=options, seed=seed, num_candidates=num_candidates, on_progress=progress,
-                            captured=captured)
+        so_far["stations"] = list(captured)
+        so_far["candidates"] = [-1] * len(captured)
+        with control.active(robot), stop_on_sigint(control, robot):
+            try:
+                return run_adaptive(layout, goals, acquire=acquire, calibrate=calibrate, max_stations=max_stations,
+                                    options=options, seed=seed, num_candidates=num_candidates, on_progress=progress,
+                                    captured=captured)
+            except _Aborted:
+                from jcalib.planning.adaptive import AdaptiveOutcome
+
+                n = len(so_far["stations"])
+                message = f"aborted by the operator after {n} station(s); the session is consistent: resume with {hint}"
+                return AdaptiveOutcome(so_far["stations"], so_far["candidates"], so_far["history"], False,
+                                       so_far["result"][0], message)
     except DeviceError as e:
         raise_capture_failure(e, out, hint)
     finally:

@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from jcalib.acquisition.cameras.base import Camera
-from jcalib.acquisition.capture import CaptureResult, capture
+from jcalib.acquisition.capture import CaptureControl, CaptureResult, EventListener, capture, stop_on_sigint
 from jcalib.io.plan import load_plan
 from jcalib.acquisition.robots.base import Robot
 from jcalib.errors import BadInputError, DeviceError
@@ -112,8 +112,13 @@ def run_capture(
     settings: Mapping[str, Mapping[str, Any]] | None = None,
     kind: str = "stations",
     tolerance_px: float = 0.5,
+    control: CaptureControl | None = None,
+    listener: EventListener | None = None,
 ) -> CaptureResult:
     """``jcalib capture``: open the devices, run the plan into the session ``out``, close the devices.
+
+    The first Ctrl-C (in the main thread) is the STOP button: the robot is stopped through its driver and
+    the command ends with the resume hint (exit status 4); a second Ctrl-C interrupts at once.
 
     Args:
         settings: camera id -> {GenICam feature: value}; overrides the cell spec's
@@ -125,6 +130,9 @@ def run_capture(
             :func:`jcalib.vision.tooltip.detect_tool_tip`), then grab; needs a ``jcalib plan --kind
             tcp`` plan and the cell spec.
         tolerance_px: ``kind="tcp"``: the servo stops when the tip is this close to the centre, px.
+        control: the operator's pause / resume / abort / STOP
+            (:class:`~jcalib.acquisition.capture.CaptureControl`; its ``stop()`` stops this command's robot).
+        listener: per-step events (:data:`~jcalib.acquisition.capture.EventListener`).
     """
     import yaml
 
@@ -169,10 +177,12 @@ def run_capture(
         adjust = None
         if kind == "tcp":
             adjust = tcp_servo_adjust(robot, cams, cell, plan_path, tolerance_px=tolerance_px)
-        return capture(
-            plan, robot, cams, out, resume=resume, cell=cell_dict, progress=progress,
-            resume_hint=hint, camera_settings=all_settings, adjust=adjust,
-        )  # fmt: skip
+        control = control if control is not None else CaptureControl()
+        with stop_on_sigint(control, robot):
+            return capture(
+                plan, robot, cams, out, resume=resume, cell=cell_dict, progress=progress,
+                resume_hint=hint, camera_settings=all_settings, adjust=adjust, control=control, listener=listener,
+            )  # fmt: skip
     except DeviceError as e:
         raise_capture_failure(e, out, hint)
     finally:
