@@ -165,7 +165,7 @@ class CellScene:
     """A simulated robot cell: a :class:`jcalib.sim.scene.Scene` (cameras, targets) plus its tools.
 
     ``cameras``, ``targets`` and ``views`` are the scene's, so a ``CellScene`` serves wherever a
-    scene's cameras are listed (:func:`jcalib.app.commands.run_simulated_cell`).
+    scene's cameras are listed (:func:`jcalib.app.simulate.run_simulated_cell`).
 
     Attributes:
         scene: cameras and targets on "base" / "flange" (views unused).

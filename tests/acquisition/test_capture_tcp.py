@@ -10,7 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from jcalib.app.commands import run_capture, run_plan, run_simulate
+from jcalib.app.simulate import run_simulate
+from jcalib.workflow.capture import run_capture
+from jcalib.workflow.plan import run_plan
 from jcalib.io.session import read_session
 
 CELL = """schema: jcalib.cell/1

@@ -91,7 +91,7 @@ def test_simulate_truth_holds_the_true_kinematics(aravis, tmp_path):
     """``jcalib simulate --kinematic-errors SEED --truth FILE`` on loopback: the truth names the true
     parameters; they differ from the nominal ones on the identifiable subset only (the one the
     calibration keeps), by realistic amounts; the same seed gives the same arm."""
-    from jcalib.app.commands import run_simulate
+    from jcalib.app.simulate import run_simulate
     from jcalib.app.simcell import simulated_kinematics
     from jcalib.problems.kinematics import generic_joints, select_parameters
 

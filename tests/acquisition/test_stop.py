@@ -350,7 +350,7 @@ def test_adaptive_capture_pauses_aborts_and_stops_through_the_same_control(tmp_p
     import yaml
 
     import jcalib.planning.adaptive as adaptive
-    from jcalib.app.adaptive import run_adaptive_capture
+    from jcalib.workflow.adaptive import run_adaptive_capture
     from jcalib.io.goals import parse_goals
 
     T0 = SimulatedRobot(SimulatedController(time_scale=0.0)).state().T_base_flange

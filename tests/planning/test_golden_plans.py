@@ -98,7 +98,8 @@ def run_plan_case(name: str, tmp: Path) -> dict:
 
 def run_demo_plan(tmp: Path) -> dict:
     """The demo's plan (hand-eye + tool stations) for its cell, as ``jcalib demo`` makes it (fewer stations)."""
-    from jcalib.app.demo_cell import DEMO_CELL, plan_demo
+    from jcalib.app.demo_cell import plan_demo
+    from jcalib.workflow.simulate import DEMO_CELL
 
     cell_path, out = tmp / "demo.cell.yaml", tmp / "demo.plan.json"
     cell_path.write_text(DEMO_CELL)
