@@ -20,7 +20,7 @@ Public API::
 
 from jcalib.solve.batch import batch_width, bucket_size, pad_problem, stack_problems
 from jcalib.solve.cache import enable_compilation_cache
-from jcalib.solve.core import information, solve, solve_many
+from jcalib.solve.core import information, reuse_compiled_shapes, solve, solve_many
 from jcalib.solve.implicit import solve_differentiable
 from jcalib.solve.lm import RawSolution, SolveOptions, Status, lm_solve
 from jcalib.solve.manifolds import SE3, SO3, Euclidean
@@ -44,6 +44,7 @@ __all__ = [
     "information",
     "lm_solve",
     "pad_problem",
+    "reuse_compiled_shapes",
     "replace",
     "solve",
     "solve_differentiable",

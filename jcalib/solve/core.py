@@ -146,7 +146,8 @@ def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = Solv
         x0: optional ``{name: (num, param_dim)}`` start values.
         options: :class:`SolveOptions` (its tolerances and ``max_iterations`` do not recompile).
         pad: round variable and observation counts up to buckets (:func:`pad_problem`) so that a new
-            data set of similar size reuses the compiled solve.
+            data set of similar size reuses the compiled solve (and, with :func:`reuse_compiled_shapes`, a
+            smaller problem of a structure already solved in this process is padded up to that shape).
         raise_on_unobservable: raise instead of returning ``Status.NOT_OBSERVABLE``.
         traces: also compute every factor group's ``tr(H_g H⁻¹)`` (:attr:`Solution.hat`), for
             variance components (a second linearisation at the estimate; a separate compiled function).
@@ -160,7 +161,7 @@ def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = Solv
     if x0 is not None:
         problem = problem.with_values(x0)
     check_finite_start(problem)
-    padded = pad_problem(problem) if pad else problem
+    padded = pad_problem(problem, **_fitted_shape(problem)) if pad else problem
     out = traced.run(_core, padded, options, bool(traces), _outcome_treedef(padded))
     if out is None:
         out = jax.device_get(_core_jit(padded, options.traced(), bool(traces)))
@@ -168,6 +169,64 @@ def solve(problem: Problem, x0: dict | None = None, options: SolveOptions = Solv
     if raise_on_unobservable:
         raise_if_unobservable(sol)
     return sol
+
+
+#: Shapes this process has solved, per problem structure: ``[(entries, obs)]`` (name -> padded count).
+_SHAPES: dict = {}
+_REUSE = {"on": False}
+
+
+def reuse_compiled_shapes(on: bool = True) -> None:
+    """From now on, let :func:`solve` run a problem at a larger shape already compiled in this process
+    (:func:`_fitted_shape`): a long-lived process (the operator app) re-solves after a view is left out
+    without compiling. The estimate then differs from the problem's own-shape solve by the solver's stopping
+    tolerance (about 1e-7 σ), not more. Off by default: a command computes at its own shapes."""
+    _REUSE["on"] = bool(on)
+    if not on:
+        _SHAPES.clear()
+#: A smaller problem is padded up to a shape already compiled in this process when no count grows beyond
+#: this factor (and this many entries): a re-solve with a view or a station left out costs no compilation.
+SHAPE_REUSE_FACTOR = 2.0
+SHAPE_REUSE_SLACK = 8
+
+
+def _fitted_shape(problem: Problem) -> dict:
+    """Padding targets for :func:`solve`: the problem's own shape buckets, or — with
+    :func:`reuse_compiled_shapes` on, when this process has already solved a problem of the same structure
+    whose counts are all at least these and at most :data:`SHAPE_REUSE_FACTOR` times them — the smallest such
+    shape, so that the compiled solve is reused.
+
+    Padded entries and observations add nothing to the solve (zero weight, fixed); sums of different lengths
+    round differently (~1e-15 relative), which can move where Levenberg–Marquardt stops by its tolerance
+    (~1e-7 σ). Returns ``{"num_entries", "num_obs"}`` for :func:`jcalib.solve.batch.pad_problem`.
+    """
+    own_entries = {v.name: bucket_size(v.num) for v in problem.variables}
+    own_obs = {f.name: bucket_size(f.num_obs // (f.chunk or 1)) * (f.chunk or 1) for f in problem.factors}
+    if not _REUSE["on"]:
+        return {"num_entries": own_entries, "num_obs": own_obs}
+    needed = {**{("v", n): v.num for n, v in zip(own_entries, problem.variables)},
+              **{("f", f.name): f.num_obs for f in problem.factors}}
+    try:
+        key = (jax.tree.structure(problem),
+               tuple(np.shape(x)[1:] for x in jax.tree.leaves(problem) if hasattr(x, "shape")))
+        hash(key)
+    except TypeError:  # an unhashable static field: no reuse
+        return {"num_entries": own_entries, "num_obs": own_obs}
+    best, best_size = None, None
+    for entries, obs in _SHAPES.get(key, ()):
+        counts = {**{("v", n): c for n, c in entries.items()}, **{("f", n): c for n, c in obs.items()}}
+        if all(need <= counts[k] <= max(SHAPE_REUSE_FACTOR * need, need + SHAPE_REUSE_SLACK)
+               for k, need in needed.items()):
+            size = sum(counts.values())
+            if best_size is None or size < best_size:
+                best, best_size = (entries, obs), size
+    if best is None:
+        best = (own_entries, own_obs)
+        shapes = _SHAPES.setdefault(key, [])
+        if best not in shapes:
+            shapes.append(best)
+            del shapes[:-16]  # a bounded memory per structure
+    return {"num_entries": dict(best[0]), "num_obs": dict(best[1])}
 
 
 def solve_many(problems: Sequence[Problem], options: SolveOptions = SolveOptions(), *,
