@@ -613,6 +613,58 @@ def capture(
     )
 
 
+@app.command()
+def ui(
+    cell: Annotated[Optional[Path], typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML) the app reads and, "
+                                                 "when you edit it, writes.")] = None,
+    session: Annotated[Path, typer.Option("--session", help="Capture session folder (created by the first capture; "
+                                          "an existing one is continued).")] = Path("jcalib-session"),
+    robot: Annotated[Optional[str], typer.Option("--robot", help="kuka://HOST[:PORT] or abb://HOST[:PORT].")] = None,
+    camera: Annotated[Optional[list[str]], typer.Option("--camera", help="NAME=gige://IPV4 (or replay://DIR), "
+                                                         "one per camera.")] = None,
+    simulate: Annotated[bool, typer.Option("--simulate", help="Start the simulated cell of `jcalib demo` (a KUKA "
+                                           "robot and two GigE cameras in a private network namespace).")] = False,
+    port: Annotated[Optional[int], typer.Option("--port", help="TCP port [8765, or the next free one; 0: any].")] = None,
+    host: Annotated[str, typer.Option("--host", help="Address to listen on (other machines can reach anything "
+                                      "but loopback; the token still guards every request).")] = "127.0.0.1",
+    image_size: Annotated[str, typer.Option(help="--simulate: WxH of the simulated cameras without intrinsics.")]
+    = "1280x960",
+    seed: Annotated[int, typer.Option(help="--simulate: noise seed of the simulated cell.")] = 0,
+) -> None:
+    """Start the operator's web app: live view, plan and capture toward goals, calibrate and inspect, export.
+
+    Prints the URL with its access token (open it in a browser on this machine). Stop it with Ctrl-C.
+    """
+    from jcalib.errors import BadInputError
+
+    if port is not None and not 0 <= port <= 65535:
+        raise BadInputError(f"--port: expected 0..65535, got {port}")
+    if seed < 0:
+        raise BadInputError(f"--seed: expected a seed >= 0, got {seed}")
+    if cell is not None:
+        _check_cell(cell)
+    cameras = {}
+    if camera:
+        from jcalib.workflow.devices import check_urls, parse_named
+
+        cameras = parse_named(camera)
+        check_urls(robot, cameras)
+    elif robot:
+        from jcalib.workflow.devices import check_urls
+
+        check_urls(robot, {})
+    from jcalib.workflow.devices import parse_image_size
+
+    parse_image_size(image_size)
+    enable_compilation_cache()
+    from jcalib.ui.launch import run_ui
+
+    code = run_ui(cell=cell, session=session, robot=robot, cameras=cameras, simulate=simulate, port=port, host=host,
+                  image_size=image_size, seed=seed, print_url=typer.echo)
+    if code:
+        raise typer.Exit(code)
+
+
 def _register_study() -> None:
     from jcalib.app.study import study_command
 

@@ -25,7 +25,8 @@ def calibrate(cell, observations, options=None, *, prior=None) -> Result:
             (``SESSION/observations.json``, what ``jcalib detect --session`` writes) honours the
             session's ``exclusions.json`` (:mod:`jcalib.io.exclusions`): the views and stations it
             names are left out (an :class:`~jcalib.errors.InputWarning` says which, and the result's
-            ``stats["excluded"]`` lists them).
+            ``stats["excluded"]`` lists them); ``stats["exclusions"]`` records the file's entries in force
+            (``jcalib detect --session`` has usually left those views out of the observations already).
         options: :class:`CalibrationOptions` (or a dict of its fields) for every kind of cell. An
             option set to something other than its default that the cell cannot use is refused.
         prior: a previous result (path, :class:`~jcalib.io.result.ResultFile` or :class:`Result`) of
@@ -46,8 +47,11 @@ def calibrate(cell, observations, options=None, *, prior=None) -> Result:
     obs = load_observations(observations)
     left_out: list[str] = []
     session = session_of_observations(observations) if isinstance(observations, (str, os.PathLike)) else None
+    in_force: list[dict] = []
     if session is not None:
-        obs, left_out = apply_exclusions(obs, load_exclusions(session))
+        exclusions = load_exclusions(session)
+        in_force = exclusions.entries()
+        obs, left_out = apply_exclusions(obs, exclusions)
         if left_out:
             warnings.warn(f"left out {len(left_out)} view(s) or station(s) named by {session / EXCLUSIONS_FILE}: "
                           f"{', '.join(left_out[:12])}{' ...' if len(left_out) > 12 else ''}", InputWarning,
@@ -62,4 +66,6 @@ def calibrate(cell, observations, options=None, *, prior=None) -> Result:
         result = Result(result_file(cal, opts, hash_), cal)
     if left_out:
         result.file.stats["excluded"] = left_out
+    if in_force:
+        result.file.stats["exclusions"] = in_force
     return result

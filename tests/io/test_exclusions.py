@@ -99,12 +99,13 @@ def test_calibrate_honours_the_exclusions_of_a_session_folder(tmp_path):
         honoured = jcalib.calibrate(CELL, path)
     assert any(issubclass(w.category, InputWarning) and "s002, s005" in str(w.message) for w in caught)
     assert honoured.file.stats["excluded"] == ["s002", "s005"]
+    assert honoured.file.stats["exclusions"] == [{"station": "s002"}, {"station": "s005"}]
     reference = jcalib.calibrate(CELL, {**data, "stations": [s for s in data["stations"]
                                                              if s["id"] not in ("s002", "s005")]})
     a, b = honoured.file.cameras["cam0"], reference.file.cameras["cam0"]
     for p in ("fx", "fy", "cx", "cy", "k1"):
         assert abs(a.params[a.param_names.index(p)] - b.params[b.param_names.index(p)]) <= 1e-6 * b.std[p], p
     everything = jcalib.calibrate(CELL, data)  # the same file outside a session: nothing left out
-    assert "excluded" not in everything.file.stats
+    assert "excluded" not in everything.file.stats and "exclusions" not in everything.file.stats
     c = everything.file.cameras["cam0"]
     assert abs(c.params[0] - b.params[0]) > 1e-6 * b.std["fx"]  # the exclusion made a difference
