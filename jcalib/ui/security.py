@@ -184,10 +184,9 @@ class ControlLease:
         """Make ``client`` the controller when nobody holds the lease or its holder has left (no live
         connection for :attr:`timeout_s`). Returns whether ``client`` holds it now."""
         with self._lock:
-            if self.holder == client:
-                return True
-            if self._holder_gone():
+            if self.holder == client or self._holder_gone():
                 self.holder = client
+                self._last_seen[client] = time.monotonic()  # a request counts as being there
                 return True
             return False
 

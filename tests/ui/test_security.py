@@ -187,3 +187,26 @@ def test_a_second_browser_cannot_move_the_robot_but_can_stop_it(app):
                                   body={"confirm": False, "mode": "plan"})
         assert status == 400 and b"confirmation" in body
         request(app, "POST", "/api/control/release", headers=auth(app, "a"))
+
+
+def test_the_control_lease_passes_only_when_its_holder_releases_or_leaves():
+    import time
+
+    from jcalib.ui.security import ControlLease
+
+    lease = ControlLease(timeout_s=0.3)
+    assert lease.acquire("a") and lease.holds("a")
+    lease.connected("a")
+    assert not lease.acquire("b") and not lease.holds("b")
+    time.sleep(0.4)
+    assert not lease.acquire("b")  # a is still connected
+    assert lease.status("a") == {"holder": "a", "you": True, "clients": 1}
+    lease.disconnected("a")
+    assert not lease.acquire("b")  # gone for less than the timeout
+    time.sleep(0.4)
+    assert lease.acquire("b") and lease.status("b")["you"] and not lease.status("a")["you"]
+    lease.release("a")  # not the holder: no effect
+    assert lease.holds("b")
+    lease.release("b")
+    assert lease.acquire("a")
+    assert not lease.holds(None) and not lease.holds("")
