@@ -105,12 +105,12 @@ class AppState:
     def open_devices(self) -> None:
         """Connect the robot and the cameras of the configuration (errors are kept and shown, not raised)."""
         from jcalib.acquisition.stream import LiveCamera
-        from jcalib.workflow.devices import open_camera, open_robot
+        from jcalib.workflow.devices import open_camera
 
         problems = []
         if self.config.robot_url:
             try:
-                self.robot = open_robot(self.config.robot_url)
+                self.ensure_robot()
             except (BadInputError, DeviceError) as e:
                 problems.append(f"robot {self.config.robot_url}: {e}")
         for name, url in self.config.camera_urls.items():
