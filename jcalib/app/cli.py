@@ -625,8 +625,9 @@ def ui(
     simulate: Annotated[bool, typer.Option("--simulate", help="Start the simulated cell of `jcalib demo` (a KUKA "
                                            "robot and two GigE cameras in a private network namespace).")] = False,
     port: Annotated[Optional[int], typer.Option("--port", help="TCP port [8765, or the next free one; 0: any].")] = None,
-    host: Annotated[str, typer.Option("--host", help="Address to listen on (other machines can reach anything "
-                                      "but loopback; the token still guards every request).")] = "127.0.0.1",
+    host: Annotated[str, typer.Option("--host", help="Address to listen on; an address other than loopback lets "
+                                      "other machines reach the app (the token still guards every request).")]
+    = "127.0.0.1",
     image_size: Annotated[str, typer.Option(help="--simulate: WxH of the simulated cameras without intrinsics.")]
     = "1280x960",
     seed: Annotated[int, typer.Option(help="--simulate: noise seed of the simulated cell.")] = 0,

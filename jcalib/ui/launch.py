@@ -169,6 +169,9 @@ def _serve(sock: socket.socket, token: str, *, cell, session: Path, robot, camer
         hosts = {f"127.0.0.1:{port}", f"localhost:{port}", f"[::1]:{port}", f"{host}:{port}"}
         app = make_app(state, token, hosts)
         shown = f"[{host}]" if ":" in host else host
+        if host not in ("127.0.0.1", "::1", "localhost"):
+            print_url(f"jcalib ui: listening on {host}, reachable from other machines; share the URL only with "
+                      "who may control the cell")
         print_url(f"jcalib ui: http://{shown}:{port}/?token={token}")
         if state.device_error:
             print_url(f"jcalib ui: device problem: {state.device_error}")
