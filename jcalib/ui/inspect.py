@@ -11,7 +11,6 @@ The full report (every section: it has the in-memory result) is written in the b
 from __future__ import annotations
 
 import shutil
-import threading
 import time
 from typing import Any
 
@@ -45,7 +44,7 @@ def _calibrate(state, report, what: str) -> dict:
         state.previous = state.result if state.result is not None else _load_previous(cfg)
         state.result, state.solve_s = result, solve_s
         state.warnings = ["(computing the report's warnings …)"]
-    threading.Thread(target=_write_report, args=(state, result), name="report", daemon=True).start()
+    state.spawn(_write_report, "report", state, result)
     s = result.file.stats
     return {"summary": f"{what}: RMS {float(s.get('rms_px', float('nan'))):.4g} px per point, solved in "
                        f"{solve_s:.2f} s" + (f"; left out {', '.join(s['excluded'])}" if s.get("excluded") else ""),

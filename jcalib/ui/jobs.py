@@ -109,6 +109,7 @@ class JobRunner:
         self._lock = threading.Lock()
         self.current: Job | None = None
         self.last: dict[str, Job] = {}
+        self._thread: threading.Thread | None = None
 
     @property
     def busy(self) -> bool:
@@ -149,8 +150,16 @@ class JobRunner:
             job.ended = time.time()
             self._emit(job)
 
-        threading.Thread(target=run, name=f"job-{kind}-{job.id}", daemon=True).start()
+        self._thread = threading.Thread(target=run, name=f"job-{kind}-{job.id}", daemon=True)
+        self._thread.start()
         return job
+
+    def join(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for the running job to end; whether none runs now."""
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+        return thread is None or not thread.is_alive()
 
     def _emit(self, job: Job, **extra: Any) -> None:
         self.bus.publish({"type": "job", "job": job.to_json(), **extra})

@@ -22,6 +22,8 @@ from jcalib.errors import BadInputError
 __all__ = ["run_ui", "DEFAULT_PORT"]
 
 DEFAULT_PORT = 8765
+# How long a stopping app waits for a running calibration or report to finish (a capture is stopped at once).
+SHUTDOWN_WAIT_S = 60.0
 #: Ports tried after the default one when it is taken (not with an explicit --port).
 PORT_TRIES = 20
 TOKEN_ENV = "JCALIB_UI_TOKEN"
@@ -179,6 +181,17 @@ def _serve(sock: socket.socket, token: str, *, cell, session: Path, robot, camer
         server = _Server(uvicorn.Config(app, fd=sock.fileno(), log_level="warning", ws="websockets-sansio",
                                         lifespan="on", timeout_graceful_shutdown=3))  # fmt: skip
         server.run()
+        state.close_devices()
+        left = state.join_background(timeout_s=SHUTDOWN_WAIT_S)
+        if left:
+            # The interpreter's exit would abort (a thread inside XLA or OpenCV): end without it, files are
+            # written atomically, so nothing half-written stays behind.
+            print_url(f"jcalib ui: stopped while {', '.join(left)} still ran; it was abandoned")
+            sys.stdout.flush()
+            sys.stderr.flush()
+            if simulator is not None:
+                simulator.stop()
+            os._exit(0)
         return 0
     finally:
         if simulator is not None:

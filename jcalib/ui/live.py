@@ -131,6 +131,19 @@ class LiveDetector:
         if self._viewers == 0:
             self.camera.stop_streaming()
 
+    def close(self) -> None:
+        """Every viewer left (the app stops)."""
+        with self._lock:
+            self._viewers = 0
+            self._active.clear()
+        self.camera.stop_streaming()
+
+    def join(self, timeout_s: float) -> None:
+        """Wait (up to ``timeout_s``) for the detection thread after the last viewer left."""
+        thread = self._thread
+        if thread is not None and not self._active.is_set():
+            thread.join(timeout_s)
+
     @property
     def rate_hz(self) -> float:
         t = list(self._times)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -100,6 +101,7 @@ class AppState:
         self.warnings: list[str] = []
         self.robot_state: dict = {"connected": False, "error": None}
         self._closing = threading.Event()
+        self._threads: list[threading.Thread] = []
 
     # --- devices -------------------------------------------------------------------------------------
     def open_devices(self) -> None:
@@ -121,7 +123,32 @@ class AppState:
         self.device_error = "; ".join(problems) or None
         self.reset_detectors()
         if self.config.robot_url:
-            threading.Thread(target=self._watch_robot, name="robot-monitor", daemon=True).start()
+            self.spawn(self._watch_robot, "robot-monitor")
+
+    def spawn(self, target: Callable[..., Any], name: str, *args: Any) -> threading.Thread:
+        """Run ``target(*args)`` in a background thread that the app waits for when it stops."""
+        thread = threading.Thread(target=target, args=args, name=name, daemon=True)
+        with self.lock:
+            self._threads = [t for t in self._threads if t.is_alive()] + [thread]
+        thread.start()
+        return thread
+
+    def join_background(self, timeout_s: float) -> list[str]:
+        """After :meth:`close_devices`: wait up to ``timeout_s`` in all for the running job, the report being
+        written and the device threads (a thread still inside XLA or OpenCV when the interpreter exits aborts
+        the process); the names of what still runs."""
+        deadline = time.monotonic() + timeout_s
+        self.jobs.join(timeout_s)
+        for det in list(self.detectors.values()):
+            det.join(max(0.0, deadline - time.monotonic()))
+        with self.lock:
+            threads = list(self._threads)
+        for t in threads:
+            t.join(max(0.0, deadline - time.monotonic()))
+        left = [t.name for t in threads if t.is_alive()]
+        if self.jobs.busy:
+            left.insert(0, f"the {self.jobs.current.title} job")
+        return left
 
     def ensure_robot(self):
         """The connected robot, re-connecting when the last connection was lost (a controller drops a client
@@ -167,7 +194,7 @@ class AppState:
             except DeviceError:
                 pass
         for d in self.detectors.values():
-            d.unwatch()
+            d.close()
         close_devices(self.cameras, robot)
         self.cameras, self.robot = {}, None
 
