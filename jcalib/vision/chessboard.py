@@ -1,5 +1,28 @@
-"""Chessboard corners: ``cv2.findChessboardCorners`` + ``cornerSubPix`` + a saddle-point fit, SB as fallback
-(also when a corner of the classic finder's grid is off the grid its neighbours define).
+"""Chessboard corners: a cheap search on reduced images, then ``cornerSubPix`` + a saddle-point fit at full
+resolution; every grid any attempt returns is checked before it is kept.
+
+**Search** (:func:`find_chessboard`), cheapest first:
+
+1. ``findChessboardCorners`` with ``CALIB_CB_FAST_CHECK`` on the pyramid level whose longer side is at
+   most :data:`FAST_SIDE_PX` (a millisecond or two; finds most clean views);
+2. the X-junction locator (:mod:`jcalib.vision.locate`) says whether a board plausibly is in view,
+   where, and how large its squares are; when it is, the classic finder (then ``findChessboardCornersSB``
+   when that finds nothing or a grid with a corner off it) runs on that region, on the pyramid level
+   where the squares are about :data:`FINDER_SQUARE_PX` wide;
+3. only then, and only with ``retry``, the attempts of :data:`jcalib.vision.attempts.GRID_ATTEMPTS`
+   on the same region.
+
+An image without a lattice of X-junctions gets no further than step 2 (a few milliseconds at
+640x480). Whatever a step finds is refined level by level down to the full-resolution image.
+
+**Checks**, the same for every step: :func:`grid_error` on the finder's grid and again on the refined
+one (a corner a spacing off its neighbours' grid), and :func:`jcalib.vision.locate.x_junction_check`
+on every refined corner: a grid with a corner that is not an X-junction is not the board (e.g. a
+board with its last row covered, whose finder took the outer corners of the border squares for the
+covered row and so numbered every real corner 180° off). The caller then checks every point
+against the board's homography (:mod:`jcalib.vision.validate`).
+
+**Accuracy** (the refinement):
 
 Measured on clean synthetic homography warps of a 9x6 board (exact-coverage texture, 4x4
 supersampled pixels, 640x480, 10-40 px squares; helpers in ``tests/vision/synth.py``): plain
@@ -25,14 +48,26 @@ fixed aspect ratio, same images).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
-from jcalib.vision.image import GrayImage
+from jcalib.vision.image import GrayImage, image_stats, mosaic, to_level
+from jcalib.vision.locate import BoardHint, locate_board, x_junction_check
 
-__all__ = ["find_chessboard", "refine_corners", "find_partial_chessboard", "grid_error"]
+__all__ = ["GridFound", "find_chessboard", "find_partial_chessboard", "grid_error", "plausible_lattice", "refine_corners"]
 
 _FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+
+
+def _windows(gray: GrayImage, corners: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """A mosaic of the float image's windows (2 half + 1 px) around the corners, and each corner's
+    position in it: filters then cost the windows' area, not the image's."""
+    c = np.asarray(corners, np.float64).reshape(-1, 2)
+    centre = np.round(c).astype(np.int64)
+    image, origins = mosaic(gray.tiles(centre, half))
+    return image, c - centre + half + origins
 
 
 def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float) -> np.ndarray:
@@ -49,10 +84,13 @@ def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float) -> n
     """
     half = int(np.clip(np.floor(0.35 * spacing_px), 2, 10))
     sigma = float(np.clip(0.25 * half + 0.75, 1.0, 2.5))
-    smooth = cv2.GaussianBlur(gray.f32, (0, 0), sigma)
-    c = np.ascontiguousarray(corners, dtype=np.float32).reshape(-1, 1, 2)
+    start = np.asarray(corners, np.float64).reshape(-1, 2)
+    image, local = _windows(gray, start, half + int(np.ceil(4.0 * sigma)) + 8)
+    smooth = cv2.GaussianBlur(image, (0, 0), sigma)
+    c = np.ascontiguousarray(local, dtype=np.float32).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
-    refined = cv2.cornerSubPix(smooth, c, (half, half), (-1, -1), criteria).reshape(-1, 2).astype(np.float64)
+    moved = cv2.cornerSubPix(smooth, c, (half, half), (-1, -1), criteria).reshape(-1, 2).astype(np.float64) - local
+    refined = start + np.where(np.linalg.norm(moved, axis=1, keepdims=True) < half, moved, 0.0)
     return saddle_points(gray, refined, spacing_px)
 
 
@@ -78,14 +116,16 @@ def _bilinear(img: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
 def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, iterations: int = 12) -> np.ndarray:
     """Stationary points of a quadratic fitted around each corner (see the module docstring)."""
     half = int(np.clip(np.round(_SADDLE_F * spacing_px), 2, _SADDLE_MAX))
-    smooth = cv2.GaussianBlur(gray.f32, (0, 0), _SADDLE_S * half)
+    start = np.asarray(corners, np.float64).reshape(-1, 2)
+    # each corner's window: the fit's half width, the smoothing's reach and the 1 px it may move
+    image, local = _windows(gray, start, half + int(np.ceil(4.0 * _SADDLE_S * half)) + 8)
+    smooth = cv2.GaussianBlur(image, (0, 0), _SADDLE_S * half)
     n = 2 * half + 1
     y, x = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)
     A = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=-1).reshape(-1, 6)
     w = np.exp(-(x * x + y * y) / (2.0 * (half / 1.5) ** 2)).reshape(-1)
     P = np.linalg.pinv(A * w[:, None]) * w[None, :]  # (6, n*n): weighted least-squares fit
-    start = np.asarray(corners, np.float64)
-    cur = start.copy()
+    cur = local.copy()
     active = np.ones(len(cur), bool)
     for _ in range(iterations):
         if not np.any(active):
@@ -103,8 +143,9 @@ def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, itera
         step = np.clip(step, -0.5, 0.5)
         cur[idx] += step
         active[idx] = ok & (np.linalg.norm(step, axis=1) > 1e-4)
-    far = np.linalg.norm(cur - start, axis=1) > 1.0
-    return np.where(far[:, None] | ~np.isfinite(cur), start, cur)
+    moved = cur - local
+    far = np.linalg.norm(moved, axis=1) > 1.0
+    return np.where(far[:, None] | ~np.isfinite(moved), start, start + moved)
 
 
 def _min_spacing(corners: np.ndarray, cols: int, rows: int) -> float:
@@ -160,46 +201,243 @@ def grid_error(corners: np.ndarray, cols: int, rows: int) -> float:
     return float(np.max(err)) if np.all(np.isfinite(err)) else float("inf")
 
 
-def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True) -> tuple[np.ndarray | None, str, tuple[str, ...]]:
-    """All ``cols x rows`` inner corners in OpenCV's order, refined, or None.
+#: The first, cheap pass runs on the pyramid level whose longer side is at most this, px.
+FAST_SIDE_PX = 400
+#: Regions of lattice junctions searched, largest first (a board, a screen showing one, a tiled floor...).
+MAX_REGIONS = 3
+#: The located region is searched on the pyramid level where the squares are about this wide, px.
+FINDER_SQUARE_PX = 14.0
+_FAST_FLAGS = _FIND_FLAGS | cv2.CALIB_CB_FAST_CHECK
 
-    Each attempt of :data:`jcalib.vision.attempts.GRID_ATTEMPTS` (only the first unless ``retry``)
-    runs ``findChessboardCorners`` on its prepared image, and ``findChessboardCornersSB`` when that finds
-    nothing or a grid with a corner off it (:func:`grid_error` above :data:`GRID_RTOL`; the grid that fits
-    better is kept); the first board found is mapped back to the original pixels and refined there.
+
+@dataclass(frozen=True)
+class GridFound:
+    """What :func:`find_chessboard` found.
+
+    Attributes:
+        pixels: (cols * rows, 2) float64 refined corners in OpenCV's order, px, or None.
+        method: the finder and level that found them, e.g. ``"findChessboardCorners@level1+cornerSubPix+saddle"``.
+        attempts: the attempts run, in order (``"default"`` is the fast pass and the located region).
+        rejected: why grids that attempts returned were not kept (``"<attempt>: <reason>"``).
+        hint: the locator's :class:`~jcalib.vision.locate.BoardHint` (None when the fast pass sufficed).
+    """
+
+    pixels: np.ndarray | None
+    method: str
+    attempts: tuple[str, ...]
+    rejected: tuple[str, ...] = ()
+    hint: BoardHint | None = None
+
+    @property
+    def attempt(self) -> str:
+        return self.attempts[-1] if self.attempts else "default"
+
+
+def level_with_side(gray: GrayImage, side: float) -> int:
+    """The first pyramid level whose longer side is at most ``side`` px."""
+    k, longer = 0, max(gray.size)
+    while longer / 2**k > side:
+        k += 1
+    return k
+
+
+def _classic_then_sb(img: np.ndarray, cols: int, rows: int, flags: int, sb: bool) -> tuple[np.ndarray | None, str]:
+    """The classic finder's grid, or SB's when the classic one is missing or has a corner off the grid and
+    SB's fits better (the classic finder now and then returns a border square's outer corner for an inner
+    one, a spacing away: seen on a rendered 8x5 board at 320x240, one corner 14 px off)."""
+    ok, c = cv2.findChessboardCorners(img, (cols, rows), flags=flags)
+    method = "findChessboardCorners"
+    error = grid_error(c.reshape(-1, 2), cols, rows) if ok and c is not None else float("inf")
+    if error > GRID_RTOL and sb:
+        ok_sb, c_sb = cv2.findChessboardCornersSB(img, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
+        error_sb = grid_error(c_sb.reshape(-1, 2), cols, rows) if ok_sb and c_sb is not None else float("inf")
+        if error_sb < error:
+            c, error, method = c_sb, error_sb, "findChessboardCornersSB"
+    if not error <= GRID_RTOL:
+        return None, method
+    return c.reshape(-1, 2).astype(np.float64), method
+
+
+def _to_full(gray: GrayImage, corners: np.ndarray, level: int, cols: int, rows: int) -> np.ndarray:
+    """Corners on pyramid level ``level`` -> full resolution, with ``cornerSubPix`` on the levels from
+    ``level`` down to 2 (each halves the start error of the next; from level 1 the full-resolution
+    refinement's window covers the start error, and a refinement on level 1 drifts more often than it
+    helps: measured on OpenCV's real right02 and right05, a border corner 1.3 px off)."""
+    c = np.asarray(corners, np.float64)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 1e-3)
+    for k in range(level, 0, -1):
+        if k >= 2:
+            half = int(np.clip(np.floor(0.25 * _min_spacing(c, cols, rows)), 2, 4))
+            c32 = np.ascontiguousarray(c, np.float32).reshape(-1, 1, 2)
+            moved = cv2.cornerSubPix(gray.level(k), c32, (half, half), (-1, -1), criteria).reshape(-1, 2) - c
+            c = c + np.where(np.linalg.norm(moved, axis=1, keepdims=True) < half, moved, 0.0)
+        c = (c + 0.5) * 2.0 - 0.5
+    return c
+
+
+def _checked(gray: GrayImage, corners: np.ndarray, cols: int, rows: int) -> tuple[np.ndarray | None, str]:
+    """Refined full-resolution corners, or None and why the grid is not the board."""
+    spacing = _min_spacing(corners, cols, rows)
+    if not spacing > 1.0:
+        return None, "corners coincide"
+    refined = refine_corners(gray, corners, spacing)
+    error = grid_error(refined, cols, rows)
+    if not error <= GRID_RTOL:
+        return None, f"a refined corner is {error:.2f} spacings off the grid of its neighbours"
+    local = _local_spacing(refined, cols, rows)
+    not_x, _ = x_junction_check(gray, refined, local)
+    bad = np.flatnonzero(not_x | ~checker_squares(gray, refined, cols, rows))
+    if len(bad):
+        return None, (f"{len(bad)} corner(s) (first: index {int(bad[0])} in the finder's order) are not the "
+                      "inner corners of a checker pattern, e.g. a border square's outer corner standing in for a "
+                      "covered row")  # fmt: skip
+    return refined, ""
+
+
+def checker_squares(gray: GrayImage, corners: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """(N,) bool: each inner corner has the four squares of a checker pattern around it.
+
+    The printed board has a square on every side of every inner corner (the border squares beyond the
+    outer corners too, though a trimmed print may cut them narrower: OpenCV's left/right sample board).
+    Around each corner the grey level is sampled 0.4 of the way to the centre of each of its four
+    squares (the outer squares' centres extrapolated one spacing), smoothed over a tenth of a spacing:
+    the two diagonal pairs must each be of one shade and the pairs of opposite shades; a pair differing
+    by more than the contrast between the pairs fails (an invented corner on the board's edge: twice).
+    Samples outside the image, and corners whose four
+    values differ by less than a quarter of the board's median contrast (glare, shadow: nothing
+    measurable), pass.
+    """
+    g = np.asarray(corners, np.float64).reshape(rows, cols, 2)
+    ext = np.empty((rows + 2, cols + 2, 2))
+    ext[1:-1, 1:-1] = g
+    ext[1:-1, 0] = 2.0 * g[:, 0] - g[:, 1]
+    ext[1:-1, -1] = 2.0 * g[:, -1] - g[:, -2]
+    ext[0] = 2.0 * ext[1] - ext[2]
+    ext[-1] = 2.0 * ext[-2] - ext[-3]
+    centres = 0.25 * (ext[:-1, :-1] + ext[:-1, 1:] + ext[1:, :-1] + ext[1:, 1:])  # (rows + 1, cols + 1, 2)
+    # the four squares around corner (i, j): a (i, j), b (i, j + 1), c (i + 1, j + 1), d (i + 1, j) of centres
+    quad = np.stack([centres[:-1, :-1], centres[:-1, 1:], centres[1:, 1:], centres[1:, :-1]], axis=2)
+    at = g[:, :, None, :] + 0.4 * (quad - g[:, :, None, :])  # (rows, cols, 4, 2)
+    spacing = _local_spacing(corners, cols, rows)
+    sigma = float(np.clip(0.1 * np.median(spacing), 0.5, 4.0))  # averages the noise over a fifth of a spacing
+    reach = np.max(np.linalg.norm(at - g[:, :, None, :], axis=-1))
+    half = int(np.ceil(min(reach, 2.0 * np.max(spacing)) + 4.0 * sigma + 2.0))
+    centre = np.round(g.reshape(-1, 2)).astype(np.int64)
+    image, origins = mosaic(gray.tiles(centre, half))
+    local = at.reshape(-1, 4, 2) - centre[:, None, :] + half + origins[:, None, :]
+    w, h = gray.size
+    flat_at = at.reshape(-1, 4, 2)
+    inside = np.all((flat_at[..., 0] >= 0) & (flat_at[..., 0] <= w - 1) & (flat_at[..., 1] >= 0)
+                    & (flat_at[..., 1] <= h - 1) & (np.abs(local - origins[:, None, :] - half) <= half - 4.0 * sigma).all(-1),
+                    axis=1)  # fmt: skip
+    smooth = cv2.GaussianBlur(image, (0, 0), sigma)
+    value = cv2.remap(smooth, local[..., 0].astype(np.float32), local[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE).astype(np.float64)  # fmt: skip
+    a, b, c, d = (value[:, k] for k in range(4))
+    between = np.abs(0.5 * (a + c) - 0.5 * (b + d))
+    within = np.maximum(np.abs(a - c), np.abs(b - d))
+    contrast = np.median(between[inside]) if np.any(inside) else 0.0
+    measurable = inside & (np.maximum(between, within) > 0.25 * contrast)
+    return ~measurable | (within <= between)
+
+
+def _local_spacing(corners: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """(N,) distance of each corner to its nearest grid neighbour, px."""
+    g = np.asarray(corners, np.float64).reshape(rows, cols, 2)
+    d = np.full((rows, cols), np.inf)
+    across = np.linalg.norm(np.diff(g, axis=1), axis=-1)
+    down = np.linalg.norm(np.diff(g, axis=0), axis=-1)
+    d[:, :-1] = np.minimum(d[:, :-1], across)
+    d[:, 1:] = np.minimum(d[:, 1:], across)
+    d[:-1] = np.minimum(d[:-1], down)
+    d[1:] = np.minimum(d[1:], down)
+    return d.reshape(-1)
+
+
+def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True,
+                    contrast: float | None = None) -> GridFound:
+    """All ``cols x rows`` inner corners in OpenCV's order, refined and checked (module docstring).
+
+    Args:
+        gray: the image.
+        cols, rows: inner corners of the board.
+        retry: run the attempts of :data:`jcalib.vision.attempts.GRID_ATTEMPTS` on the located region when
+            the default passes find nothing.
+        contrast: the image's grey-level spread, 0..1 (default: measured here).
 
     Returns:
-        ((cols*rows, 2) float64 px or None, name of the finder that succeeded, names of the attempts run).
+        :class:`GridFound` (``pixels`` None when no checked grid was found).
     """
     from jcalib.vision.attempts import GRID_ATTEMPTS, prepare, to_original
 
-    tried: list[str] = []
-    for attempt in GRID_ATTEMPTS if retry else GRID_ATTEMPTS[:1]:
-        tried.append(attempt.name)
-        img = prepare(gray.u8, attempt)
-        ok, c = cv2.findChessboardCorners(img, (cols, rows), flags=_FIND_FLAGS)
-        method = "findChessboardCorners"
-        error = grid_error(c.reshape(-1, 2), cols, rows) if ok and c is not None else float("inf")
-        if error > GRID_RTOL:
-            # not found, or a corner off the grid: the classic finder now and then returns a border
-            # square's outer corner for an inner one, a spacing away (seen: a rendered 8x5 board at
-            # 320x240, one corner 14 px off); the SB finder's grid replaces it when it fits better
-            ok_sb, c_sb = cv2.findChessboardCornersSB(img, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
-            if ok_sb and c_sb is not None and grid_error(c_sb.reshape(-1, 2), cols, rows) < error:
-                ok, c, method = True, c_sb, "findChessboardCornersSB"
-        if not ok or c is None:
-            continue
-        c = to_original(c.reshape(-1, 2).astype(np.float64), attempt)
-        return refine_corners(gray, c, _min_spacing(c, cols, rows)), method + "+cornerSubPix+saddle", tuple(tried)
-    return None, "", tuple(tried)
+    rejected: list[str] = []
+
+    def keep(c_level: np.ndarray | None, level: int, name: str, method: str) -> np.ndarray | None:
+        if c_level is None:
+            return None
+        full, why = _checked(gray, _to_full(gray, c_level, level, cols, rows), cols, rows)
+        if full is None:
+            rejected.append(f"{name}: {why}")
+        return full
+
+    def found(pixels, method, level, attempts, hint=None) -> GridFound:
+        return GridFound(pixels, f"{method}@level{level}+cornerSubPix+saddle", attempts, tuple(rejected), hint)
+
+    # 1. the fast pass: the whole image, reduced, with the classic finder's quick rejection
+    k1 = level_with_side(gray, FAST_SIDE_PX)
+    c, method = _classic_then_sb(gray.level(k1), cols, rows, _FAST_FLAGS, sb=False)
+    pixels = keep(c, k1, "default", method)
+    if pixels is not None:
+        return found(pixels, method, k1, ("default",))
+    # 2. where is a board, and how large are its squares?
+    if contrast is None:
+        contrast = image_stats(gray)[0]
+    hint = locate_board(gray, contrast)
+    tried = ["default"]
+    for region in [r for r in hint.regions if r.lattice >= plausible_lattice(cols, rows)][:MAX_REGIONS]:
+        level = region.level_for(FINDER_SQUARE_PX)
+        (x0, y0), (x1, y1) = np.round(to_level(np.array([region.roi[:2], region.roi[2:]]), level)).astype(int)
+        lvl = gray.level(level)
+        x0, y0 = max(0, x0), max(0, y0)
+        crop = np.ascontiguousarray(lvl[y0:min(lvl.shape[0], y1 + 1), x0:min(lvl.shape[1], x1 + 1)])
+        origin = np.array([x0, y0], np.float64)
+        for attempt in GRID_ATTEMPTS if retry else GRID_ATTEMPTS[:1]:
+            if attempt.name not in tried:
+                tried.append(attempt.name)
+            img = prepare(crop, attempt)
+            if min(img.shape) < 16:
+                continue
+            c, method = _classic_then_sb(img, cols, rows, _FIND_FLAGS, sb=True)
+            if c is not None:
+                c = to_original(c, attempt) + origin
+            pixels = keep(c, level, attempt.name, method)
+            if pixels is not None:
+                return found(pixels, method, level, tuple(tried), hint)
+    return GridFound(None, "", tuple(tried), tuple(rejected), hint)
 
 
-def find_partial_chessboard(gray: GrayImage) -> tuple[int, int] | None:
-    """Size (cols, rows) of the largest chessboard of at least 3x3 inner corners found, or None."""
+def plausible_lattice(cols: int, rows: int) -> int:
+    """Lattice junctions (:func:`jcalib.vision.locate.locate_board`) that make a ``cols x rows`` board
+    plausible enough to search for: a third of its inner-most corners (at least 2)."""
+    return max(2, int(np.ceil((max(cols - 2, 1) * max(rows - 2, 1)) / 3.0)))
+
+
+def find_partial_chessboard(gray: GrayImage, hint: BoardHint | None = None) -> tuple[int, int] | None:
+    """Size (cols, rows) of the largest chessboard of at least 3x3 inner corners found, or None.
+
+    With a ``hint`` only its region is searched, on the pyramid level its squares suggest; without one
+    the whole image at full resolution (slow on large images)."""
+    img = gray.u8
+    if hint is not None:
+        if hint.lattice < 2:
+            return None
+        region = hint.regions[0]
+        level = region.level_for(FINDER_SQUARE_PX)
+        (x0, y0), (x1, y1) = np.round(to_level(np.array([region.roi[:2], region.roi[2:]]), level)).astype(int)
+        lvl = gray.level(level)
+        img = np.ascontiguousarray(lvl[max(0, y0):y1 + 1, max(0, x0):x1 + 1])
     try:
-        ok, c, meta = cv2.findChessboardCornersSBWithMeta(
-            gray.u8, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_EXHAUSTIVE
-        )
+        ok, c, meta = cv2.findChessboardCornersSBWithMeta(img, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_EXHAUSTIVE)
     except cv2.error:
         return None
     if not ok or meta is None:

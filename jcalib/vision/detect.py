@@ -126,8 +126,10 @@ def detect_target(
     common = dict(image_size=gray.size, name=name, edge_width_px=edge_width, contrast=contrast)
     blurred = ("blurred",) if edge_width > max_edge_width_px else ()
 
-    def fail(partial_detail: str | None) -> DetectionError:
+    def fail(partial_detail: str | None, rejected: tuple[str, ...] = ()) -> DetectionError:
         what = f"{target.type} {_describe(target)}"
+        if rejected:  # grids found but not the board: say why, whatever else is true
+            return DetectionError(f"{name}: {what} not found; grids rejected: {'; '.join(rejected)}", "not_found")
         if contrast < min_contrast:
             return DetectionError(
                 f"{name}: {what} not found (the image is nearly uniform: contrast {contrast:.3f} < {min_contrast})",
@@ -180,16 +182,17 @@ def detect_target(
     if isinstance(target, Checkerboard):
         from jcalib.vision.chessboard import find_chessboard, find_partial_chessboard
 
-        pixels, method, tried = find_chessboard(gray, target.cols, target.rows, retry=retry)
+        grid = find_chessboard(gray, target.cols, target.rows, retry=retry, contrast=contrast)
+        pixels, method, tried = grid.pixels, grid.method, grid.attempts
         if pixels is None:
-            size = find_partial_chessboard(gray)
+            size = find_partial_chessboard(gray, grid.hint)
             detail = None
             if size is not None:
                 detail = (
                     f"a {size[0]}x{size[1]} corner chessboard is visible, {target.cols}x{target.rows} expected; "
                     "check that the whole board is in view (and the cols/rows of the target)"
                 )
-            raise fail(detail)
+            raise fail(detail, grid.rejected)
     else:
         from jcalib.vision.circles import count_blobs, find_circles
 
