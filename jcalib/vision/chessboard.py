@@ -53,8 +53,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from jcalib.vision.image import GrayImage, image_stats, mosaic, to_level
-from jcalib.vision.locate import BoardHint, locate_board, x_junction_check
+from jcalib.vision.image import GrayImage, from_level, image_stats, mosaic, to_level
+from jcalib.vision.locate import BoardHint, Region, locate_board, x_junction_check
 
 __all__ = ["GridFound", "find_chessboard", "find_partial_chessboard", "grid_error", "plausible_lattice", "refine_corners"]
 
@@ -70,13 +70,16 @@ def _windows(gray: GrayImage, corners: np.ndarray, half: int) -> tuple[np.ndarra
     return image, c - centre + half + origins
 
 
-def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float) -> np.ndarray:
+def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float, accurate_start: bool = False) -> np.ndarray:
     """Sub-pixel X-junction positions from rough ones (``cornerSubPix``, then the saddle-point fit).
 
     Args:
         gray: the image.
         corners: (N, 2) rough corners, px.
         spacing_px: smallest distance between neighbouring corners in the image, px (sets the windows).
+        accurate_start: the corners come from a finder on the full-resolution (or an enlarged) image:
+            where the saddle fit settles from them (within a quarter spacing of the other result), that
+            point is kept.
 
     Returns:
         (N, 2) float64 refined corners, px (OpenCV convention). A corner whose saddle fit does not
@@ -91,7 +94,21 @@ def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float) -> n
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
     moved = cv2.cornerSubPix(smooth, c, (half, half), (-1, -1), criteria).reshape(-1, 2).astype(np.float64) - local
     refined = start + np.where(np.linalg.norm(moved, axis=1, keepdims=True) < half, moved, 0.0)
-    return saddle_points(gray, refined, spacing_px)
+    out = saddle_points(gray, refined, spacing_px)
+    if not accurate_start:
+        return out
+    # cornerSubPix drags the skewed junctions of a steeply tilted board by 1-2 px (measured on rendered
+    # 60-75° views, 11-14 px spacing), further than the saddle fit may move back: where the fit
+    # converges from a full-resolution finder's own corner, that stationary point is kept
+    # (on a blurred image the fit from a finder's corner 1-3 px off can settle there too: the more
+    # point-symmetric of the two points is the junction)
+    direct, ok = saddle_points(gray, start, spacing_px, converged=True)
+    differ = ok & (np.linalg.norm(direct - out, axis=1) > 0.05)
+    if np.any(differ):
+        a = x_junction_check(gray, out[differ], spacing_px, asymmetry=True)
+        b = x_junction_check(gray, direct[differ], spacing_px, asymmetry=True)
+        out[np.flatnonzero(differ)[b < a]] = direct[differ][b < a]
+    return out
 
 
 #: Saddle fit window: half width ``round(_SADDLE_F * spacing)`` clipped to [2, _SADDLE_MAX] px and a
@@ -113,8 +130,14 @@ def _bilinear(img: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     return top * (1.0 - fy) + bottom * fy
 
 
-def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, iterations: int = 12) -> np.ndarray:
-    """Stationary points of a quadratic fitted around each corner (see the module docstring)."""
+def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, iterations: int = 12,
+                  converged: bool = False):
+    """Stationary points of a quadratic fitted around each corner (see the module docstring).
+
+    Returns:
+        (N, 2) px; a corner whose fit does not settle within 1 px of its start keeps the start. With
+        ``converged``: also (N,) bool, which fits settled (a saddle, within 1 px).
+    """
     half = int(np.clip(np.round(_SADDLE_F * spacing_px), 2, _SADDLE_MAX))
     start = np.asarray(corners, np.float64).reshape(-1, 2)
     # each corner's window: the fit's half width, the smoothing's reach and the 1 px it may move
@@ -127,6 +150,7 @@ def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, itera
     P = np.linalg.pinv(A * w[:, None]) * w[None, :]  # (6, n*n): weighted least-squares fit
     cur = local.copy()
     active = np.ones(len(cur), bool)
+    settled = np.zeros(len(cur), bool)  # the last fit was a saddle
     for _ in range(iterations):
         if not np.any(active):
             break
@@ -143,9 +167,13 @@ def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, itera
         step = np.clip(step, -0.5, 0.5)
         cur[idx] += step
         active[idx] = ok & (np.linalg.norm(step, axis=1) > 1e-4)
+        settled[idx] = ok
     moved = cur - local
-    far = np.linalg.norm(moved, axis=1) > 1.0
-    return np.where(far[:, None] | ~np.isfinite(moved), start, start + moved)
+    far = (np.linalg.norm(moved, axis=1) > 1.0) | ~np.all(np.isfinite(moved), axis=1)
+    out = np.where(far[:, None], start, start + moved)
+    if converged:
+        return out, ~far & ~active & settled
+    return out
 
 
 def _min_spacing(corners: np.ndarray, cols: int, rows: int) -> float:
@@ -163,15 +191,25 @@ GRID_RTOL = 0.3
 
 
 def grid_error(corners: np.ndarray, cols: int, rows: int) -> float:
-    """How far the worst corner of a ``cols x rows`` grid (OpenCV's order) sits from where its neighbours
-    put it, in units of the local spacing (0 for grids narrower than 3 corners; inf when not finite).
+    """The largest of :func:`grid_errors` (0 for grids narrower than 3 corners; inf when not finite)."""
+    if cols < 3 or rows < 3:
+        return 0.0
+    err = grid_errors(corners, cols, rows)
+    return float(np.max(err)) if np.all(np.isfinite(err)) else float("inf")
+
+
+def grid_errors(corners: np.ndarray, cols: int, rows: int, predictions: bool = False):
+    """(N,) how far each corner of a ``cols x rows`` grid (OpenCV's order) sits from where its neighbours
+    put it, in units of the local spacing (zeros for grids narrower than 3 corners; inf where not finite).
 
     Every corner's 3x3 block (shifted inwards at the border) gives 8 other corners: their homography from
     the lattice (a DLT per block, all blocks at once, in block-normalised pixels) predicts the corner.
     Perspective keeps a real corner on it; lens distortion bends the grid slowly over two squares.
+    With ``predictions`` also (N, 2) the predicted positions, px.
     """
     if cols < 3 or rows < 3:
-        return 0.0
+        zero = np.zeros(cols * rows)
+        return (zero, np.asarray(corners, np.float64).reshape(-1, 2)) if predictions else zero
     g = np.asarray(corners, np.float64).reshape(rows, cols, 2)
     I, J = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     I, J = I.ravel(), J.ravel()
@@ -184,7 +222,8 @@ def grid_error(corners: np.ndarray, cols: int, rows: int) -> float:
     across = np.linalg.norm(b[:, :, 1:] - b[:, :, :-1], axis=-1).reshape(len(I), -1)
     spacing = np.median(np.concatenate([down, across], axis=1), axis=1)  # of the block's 12 neighbour steps
     if not np.all(np.isfinite(blocks)) or np.any(spacing <= 0.0):
-        return float("inf")
+        inf = np.full(cols * rows, np.inf)
+        return (inf, np.asarray(corners, np.float64).reshape(-1, 2)) if predictions else inf
     u = (blocks - blocks.mean(axis=1, keepdims=True)) / spacing[:, None, None]  # pixels, block-normalised
     x, y = (dc - 1.0)[None], (dr - 1.0)[None]  # lattice, centred
     use = (np.arange(9)[None] != k[:, None]).astype(np.float64)
@@ -197,16 +236,21 @@ def grid_error(corners: np.ndarray, cols: int, rows: int) -> float:
     n = np.arange(len(I))
     q = h @ np.stack([x[0, k], y[0, k], np.ones(len(I))], axis=-1)[..., None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.linalg.norm(q[:, :2, 0] / q[:, 2:, 0] - u[n, k], axis=-1)
-    return float(np.max(err)) if np.all(np.isfinite(err)) else float("inf")
+        pred = q[:, :2, 0] / q[:, 2:, 0]
+        err = np.where(np.isfinite(pred).all(axis=1), np.linalg.norm(pred - u[n, k], axis=-1), np.inf)
+    if predictions:
+        return err, pred * spacing[:, None] + blocks.mean(axis=1)
+    return err
 
 
 #: The first, cheap pass runs on the pyramid level whose longer side is at most this, px.
 FAST_SIDE_PX = 400
 #: Regions of lattice junctions searched, largest first (a board, a screen showing one, a tiled floor...).
 MAX_REGIONS = 3
+#: A level image larger than this (px) is searched around the located junctions only.
+CROP_PIXELS = 1_000_000
 #: The located region is searched on the pyramid level where the squares are about this wide, px.
-FINDER_SQUARE_PX = 14.0
+FINDER_SQUARE_PX = 10.0
 _FAST_FLAGS = _FIND_FLAGS | cv2.CALIB_CB_FAST_CHECK
 
 
@@ -220,6 +264,9 @@ class GridFound:
         attempts: the attempts run, in order (``"default"`` is the fast pass and the located region).
         rejected: why grids that attempts returned were not kept (``"<attempt>: <reason>"``).
         hint: the locator's :class:`~jcalib.vision.locate.BoardHint` (None when the fast pass sufficed).
+        suspect: (cols * rows,) bool, the corners of ``pixels`` that failed a check (to be left out).
+        partial: (cols, rows) of the largest chessboard seen when the board was not found (None: not
+            looked for, or none); when it is cut by the image border the retries were skipped.
     """
 
     pixels: np.ndarray | None
@@ -227,6 +274,8 @@ class GridFound:
     attempts: tuple[str, ...]
     rejected: tuple[str, ...] = ()
     hint: BoardHint | None = None
+    suspect: np.ndarray | None = None
+    partial: tuple[int, int] | None = None
 
     @property
     def attempt(self) -> str:
@@ -259,39 +308,56 @@ def _classic_then_sb(img: np.ndarray, cols: int, rows: int, flags: int, sb: bool
 
 
 def _to_full(gray: GrayImage, corners: np.ndarray, level: int, cols: int, rows: int) -> np.ndarray:
-    """Corners on pyramid level ``level`` -> full resolution, with ``cornerSubPix`` on the levels from
-    ``level`` down to 2 (each halves the start error of the next; from level 1 the full-resolution
-    refinement's window covers the start error, and a refinement on level 1 drifts more often than it
-    helps: measured on OpenCV's real right02 and right05, a border corner 1.3 px off)."""
+    """Corners on pyramid level ``level`` -> full resolution, with ``cornerSubPix`` on every level on the way
+    (each halves the start error of the next). The windows stay small (a fifth of a spacing, 2-4 px): a
+    wider one drifts on level 1 (measured on OpenCV's real right05: a border corner 1.3 px off)."""
     c = np.asarray(corners, np.float64)
+    # a finder's corner off the grid of its neighbours (the classic finder's, up to 5 px on level 1 of
+    # OpenCV's real left03) starts where they put it
+    err, pred = grid_errors(c, cols, rows, predictions=True)
+    c = np.where((np.isfinite(err) & (err > 0.2))[:, None], pred, c)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 1e-3)
     for k in range(level, 0, -1):
-        if k >= 2:
-            half = int(np.clip(np.floor(0.25 * _min_spacing(c, cols, rows)), 2, 4))
-            c32 = np.ascontiguousarray(c, np.float32).reshape(-1, 1, 2)
-            moved = cv2.cornerSubPix(gray.level(k), c32, (half, half), (-1, -1), criteria).reshape(-1, 2) - c
-            c = c + np.where(np.linalg.norm(moved, axis=1, keepdims=True) < half, moved, 0.0)
+        half = int(np.clip(np.floor(0.2 * _min_spacing(c, cols, rows)), 2, 4))
+        c32 = np.ascontiguousarray(c, np.float32).reshape(-1, 1, 2)
+        moved = cv2.cornerSubPix(gray.level(k), c32, (half, half), (-1, -1), criteria).reshape(-1, 2) - c
+        c = c + np.where(np.linalg.norm(moved, axis=1, keepdims=True) < 2 * half, moved, 0.0)
         c = (c + 0.5) * 2.0 - 0.5
     return c
 
 
-def _checked(gray: GrayImage, corners: np.ndarray, cols: int, rows: int) -> tuple[np.ndarray | None, str]:
-    """Refined full-resolution corners, or None and why the grid is not the board."""
+#: A grid with more suspect corners than this fraction (or half of an outer row or column) is not the board.
+MAX_SUSPECT = 0.1
+
+
+def _checked(gray: GrayImage, corners: np.ndarray, cols: int, rows: int,
+             accurate_start: bool = False) -> tuple[np.ndarray | None, np.ndarray, str]:
+    """Refined full-resolution corners and which are suspect, or None and why the grid is not the board.
+
+    A corner is suspect when, after refinement, it is off the grid of its neighbours (:func:`grid_errors`),
+    not an X-junction (:func:`jcalib.vision.locate.x_junction_check`) or not surrounded by the four squares
+    of a checker pattern (:func:`checker_squares`). Isolated suspects (glare over a square, a corner
+    dragged by a reflection) are left for the caller to drop; when half of an outer row or column is
+    suspect the finder has numbered a shifted grid (its outer row made of border squares' outer corners:
+    every real corner then carries a wrong index), and when more than :data:`MAX_SUSPECT` of the corners
+    are, the grid is not trusted either.
+    """
     spacing = _min_spacing(corners, cols, rows)
     if not spacing > 1.0:
-        return None, "corners coincide"
-    refined = refine_corners(gray, corners, spacing)
-    error = grid_error(refined, cols, rows)
-    if not error <= GRID_RTOL:
-        return None, f"a refined corner is {error:.2f} spacings off the grid of its neighbours"
+        return None, np.zeros(0, bool), "corners coincide"
+    refined = refine_corners(gray, corners, spacing, accurate_start)
     local = _local_spacing(refined, cols, rows)
     not_x, _ = x_junction_check(gray, refined, local)
-    bad = np.flatnonzero(not_x | ~checker_squares(gray, refined, cols, rows))
-    if len(bad):
-        return None, (f"{len(bad)} corner(s) (first: index {int(bad[0])} in the finder's order) are not the "
-                      "inner corners of a checker pattern, e.g. a border square's outer corner standing in for a "
-                      "covered row")  # fmt: skip
-    return refined, ""
+    suspect = (grid_errors(refined, cols, rows) > GRID_RTOL) | not_x | ~checker_squares(gray, refined, cols, rows)
+    grid = suspect.reshape(rows, cols)
+    outer = [grid[0], grid[-1], grid[:, 0], grid[:, -1]]
+    if any(2 * np.sum(line) >= len(line) for line in outer):
+        return None, suspect, ("half of an outer row or column of corners are not inner corners of a checker pattern "
+                               "(a border square's outer corners standing in for a covered row or column?)")  # fmt: skip
+    if np.sum(suspect) > MAX_SUSPECT * len(suspect):
+        return None, suspect, (f"{int(np.sum(suspect))} of {len(suspect)} corners are off the grid or not inner corners "
+                               "of a checker pattern")  # fmt: skip
+    return refined, suspect, ""
 
 
 def checker_squares(gray: GrayImage, corners: np.ndarray, cols: int, rows: int) -> np.ndarray:
@@ -372,16 +438,20 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
 
     rejected: list[str] = []
 
+    suspects: list[np.ndarray] = []
+
     def keep(c_level: np.ndarray | None, level: int, name: str, method: str) -> np.ndarray | None:
         if c_level is None:
             return None
-        full, why = _checked(gray, _to_full(gray, c_level, level, cols, rows), cols, rows)
+        full, suspect, why = _checked(gray, _to_full(gray, c_level, level, cols, rows), cols, rows, level == 0)
         if full is None:
             rejected.append(f"{name}: {why}")
+        suspects.append(suspect)
         return full
 
     def found(pixels, method, level, attempts, hint=None) -> GridFound:
-        return GridFound(pixels, f"{method}@level{level}+cornerSubPix+saddle", attempts, tuple(rejected), hint)
+        return GridFound(pixels, f"{method}@level{level}+cornerSubPix+saddle", attempts, tuple(rejected), hint,
+                         suspects[-1])
 
     # 1. the fast pass: the whole image, reduced, with the classic finder's quick rejection
     k1 = level_with_side(gray, FAST_SIDE_PX)
@@ -394,16 +464,26 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
         contrast = image_stats(gray)[0]
     hint = locate_board(gray, contrast)
     tried = ["default"]
-    for region in [r for r in hint.regions if r.lattice >= plausible_lattice(cols, rows)][:MAX_REGIONS]:
+    if hint.lattice < plausible_lattice(cols, rows):
+        return GridFound(None, "", tuple(tried), tuple(rejected), hint)
+    crops = []
+    for region in _search_regions(hint, gray):
         level = region.level_for(FINDER_SQUARE_PX)
         (x0, y0), (x1, y1) = np.round(to_level(np.array([region.roi[:2], region.roi[2:]]), level)).astype(int)
         lvl = gray.level(level)
         x0, y0 = max(0, x0), max(0, y0)
         crop = np.ascontiguousarray(lvl[y0:min(lvl.shape[0], y1 + 1), x0:min(lvl.shape[1], x1 + 1)])
-        origin = np.array([x0, y0], np.float64)
-        for attempt in GRID_ATTEMPTS if retry else GRID_ATTEMPTS[:1]:
-            if attempt.name not in tried:
-                tried.append(attempt.name)
+        crops.append((level, crop, np.array([x0, y0], np.float64)))
+    attempts = GRID_ATTEMPTS if retry else GRID_ATTEMPTS[:1]
+    partial = None
+    for a, attempt in enumerate(attempts):
+        if a == 1:  # the defaults found nothing: is the board cut by the image border?
+            partial = find_partial_chessboard(gray, hint)
+            if partial is not None and partial[2] and partial[0] * partial[1] < cols * rows:
+                return GridFound(None, "", tuple(tried), tuple(rejected), hint, partial=partial[:2])
+        if attempt.name not in tried:
+            tried.append(attempt.name)
+        for level, crop, origin in crops:
             img = prepare(crop, attempt)
             if min(img.shape) < 16:
                 continue
@@ -413,33 +493,67 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
             pixels = keep(c, level, attempt.name, method)
             if pixels is not None:
                 return found(pixels, method, level, tuple(tried), hint)
-    return GridFound(None, "", tuple(tried), tuple(rejected), hint)
+    if len(attempts) == 1:
+        partial = find_partial_chessboard(gray, hint)
+    return GridFound(None, "", tuple(tried), tuple(rejected), hint, partial=None if partial is None else partial[:2])
+
+
+def _search_regions(hint: BoardHint, gray: GrayImage) -> list[Region]:
+    """Where to search, on the level each region's squares suggest: the whole level image when it has
+    at most :data:`CROP_PIXELS` (a crop that cuts the board's white border stops the finders); else the
+    box around each region of lattice junctions, largest first, then the box around all of them (a steep
+    or blurred board's lattice breaks into pieces), each widened by two spacings."""
+    w, h = gray.size
+    regions = []
+    for r in list(hint.regions[:MAX_REGIONS]) + ([_union(hint.regions)] if len(hint.regions) > 1 else []):
+        s = 2.0 * r.spacing_px
+        grown = Region(r.lattice, r.spacing_px, (max(0, int(r.roi[0] - s)), max(0, int(r.roi[1] - s)),
+                                                 min(w, int(r.roi[2] + s)), min(h, int(r.roi[3] + s))))  # fmt: skip
+        if w * h / 4 ** r.level_for(FINDER_SQUARE_PX) <= CROP_PIXELS:
+            grown = Region(r.lattice, r.spacing_px, (0, 0, w, h))
+        if all((g.roi, g.level_for(FINDER_SQUARE_PX)) != (grown.roi, grown.level_for(FINDER_SQUARE_PX)) for g in regions):
+            regions.append(grown)
+    return regions
+
+
+def _union(regions) -> Region:
+    x0, y0 = (min(r.roi[i] for r in regions) for i in (0, 1))
+    x1, y1 = (max(r.roi[i] for r in regions) for i in (2, 3))
+    return Region(sum(r.lattice for r in regions), min(r.spacing_px for r in regions), (x0, y0, x1, y1))
 
 
 def plausible_lattice(cols: int, rows: int) -> int:
     """Lattice junctions (:func:`jcalib.vision.locate.locate_board`) that make a ``cols x rows`` board
-    plausible enough to search for: a third of its inner-most corners (at least 2)."""
-    return max(2, int(np.ceil((max(cols - 2, 1) * max(rows - 2, 1)) / 3.0)))
+    plausible enough to search for: a sixth of its inner-most corners, at least 4 (measured: board-free
+    cluttered scenes show 0-3, steep views of a 9x6 board from 0 up, most views over 10)."""
+    return max(4, int(np.ceil((max(cols - 2, 1) * max(rows - 2, 1)) / 6.0)))
 
 
-def find_partial_chessboard(gray: GrayImage, hint: BoardHint | None = None) -> tuple[int, int] | None:
-    """Size (cols, rows) of the largest chessboard of at least 3x3 inner corners found, or None.
+def find_partial_chessboard(gray: GrayImage, hint: BoardHint | None = None) -> tuple[int, int, bool] | None:
+    """The largest chessboard of at least 3x3 inner corners found: ``(cols, rows, at_border)``, or None;
+    ``at_border``: its outer corners come within 1.5 spacings of the image border (cut by it).
 
-    With a ``hint`` only its region is searched, on the pyramid level its squares suggest; without one
-    the whole image at full resolution (slow on large images)."""
-    img = gray.u8
+    With a ``hint`` only its largest region is searched, on the pyramid level its squares suggest (at least
+    10 px); without one the whole image at full resolution (slow on large images)."""
+    img, level, origin = gray.u8, 0, np.zeros(2)
     if hint is not None:
-        if hint.lattice < 2:
+        if not hint.regions:
             return None
-        region = hint.regions[0]
-        level = region.level_for(FINDER_SQUARE_PX)
+        region = _search_regions(hint, gray)[0]
+        level = region.level_for(10.0)
         (x0, y0), (x1, y1) = np.round(to_level(np.array([region.roi[:2], region.roi[2:]]), level)).astype(int)
         lvl = gray.level(level)
-        img = np.ascontiguousarray(lvl[max(0, y0):y1 + 1, max(0, x0):x1 + 1])
+        x0, y0 = max(0, x0), max(0, y0)
+        img, origin = np.ascontiguousarray(lvl[y0:y1 + 1, x0:x1 + 1]), np.array([x0, y0], np.float64)
     try:
         ok, c, meta = cv2.findChessboardCornersSBWithMeta(img, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_EXHAUSTIVE)
     except cv2.error:
         return None
-    if not ok or meta is None:
+    if not ok or meta is None or c is None:
         return None
-    return (int(meta.shape[1]), int(meta.shape[0]))
+    rows, cols = meta.shape[:2]
+    pts = from_level(c.reshape(-1, 2).astype(np.float64) + origin, level)
+    w, h = gray.size
+    near = np.min(np.stack([pts[:, 0], pts[:, 1], w - 1 - pts[:, 0], h - 1 - pts[:, 1]]), axis=0)
+    spacing = _min_spacing(pts, cols, rows) if len(pts) == rows * cols and rows > 1 and cols > 1 else 0.0
+    return (int(cols), int(rows), bool(np.min(near) < 1.5 * spacing))

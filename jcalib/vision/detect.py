@@ -180,12 +180,12 @@ def detect_target(
     from jcalib.vision.validate import consistent_points
 
     if isinstance(target, Checkerboard):
-        from jcalib.vision.chessboard import find_chessboard, find_partial_chessboard
+        from jcalib.vision.chessboard import find_chessboard
 
         grid = find_chessboard(gray, target.cols, target.rows, retry=retry, contrast=contrast)
         pixels, method, tried = grid.pixels, grid.method, grid.attempts
         if pixels is None:
-            size = find_partial_chessboard(gray, grid.hint)
+            size = grid.partial
             detail = None
             if size is not None:
                 detail = (
@@ -206,8 +206,10 @@ def detect_target(
                     f"{n_blobs} of {target.num_points} circles found, {n_border} of them at the image border"
                 )
             raise fail(detail)
-    point_index, ambiguous = assign_grid_indices(target, pixels, gray.f32)
+    point_index, ambiguous = assign_grid_indices(target, pixels, gray)
     good = consistent_points(target.points[point_index, :2], pixels)
+    if isinstance(target, Checkerboard) and grid.suspect is not None and len(grid.suspect):
+        good &= ~grid.suspect
     dropped = int(np.sum(~good))
     if dropped > 0.1 * len(good):
         raise DetectionError(

@@ -35,7 +35,7 @@ _RING = 16
 _ANG = np.arange(_RING) * (2.0 * np.pi / _RING)
 _COS, _SIN = np.cos(_ANG).astype(np.float32), np.sin(_ANG).astype(np.float32)
 #: Candidates (strongest saddles) tested per scale: many more than any board has corners.
-_MAX_CANDIDATES = 800
+_MAX_CANDIDATES = 400
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,8 @@ class BoardHint:
 
     @property
     def lattice(self) -> int:
-        """Lattice junctions in the largest region (0 when none)."""
-        return self.regions[0].lattice if self.regions else 0
+        """Lattice junctions in all regions."""
+        return sum(r.lattice for r in self.regions)
 
 
 def _x_candidates(f: np.ndarray, sigma: float, min_amplitude: float) -> np.ndarray:
@@ -94,13 +94,28 @@ def _x_candidates(f: np.ndarray, sigma: float, min_amplitude: float) -> np.ndarr
     if len(pts) > _MAX_CANDIDATES:
         vals = r[pts[:, 1], pts[:, 0]]
         pts = pts[np.argpartition(-vals, _MAX_CANDIDATES)[:_MAX_CANDIDATES]]
-    sub = pts.astype(np.float64) + _peak_offset(r, pts)
+    start = np.clip(pts.astype(np.float64) + _peak_offset(r, pts), 0.0, np.array(r.shape[::-1]) - 1.0)
     rho = np.float32(2.5 * sigma)
-    px = sub[:, 0:1].astype(np.float32) + rho * _COS[None]
-    py = sub[:, 1:2].astype(np.float32) + rho * _SIN[None]
-    ring = cv2.remap(g, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    ring = _ring(g, start, rho)
+    start = start[ring.max(axis=1) - ring.min(axis=1) > min_amplitude]
+    if len(start) == 0:
+        return np.zeros((0, 2))
+    # the saddle response peaks off a skewed junction (a steeply tilted board): cornerSubPix moves the
+    # candidate onto the junction before the ring is laid around it
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 10, 0.05)
+    sub = cv2.cornerSubPix(g, start.astype(np.float32).reshape(-1, 1, 2), (2, 2), (-1, -1), criteria)
+    sub = sub.reshape(-1, 2).astype(np.float64)
+    sub = np.where(np.linalg.norm(sub - start, axis=1, keepdims=True) < 2.0, sub, start)
+    ring = _ring(g, sub, rho)
     keep = _is_x_ring(ring, min_amplitude)
     return sub[keep]
+
+
+def _ring(g: np.ndarray, centres: np.ndarray, rho: float) -> np.ndarray:
+    """(M, 16) samples of ``g`` on circles of radius ``rho`` around ``centres`` (M, 2)."""
+    px = centres[:, 0:1].astype(np.float32) + np.float32(rho) * _COS[None]
+    py = centres[:, 1:2].astype(np.float32) + np.float32(rho) * _SIN[None]
+    return cv2.remap(g, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
 
 
 def _peak_offset(r: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -189,18 +204,31 @@ def locate_board(gray: GrayImage, contrast: float) -> BoardHint:
     return BoardHint(n, _regions(from_level(all_pts, k), on, spacing * 2**k, (w, h)))
 
 
+def _components(adjacent: np.ndarray) -> np.ndarray:
+    """(M,) connected-component labels 0..C-1 of a symmetric (M, M) adjacency (label propagation)."""
+    m = len(adjacent)
+    label = np.arange(m)
+    big = np.where(adjacent | np.eye(m, dtype=bool), 0, m)
+    while True:
+        new = np.min(big + label[None, :], axis=1)
+        new = new[new]  # jump along chains
+        if np.array_equal(new, label):
+            break
+        label = new
+    return np.unique(label, return_inverse=True)[1]
+
+
 def _regions(points: np.ndarray, on: np.ndarray, spacing: np.ndarray, size: tuple[int, int]) -> tuple[Region, ...]:
     """Clusters of lattice junctions (full-resolution px; junctions closer than twice the larger of their
     spacings are neighbours), each grown by the other junctions within 1.5 spacings of it (the board's
     outermost corners have no opposite neighbours), its box widened by 2.5 spacings (the border
     squares and the quiet zone the finders need)."""
-    from scipy.sparse.csgraph import connected_components
-
     lat, sp = points[on], spacing[on]
     if len(lat) == 0:
         return ()
     d = np.linalg.norm(lat[:, None, :] - lat[None, :, :], axis=-1)
-    count, label = connected_components(d <= 2.0 * np.maximum(sp[:, None], sp[None, :]), directed=False)
+    label = _components(d <= 2.0 * np.maximum(sp[:, None], sp[None, :]))
+    count = int(label.max()) + 1
     others = points[~on]
     out = []
     for c in range(count):
@@ -226,7 +254,7 @@ def _regions(points: np.ndarray, on: np.ndarray, spacing: np.ndarray, size: tupl
 X_MIN_EVEN_ODD = 1.0
 
 
-def x_junction_check(gray: GrayImage, corners: np.ndarray, spacing_px: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+def x_junction_check(gray: GrayImage, corners: np.ndarray, spacing_px: np.ndarray | float, asymmetry: bool = False):
     """Which corners are X-junctions, at full resolution.
 
     Rings of radius 0.25 and 0.4 spacings (at least 2 px) around each corner, on the image smoothed by an
@@ -242,7 +270,8 @@ def x_junction_check(gray: GrayImage, corners: np.ndarray, spacing_px: np.ndarra
         ``(not_x, flat)``: (N,) bool each; ``not_x`` marks corners with clearly more odd than even
         structure; ``flat`` marks corners whose ring has less than a quarter of the median ring
         contrast of all corners (nothing measurable there: glare, shadow), which are neither confirmed
-        nor refuted.
+        nor refuted. With ``asymmetry``: (N,) the odd share of the rings' energy instead (0 at a perfect
+        X-junction, the point-symmetric centre; the lower the better).
     """
     c = np.asarray(corners, np.float64).reshape(-1, 2)
     sp = np.broadcast_to(np.asarray(spacing_px, np.float64), (len(c),))
@@ -265,4 +294,6 @@ def x_junction_check(gray: GrayImage, corners: np.ndarray, spacing_px: np.ndarra
     z = ring - ring.mean(axis=1, keepdims=True)
     even = np.sum((z[:, : n // 2] + z[:, n // 2 :]) ** 2, axis=1)
     odd = np.sum((z[:, : n // 2] - z[:, n // 2 :]) ** 2, axis=1)
+    if asymmetry:
+        return odd / np.maximum(even + odd, 1e-12)
     return (even < X_MIN_EVEN_ODD * odd) & ~flat, flat

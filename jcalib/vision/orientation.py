@@ -61,25 +61,24 @@ def _orientation_sign(points_xy: np.ndarray, pixels: np.ndarray) -> float:
     return 1.0 if np.linalg.det(J) > 0.0 else -1.0
 
 
-def _checker_score(gray_f32: np.ndarray, target, pixels_of_point: np.ndarray) -> float:
+def _checker_score(gray, target, pixels_of_point: np.ndarray) -> float:
     """Mean grey of inner squares that should be white minus those that should be black (> 0: right)."""
     cols, rows = target.cols, target.rows
     P = pixels_of_point.reshape(rows, cols, 2)
     centres = 0.25 * (P[:-1, :-1] + P[:-1, 1:] + P[1:, :-1] + P[1:, 1:])
     i, j = np.meshgrid(np.arange(rows - 1), np.arange(cols - 1), indexing="ij")
     black = (i + j) % 2 == 0
-    m = centres.reshape(-1, 2).astype(np.float32)
-    vals = cv2.remap(gray_f32, m[:, 0:1].copy(), m[:, 1:2].copy(), cv2.INTER_LINEAR).reshape(black.shape)
+    vals = gray.sample(centres.reshape(-1, 2)).reshape(black.shape)
     return float(vals[~black].mean() - vals[black].mean())
 
 
-def assign_grid_indices(target, pixels: np.ndarray, gray_f32: np.ndarray | None = None):
+def assign_grid_indices(target, pixels: np.ndarray, gray=None):
     """Point indices for a grid detection in OpenCV's row-major order.
 
     Args:
         target: ``Checkerboard`` or ``CircleGrid``.
         pixels: (N, 2) detected pixels, OpenCV's order (row-major, ``cols`` per row), px.
-        gray_f32: the grey image (checks the printed colours of a chessboard).
+        gray: the :class:`~jcalib.vision.image.GrayImage` (checks the printed colours of a chessboard).
 
     Returns:
         (point_index, ambiguous): (N,) int64 with ``pixels[k]`` the image of
@@ -94,12 +93,12 @@ def assign_grid_indices(target, pixels: np.ndarray, gray_f32: np.ndarray | None 
     else:
         candidates = [base[r] for r in point_symmetries(xy, proper=True)]
     candidates = [c for c in candidates if _orientation_sign(xy[c], pixels) > 0.0] or candidates
-    if gray_f32 is not None and getattr(target, "type", "") == "checkerboard" and len(candidates) > 1:
+    if gray is not None and getattr(target, "type", "") == "checkerboard" and len(candidates) > 1:
         scored = []
         for c in candidates:
             pix = np.empty_like(pixels)
             pix[c] = pixels
-            scored.append(_checker_score(gray_f32, target, pix))
+            scored.append(_checker_score(gray, target, pix))
         good = [c for c, s in zip(candidates, scored) if s > 0.0]
         candidates = good or [candidates[int(np.argmax(scored))]]
     if len(candidates) == 1:

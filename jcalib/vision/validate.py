@@ -20,7 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["consistent_points", "consistent_markers", "GRID_TOLERANCE", "MARKER_TOLERANCE"]
+__all__ = ["GRID_TOLERANCE", "MARKER_TOLERANCE", "batched_homographies", "consistent_markers", "consistent_points"]
 
 #: Largest distance of a grid point from its neighbours' prediction, in local spacings (but at least
 #: :data:`MIN_TOLERANCE_PX`). 0.2 let a block of corners dragged 5-7 px by glare through (35 px squares).
@@ -54,6 +54,52 @@ def _local_scale(H: np.ndarray, xy: np.ndarray, step: float) -> np.ndarray:
     return np.minimum(dx, dy)
 
 
+def batched_homographies(src: np.ndarray, dst: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """(B, 3, 3) least-squares homographies (normalised DLT) mapping ``src`` (B, K, 2) to ``dst`` (B, K, 2),
+    all at once; ``weight`` (B, K) in {0, 1} leaves points out. NaN where a set is degenerate."""
+    w = np.ones(src.shape[:2]) if weight is None else np.asarray(weight, np.float64)
+    count = np.maximum(w.sum(axis=1, keepdims=True), 1.0)
+
+    def normalise(p):
+        mean = (p * w[..., None]).sum(axis=1) / count
+        d = np.sqrt(((p - mean[:, None, :]) ** 2).sum(axis=-1))
+        scale = np.sqrt(2.0) / np.maximum((d * w).sum(axis=1) / count[:, 0], 1e-300)
+        T = np.zeros((len(p), 3, 3))
+        T[:, 0, 0] = T[:, 1, 1] = scale
+        T[:, :2, 2] = -scale[:, None] * mean
+        T[:, 2, 2] = 1.0
+        return (p - mean[:, None, :]) * scale[:, None, None], T
+
+    s, Ts = normalise(np.asarray(src, np.float64))
+    d, Td = normalise(np.asarray(dst, np.float64))
+    x, y, u, v = s[..., 0], s[..., 1], d[..., 0], d[..., 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    ru = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=-1)
+    rv = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=-1)
+    A = np.concatenate([ru, rv], axis=1) * np.concatenate([w, w], axis=1)[..., None]
+    with np.errstate(invalid="ignore"):
+        vals, vecs = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)
+    h = vecs[..., 0].reshape(-1, 3, 3)
+    H = np.linalg.solve(Td, h) @ Ts
+    bad = ~np.all(np.isfinite(H), axis=(1, 2)) | (np.abs(H[:, 2, 2]) < 1e-300) | (vals[:, 1] <= 1e-12 * vals[:, -1])
+    H = H / np.where(np.abs(H[:, 2:3, 2:3]) > 1e-300, H[:, 2:3, 2:3], 1.0)
+    H[bad] = np.nan
+    return H
+
+
+def _predict(H: np.ndarray, xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(B, 2) ``H[b]`` applied to ``xy[b]`` and (B,) the image length of a board step there (smaller axis)."""
+    def apply(p):
+        q = np.einsum("bij,bj->bi", H, np.concatenate([p, np.ones((len(p), 1))], axis=1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return q[:, :2] / q[:, 2:]
+
+    p0 = apply(xy)
+    dx = np.linalg.norm(apply(xy + [step, 0.0]) - p0, axis=1)
+    dy = np.linalg.norm(apply(xy + [0.0, step]) - p0, axis=1)
+    return p0, np.minimum(dx, dy)
+
+
 def consistent_points(
     board_xy: np.ndarray,
     pixels: np.ndarray,
@@ -83,18 +129,34 @@ def consistent_points(
     d_board = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
     np.fill_diagonal(d_board, np.inf)
     spacing_m = float(np.min(d_board))
+    k = max(4, neighbours)
+    safe_px = np.where(np.isfinite(px), px, 0.0)
 
-    def error(i: int, idx: np.ndarray) -> float:
-        others = idx[idx != i]
-        near = others[np.argsort(d_board[i, others])[: max(4, neighbours)]]
-        H = _homography(xy[near], px[near])
-        if H is None:
-            return np.inf
-        pred = _apply(H, xy[i : i + 1])[0]
-        scale = _local_scale(H, xy[i : i + 1], spacing_m)[0]
-        return float(np.linalg.norm(pred - px[i])) / max(scale, MIN_TOLERANCE_PX / tolerance, 1e-9)
+    def errors(points: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """Prediction errors (local spacings) of ``points`` from their nearest ``members`` (never themselves)."""
+        d = d_board[np.ix_(points, members)]
+        order = np.argsort(d, axis=1, kind="stable")[:, : min(k, len(members))]
+        near = members[order]  # (P, K)
+        use = np.isfinite(np.take_along_axis(d, order, axis=1))
+        H = batched_homographies(xy[near], safe_px[near], use)
+        pred, scale = _predict(H, xy[points], spacing_m)
+        err = np.linalg.norm(pred - px[points], axis=1) / np.maximum(scale, max(MIN_TOLERANCE_PX / tolerance, 1e-9))
+        return np.where(np.isfinite(err) & (use.sum(axis=1) >= 4), err, np.inf)
 
-    return _prune(ok, error, tolerance, minimum=5)
+    while True:
+        idx = np.flatnonzero(ok)
+        if len(idx) < 5:
+            return np.zeros(n, dtype=bool)
+        err = errors(idx, idx)
+        worst = int(np.argmax(err))
+        if not err[worst] > tolerance:
+            break
+        ok[idx[worst]] = False
+    out = np.flatnonzero(~ok & np.isfinite(px).all(axis=1))
+    if len(out):  # re-admit dropped points that the kept ones predict (a good point can look bad while a
+        back = errors(out, np.flatnonzero(ok)) <= tolerance  # wrong neighbour is still in)
+        ok[out[back]] = True
+    return ok
 
 
 def consistent_markers(
