@@ -56,12 +56,13 @@ import numpy as np
 from jcalib.vision.image import GrayImage, from_level, image_stats, mosaic, to_level
 from jcalib.vision.locate import BoardHint, Region, locate_board, x_junction_check
 
-__all__ = ["GridFound", "find_chessboard", "find_partial_chessboard", "grid_error", "plausible_lattice", "refine_corners"]
+__all__ = ["GridFound", "find_chessboard", "find_partial_chessboard", "grid_error", "grid_errors", "plausible_lattice",
+           "refine_corners", "windows"]
 
 _FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
 
-def _windows(gray: GrayImage, corners: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+def windows(gray: GrayImage, corners: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
     """A mosaic of the float image's windows (2 half + 1 px) around the corners, and each corner's
     position in it: filters then cost the windows' area, not the image's."""
     c = np.asarray(corners, np.float64).reshape(-1, 2)
@@ -88,7 +89,7 @@ def refine_corners(gray: GrayImage, corners: np.ndarray, spacing_px: float, accu
     half = int(np.clip(np.floor(0.35 * spacing_px), 2, 10))
     sigma = float(np.clip(0.25 * half + 0.75, 1.0, 2.5))
     start = np.asarray(corners, np.float64).reshape(-1, 2)
-    image, local = _windows(gray, start, half + int(np.ceil(4.0 * sigma)) + 8)
+    image, local = windows(gray, start, half + int(np.ceil(4.0 * sigma)) + 8)
     smooth = cv2.GaussianBlur(image, (0, 0), sigma)
     c = np.ascontiguousarray(local, dtype=np.float32).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
@@ -141,7 +142,7 @@ def saddle_points(gray: GrayImage, corners: np.ndarray, spacing_px: float, itera
     half = int(np.clip(np.round(_SADDLE_F * spacing_px), 2, _SADDLE_MAX))
     start = np.asarray(corners, np.float64).reshape(-1, 2)
     # each corner's window: the fit's half width, the smoothing's reach and the 1 px it may move
-    image, local = _windows(gray, start, half + int(np.ceil(4.0 * _SADDLE_S * half)) + 8)
+    image, local = windows(gray, start, half + int(np.ceil(4.0 * _SADDLE_S * half)) + 8)
     smooth = cv2.GaussianBlur(image, (0, 0), _SADDLE_S * half)
     n = 2 * half + 1
     y, x = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)

@@ -148,7 +148,7 @@ def detect_target(
     if isinstance(target, Charuco):
         from jcalib.vision.charuco import find_charuco
 
-        found = find_charuco(gray, target, retry=retry)
+        found = find_charuco(gray, target, retry=retry, contrast=contrast)
         ids, pixels = found.ids, found.pixels
         dropped = found.dropped_markers + found.dropped_corners
         if len(ids) < min_points:
@@ -196,10 +196,10 @@ def detect_target(
     else:
         from jcalib.vision.circles import count_blobs, find_circles
 
-        pixels, tried = find_circles(gray, target, retry=retry)
+        pixels, tried, seen = find_circles(gray, target, retry=retry)
         method = "findCirclesGrid"
         if pixels is None:
-            n_blobs, n_border = count_blobs(gray)
+            n_blobs, n_border = count_blobs(gray) if seen is not None else (0, 0)
             detail = None
             if n_blobs >= max(4, target.num_points // 4) and (n_border > 0 or n_blobs < target.num_points):
                 detail = (

@@ -25,7 +25,7 @@ import numpy as np
 
 from jcalib.vision.image import GrayImage, from_level, mosaic
 
-__all__ = ["BoardHint", "LOCATE_SIDE_PX", "Region", "locate_board", "x_junction_check"]
+__all__ = ["BoardHint", "LOCATE_SIDE_PX", "Region", "lattice_points", "locate_board", "x_junction_check"]
 
 #: The locator works on the first pyramid level whose longer side is at most this, px.
 LOCATE_SIDE_PX = 700
@@ -151,7 +151,7 @@ def _is_x_ring(ring: np.ndarray, min_amplitude: float) -> np.ndarray:
     return (amp > min_amplitude) & (even_energy > 4.0 * odd_energy) & (changes == 2)
 
 
-def _lattice(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lattice_points(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(M,) bool: points with two non-parallel pairs of opposite neighbours among their 6 nearest; and
     (M,) the shorter of those neighbour distances (NaN where not on a lattice)."""
     m = len(p)
@@ -196,7 +196,7 @@ def locate_board(gray: GrayImage, contrast: float) -> BoardHint:
     best = None
     for k in levels:
         pts = _x_candidates(gray.level(k).astype(np.float32), 1.0, min_amp)
-        on, spacing = _lattice(pts)
+        on, spacing = lattice_points(pts)
         score = int(np.sum(on))
         if best is None or score > best[1]:
             best = (len(pts), score, k, pts, on, spacing)

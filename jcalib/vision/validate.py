@@ -17,10 +17,9 @@ noise and the lens's departure from a homography over a few squares stay far bel
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
-__all__ = ["GRID_TOLERANCE", "MARKER_TOLERANCE", "batched_homographies", "consistent_markers", "consistent_points"]
+__all__ = ["GRID_TOLERANCE", "MARKER_TOLERANCE", "batched_homographies", "consistent_markers", "consistent_points", "homography_steps"]
 
 #: Largest distance of a grid point from its neighbours' prediction, in local spacings (but at least
 #: :data:`MIN_TOLERANCE_PX`). 0.2 let a block of corners dragged 5-7 px by glare through (35 px squares).
@@ -29,29 +28,6 @@ GRID_TOLERANCE = 0.1
 MIN_TOLERANCE_PX = 1.5
 #: Largest distance of a marker corner from its neighbour markers' prediction, in marker sides.
 MARKER_TOLERANCE = 0.3
-
-
-def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
-    if len(src) < 4:
-        return None
-    H, _ = cv2.findHomography(src.astype(np.float64), dst.astype(np.float64), 0)
-    if H is None or not np.all(np.isfinite(H)):
-        return None
-    return H
-
-
-def _apply(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    p = np.column_stack([xy, np.ones(len(xy))]) @ H.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return p[:, :2] / p[:, 2:]
-
-
-def _local_scale(H: np.ndarray, xy: np.ndarray, step: float) -> np.ndarray:
-    """Image length (px) of a board step of ``step`` (m) at each ``xy``, the smaller of the two axes."""
-    p0 = _apply(H, xy)
-    dx = np.linalg.norm(_apply(H, xy + [step, 0.0]) - p0, axis=1)
-    dy = np.linalg.norm(_apply(H, xy + [0.0, step]) - p0, axis=1)
-    return np.minimum(dx, dy)
 
 
 def batched_homographies(src: np.ndarray, dst: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
@@ -87,7 +63,7 @@ def batched_homographies(src: np.ndarray, dst: np.ndarray, weight: np.ndarray | 
     return H
 
 
-def _predict(H: np.ndarray, xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+def homography_steps(H: np.ndarray, xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """(B, 2) ``H[b]`` applied to ``xy[b]`` and (B,) the image length of a board step there (smaller axis)."""
     def apply(p):
         q = np.einsum("bij,bj->bi", H, np.concatenate([p, np.ones((len(p), 1))], axis=1))
@@ -139,24 +115,11 @@ def consistent_points(
         near = members[order]  # (P, K)
         use = np.isfinite(np.take_along_axis(d, order, axis=1))
         H = batched_homographies(xy[near], safe_px[near], use)
-        pred, scale = _predict(H, xy[points], spacing_m)
+        pred, scale = homography_steps(H, xy[points], spacing_m)
         err = np.linalg.norm(pred - px[points], axis=1) / np.maximum(scale, max(MIN_TOLERANCE_PX / tolerance, 1e-9))
         return np.where(np.isfinite(err) & (use.sum(axis=1) >= 4), err, np.inf)
 
-    while True:
-        idx = np.flatnonzero(ok)
-        if len(idx) < 5:
-            return np.zeros(n, dtype=bool)
-        err = errors(idx, idx)
-        worst = int(np.argmax(err))
-        if not err[worst] > tolerance:
-            break
-        ok[idx[worst]] = False
-    out = np.flatnonzero(~ok & np.isfinite(px).all(axis=1))
-    if len(out):  # re-admit dropped points that the kept ones predict (a good point can look bad while a
-        back = errors(out, np.flatnonzero(ok)) <= tolerance  # wrong neighbour is still in)
-        ok[out[back]] = True
-    return ok
+    return _prune_batched(ok, errors, tolerance, minimum=5)
 
 
 def consistent_markers(
@@ -188,34 +151,40 @@ def consistent_markers(
     d_board = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=-1)
     np.fill_diagonal(d_board, np.inf)
     side_m = float(np.median(np.linalg.norm(xy[:, 1] - xy[:, 0], axis=1)))
+    safe_px = np.where(np.isfinite(px), px, 0.0)
 
-    def error(i: int, idx: np.ndarray) -> float:
-        others = idx[idx != i]
-        near = others[np.argsort(d_board[i, others])[:neighbours]]
-        H = _homography(xy[near].reshape(-1, 2), px[near].reshape(-1, 2))
-        if H is None:
-            return np.inf
-        pred = _apply(H, xy[i])
-        side_px = float(np.mean(_local_scale(H, xy[i], side_m)))
-        return float(np.max(np.linalg.norm(pred - px[i], axis=1))) / max(side_px, 1e-9)
+    def errors(points: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """Corner prediction errors (marker sides) of ``points`` from their nearest ``members``."""
+        d = d_board[np.ix_(points, members)]
+        order = np.argsort(d, axis=1, kind="stable")[:, : min(neighbours, len(members))]
+        near = members[order]  # (P, K)
+        use = np.repeat(np.isfinite(np.take_along_axis(d, order, axis=1)), 4, axis=1)
+        H = batched_homographies(xy[near].reshape(len(points), -1, 2), safe_px[near].reshape(len(points), -1, 2), use)
+        Hc = np.repeat(H, 4, axis=0)
+        pred, scale = homography_steps(Hc, xy[points].reshape(-1, 2), side_m)
+        side_px = np.maximum(scale.reshape(-1, 4).mean(axis=1), 1e-9)
+        err = np.max(np.linalg.norm(pred.reshape(-1, 4, 2) - px[points], axis=-1), axis=1) / side_px
+        return np.where(np.isfinite(err) & (use.sum(axis=1) >= 4), err, np.inf)
 
-    return _prune(ok, error, tolerance, minimum=2)
+    return _prune_batched(ok, errors, tolerance, minimum=2)
 
 
-def _prune(ok: np.ndarray, error, tolerance: float, minimum: int) -> np.ndarray:
+def _prune_batched(ok: np.ndarray, errors, tolerance: float, minimum: int) -> np.ndarray:
     """Drop the worst point while any error exceeds ``tolerance``; then re-admit dropped points that
-    the kept ones predict within it (a good point can look bad while a wrong neighbour is still in)."""
+    the kept ones predict within it (a good point can look bad while a wrong neighbour is still in).
+    ``errors(points, members)`` gives the errors of ``points`` predicted from ``members`` (all at once)."""
+    finite = ok.copy()
     ok = ok.copy()
     while True:
         idx = np.flatnonzero(ok)
         if len(idx) < minimum:
             return np.zeros(len(ok), dtype=bool)
-        errors = np.array([error(i, idx) for i in idx])
-        worst = int(np.argmax(errors))
-        if not errors[worst] > tolerance:
+        err = errors(idx, idx)
+        worst = int(np.argmax(err))
+        if not err[worst] > tolerance:
             break
         ok[idx[worst]] = False
-    idx = np.flatnonzero(ok)
-    back = [i for i in np.flatnonzero(~ok) if error(i, np.append(idx, i)) <= tolerance]
-    ok[back] = True
+    out = np.flatnonzero(~ok & finite)
+    if len(out):
+        ok[out[errors(out, np.flatnonzero(ok)) <= tolerance]] = True
     return ok
