@@ -55,6 +55,7 @@ import numpy as np
 
 from jcalib.vision.image import GrayImage, from_level, image_stats, mosaic, to_level
 from jcalib.vision.locate import BoardHint, Region, locate_board, x_junction_check
+from jcalib.vision.validate import consistent_points
 
 __all__ = ["GridFound", "find_chessboard", "find_partial_chessboard", "grid_error", "grid_errors", "plausible_lattice",
            "refine_corners", "windows"]
@@ -250,8 +251,10 @@ FAST_SIDE_PX = 400
 MAX_REGIONS = 3
 #: A level image larger than this (px) is searched around the located junctions only.
 CROP_PIXELS = 1_000_000
-#: The located region is searched on the pyramid level where the squares are about this wide, px.
-FINDER_SQUARE_PX = 10.0
+#: The located region is searched on the pyramid level where the squares are about this wide (px), then on
+#: the level where they are twice as wide: the classic finder is fast on small squares and finds most boards
+#: there (OpenCV's FAST_CHECK is not: it misses them), some hard ones only on the finer level.
+FINDER_SQUARE_PX = 7.0
 _FAST_FLAGS = _FIND_FLAGS | cv2.CALIB_CB_FAST_CHECK
 
 
@@ -335,9 +338,10 @@ def _checked(gray: GrayImage, corners: np.ndarray, cols: int, rows: int,
              accurate_start: bool = False) -> tuple[np.ndarray | None, np.ndarray, str]:
     """Refined full-resolution corners and which are suspect, or None and why the grid is not the board.
 
-    A corner is suspect when, after refinement, it is off the grid of its neighbours (:func:`grid_errors`),
-    not an X-junction (:func:`jcalib.vision.locate.x_junction_check`) or not surrounded by the four squares
-    of a checker pattern (:func:`checker_squares`). Isolated suspects (glare over a square, a corner
+    A corner is suspect when, after refinement, it is off the grid of its neighbours (:func:`grid_errors`;
+    :func:`jcalib.vision.validate.consistent_points`, which also catches a skipped row), not an X-junction
+    (:func:`jcalib.vision.locate.x_junction_check`) or not surrounded by the four squares of a checker pattern
+    (:func:`checker_squares`). Isolated suspects (glare over a square, a corner
     dragged by a reflection) are left for the caller to drop; when half of an outer row or column is
     suspect the finder has numbered a shifted grid (its outer row made of border squares' outer corners:
     every real corner then carries a wrong index), and when more than :data:`MAX_SUSPECT` of the corners
@@ -349,7 +353,9 @@ def _checked(gray: GrayImage, corners: np.ndarray, cols: int, rows: int,
     refined = refine_corners(gray, corners, spacing, accurate_start)
     local = _local_spacing(refined, cols, rows)
     not_x, _ = x_junction_check(gray, refined, local)
-    suspect = (grid_errors(refined, cols, rows) > GRID_RTOL) | not_x | ~checker_squares(gray, refined, cols, rows)
+    lattice = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), axis=-1).reshape(-1, 2).astype(np.float64)
+    suspect = ((grid_errors(refined, cols, rows) > GRID_RTOL) | not_x | ~checker_squares(gray, refined, cols, rows)
+               | ~consistent_points(lattice, refined))  # fmt: skip
     grid = suspect.reshape(rows, cols)
     outer = [grid[0], grid[-1], grid[:, 0], grid[:, -1]]
     if any(2 * np.sum(line) >= len(line) for line in outer):
@@ -469,12 +475,12 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
         return GridFound(None, "", tuple(tried), tuple(rejected), hint)
     crops = []
     for region in _search_regions(hint, gray):
-        level = region.level_for(FINDER_SQUARE_PX)
-        (x0, y0), (x1, y1) = np.round(to_level(np.array([region.roi[:2], region.roi[2:]]), level)).astype(int)
-        lvl = gray.level(level)
-        x0, y0 = max(0, x0), max(0, y0)
-        crop = np.ascontiguousarray(lvl[y0:min(lvl.shape[0], y1 + 1), x0:min(lvl.shape[1], x1 + 1)])
-        crops.append((level, crop, np.array([x0, y0], np.float64)))
+        for level in sorted({region.level_for(FINDER_SQUARE_PX), region.level_for(2.0 * FINDER_SQUARE_PX)}, reverse=True):
+            (x0, y0), (x1, y1) = np.round(to_level(np.array([region.roi[:2], region.roi[2:]]), level)).astype(int)
+            lvl = gray.level(level)
+            x0, y0 = max(0, x0), max(0, y0)
+            crop = np.ascontiguousarray(lvl[y0:min(lvl.shape[0], y1 + 1), x0:min(lvl.shape[1], x1 + 1)])
+            crops.append((level, crop, np.array([x0, y0], np.float64)))
     attempts = GRID_ATTEMPTS if retry else GRID_ATTEMPTS[:1]
     partial = None
     for a, attempt in enumerate(attempts):

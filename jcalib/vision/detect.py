@@ -12,7 +12,7 @@ from jcalib.errors import BadInputError, DetectionError
 from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid
 from jcalib.vision.image import image_stats, load_image, to_gray
 
-__all__ = ["TargetDetection", "detect_target", "detect_many", "DETECTION_FAILURE_REASONS"]
+__all__ = ["DETECTION_FAILURE_REASONS", "TargetDetection", "default_jobs", "detect_many", "detect_target"]
 
 DETECTION_FAILURE_REASONS = ("not_found", "partially_visible", "too_blurred", "unreadable")
 
@@ -207,9 +207,10 @@ def detect_target(
                 )
             raise fail(detail)
     point_index, ambiguous = assign_grid_indices(target, pixels, gray)
-    good = consistent_points(target.points[point_index, :2], pixels)
-    if isinstance(target, Checkerboard) and grid.suspect is not None and len(grid.suspect):
-        good &= ~grid.suspect
+    if isinstance(target, Checkerboard):
+        good = ~grid.suspect  # every check, the board's homography included (jcalib.vision.chessboard)
+    else:
+        good = consistent_points(target.points[point_index, :2], pixels)
     dropped = int(np.sum(~good))
     if dropped > 0.1 * len(good):
         raise DetectionError(
@@ -274,8 +275,39 @@ def _describe(target) -> str:
     return f"{target.cols}x{target.rows}{kind}"
 
 
+def _detect_or_error(i: int, item, target, options: dict) -> TargetDetection | DetectionError:
+    """One image of :func:`detect_many`: its detection, or the :class:`DetectionError` saying why not."""
+    label = os.fspath(item) if isinstance(item, (str, os.PathLike)) else f"<array {i}>"
+    try:
+        return detect_target(item, target, name=label, **options)
+    except DetectionError as e:
+        return e
+    except BadInputError as e:  # arguments were checked by the caller: this is the image
+        return DetectionError(f"{label}: {e}", "unreadable")
+    except Exception as e:  # noqa: BLE001  (an OpenCV failure on one image must not stop a batch)
+        return DetectionError(f"{label}: detection failed ({type(e).__name__}: {e})", "not_found")
+
+
+def _worker_init() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # one process per core: OpenCV's own threads would only compete
+
+
+def _worker(job):
+    return _detect_or_error(*job)
+
+
+def default_jobs() -> int:
+    """The cores this process may run on (``--jobs`` default)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def detect_many(
-    images: Iterable | Sequence, target, progress: bool = True, **options
+    images: Iterable | Sequence, target, progress: bool = True, jobs: int | None = 1, **options
 ) -> list[TargetDetection | DetectionError]:
     """Detect a target in many images; never stops on a bad image.
 
@@ -283,6 +315,9 @@ def detect_many(
         images: paths and/or arrays.
         target: the target to find.
         progress: show a rich progress bar (on stderr).
+        jobs: worker processes (None: every core, :func:`default_jobs`). Each image is detected alone,
+            so the results are the same as with one process, in the same order; batches of fewer than
+            two images per worker stay in this process (starting a worker costs about a second).
         **options: passed to :func:`detect_target`.
 
     Returns:
@@ -292,28 +327,35 @@ def detect_many(
     """
     items = list(images)
     _check_arguments(target, options.get("min_points", 6))
-    results: list[TargetDetection | DetectionError] = []
+    workers = default_jobs() if jobs is None else jobs
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise BadInputError(f"detect_many: option 'jobs' got {jobs!r}, expected an integer >= 1 (or None: every core)")
+    workers = min(int(workers), len(items) // 2)
+    jobs_list = [(i, item, target, options) for i, item in enumerate(items)]
+    if workers <= 1:
+        results = map(_worker, jobs_list)
+        pool = None
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
 
-    def one(i, item):
-        label = os.fspath(item) if isinstance(item, (str, os.PathLike)) else f"<array {i}>"
-        try:
-            return detect_target(item, target, name=label, **options)
-        except DetectionError as e:
-            return e
-        except BadInputError as e:  # arguments were checked above: this is the image
-            return DetectionError(f"{label}: {e}", "unreadable")
-        except Exception as e:  # noqa: BLE001  (an OpenCV failure on one image must not stop a batch)
-            return DetectionError(f"{label}: detection failed ({type(e).__name__}: {e})", "not_found")
+        # spawn: the parent may hold JAX's threads, which a fork would copy half-initialised
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+        results = pool.map(_worker, jobs_list, chunksize=1)
+    try:
+        if not progress:
+            return list(results)
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    if not progress:
-        return [one(i, item) for i, item in enumerate(items)]
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    columns = (TextColumn("detecting {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
-        task = bar.add_task(f"{target.type}", total=len(items))
-        for i, item in enumerate(items):
-            results.append(one(i, item))
-            bar.advance(task)
-    return results
+        columns = (TextColumn("detecting {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+        out: list[TargetDetection | DetectionError] = []
+        with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+            task = bar.add_task(f"{target.type}", total=len(items))
+            for r in results:
+                out.append(r)
+                bar.advance(task)
+        return out
+    finally:
+        if pool is not None:
+            pool.shutdown()
