@@ -66,6 +66,8 @@ def detect_session(
     tools: bool = True,
     progress: bool = True,
     notes: dict[str, str] | None = None,
+    jobs: int | None = None,
+    warnings: dict[str, str] | None = None,
 ):
     """Detect the cell's targets (and tool tips) in every station image of a capture session.
 
@@ -80,6 +82,9 @@ def detect_session(
         progress: show a progress bar on stderr.
         notes: filled with ``{"<station> <camera> <target>": what the detector did}`` where its
             defaults did not suffice (:func:`jcalib.pipeline.images.retry_note`).
+        jobs: worker processes for the detection (None: every core; :func:`jcalib.vision.detect_many`).
+        warnings: filled with ``{"<station> <camera> <target>": warning}`` where the board's orientation
+            is ambiguous (the detection carries ``orientation_ambiguous`` too).
 
     Returns:
         ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
@@ -93,7 +98,7 @@ def detect_session(
     from jcalib.io.session import read_session
     from jcalib.io.cell import load_cell
     from jcalib.io.observations import Detection, Observations, Station
-    from jcalib.pipeline.images import retry_note
+    from jcalib.pipeline.images import orientation_warning, retry_note
     from jcalib.vision import detect_many
 
     d = Path(session_dir)
@@ -116,7 +121,7 @@ def detect_session(
     geometries = {t.name: t.geometry() for t in targets}
 
     failures: list[SessionFailure] = []
-    jobs: list[tuple[str, str, Path]] = []  # (station, camera, image path)
+    images: list[tuple[str, str, Path]] = []  # (station, camera, image path)
     for rec in records:
         sid = str(rec["id"])
         status = str(rec.get("status", "ok"))
@@ -133,7 +138,7 @@ def detect_session(
             if not path.is_file():
                 failures.append(SessionFailure(sid, cam, None, "missing_image", f"{path} does not exist"))
                 continue
-            jobs.append((sid, cam, path))
+            images.append((sid, cam, path))
 
     found: dict[tuple[str, str, str], Any] = {}
     sizes: dict[str, tuple[int, int]] = {}
@@ -147,8 +152,8 @@ def detect_session(
             )
 
     for tname, geom in geometries.items():
-        results = detect_many([p for _, _, p in jobs], geom, progress=progress)
-        for (sid, cam, path), res in zip(jobs, results, strict=True):
+        results = detect_many([p for _, _, p in images], geom, progress=progress, jobs=jobs)
+        for (sid, cam, path), res in zip(images, results, strict=True):
             if isinstance(res, DetectionError):
                 image_failures.setdefault((sid, cam), []).append(SessionFailure(sid, cam, tname, res.reason, str(res)))
                 continue
@@ -157,10 +162,12 @@ def detect_session(
             note = retry_note(res)
             if notes is not None and note:
                 notes[f"{sid} {cam} {tname}"] = note
+            if warnings is not None and "orientation_ambiguous" in res.warnings:
+                warnings[f"{sid} {cam} {tname}"] = orientation_warning(tname)
 
     # tool tips: images of a camera observing a tool in which no target was found at all
     tips: dict[tuple[str, str], tuple[str, np.ndarray, np.ndarray]] = {}
-    for sid, cam, path in jobs:
+    for sid, cam, path in images:
         fails = image_failures.get((sid, cam), [])
         if cam not in tool_of or any(f.reason != "not_found" for f in fails) or len(fails) < len(geometries):
             continue
@@ -178,7 +185,7 @@ def detect_session(
         axis = pixel + AXIS_POINT_PX * np.asarray(res.axis_direction, dtype=np.float64).reshape(1, 2)
         tips[(sid, cam)] = (tname, pixel, axis)
         image_failures[(sid, cam)] = []  # a tool image: its targets were not expected
-    for sid, cam, _ in jobs:
+    for sid, cam, _ in images:
         failures.extend(image_failures.get((sid, cam), []))
 
     stations = []
@@ -186,7 +193,8 @@ def detect_session(
         sid = str(rec["id"])
         dets = [
             Detection(camera=cam, target=tname, point_index=np.asarray(r.point_index, dtype=np.int64),
-                      pixels=np.asarray(r.pixels, dtype=np.float64))
+                      pixels=np.asarray(r.pixels, dtype=np.float64),
+                      orientation_ambiguous="orientation_ambiguous" in r.warnings)
             for (s, cam, tname), r in found.items() if s == sid
         ]  # fmt: skip
         dets += [Detection(camera=cam, pixels=px, tool=tname, axis=axis)
@@ -198,10 +206,10 @@ def detect_session(
             Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64),
                     joints_deg=_joints(rec.get("joints_deg")))
         )
-    for cam in {c for _, c, _ in jobs} - set(sizes):  # cameras that never saw a target: size from an image
+    for cam in {c for _, c, _ in images} - set(sizes):  # cameras that never saw a target: size from an image
         from jcalib.vision.image import image_header_size
 
-        size = image_header_size(next(p for _, c, p in jobs if c == cam))
+        size = image_header_size(next(p for _, c, p in images if c == cam))
         if size is not None:
             sizes[cam] = size
     obs = Observations(
@@ -273,8 +281,10 @@ def detect_session_to_file(
     *,
     target: str | None = None,
     progress: bool = True,
+    jobs: int | None = None,
 ):
-    """``jcalib detect --session``: detect, write ``observations.json`` (default: in the session), report failures.
+    """``jcalib detect --session``: detect, write ``observations.json`` (default: in the session), report
+    retries, orientation warnings and failures (``jobs``: worker processes, None: every core).
 
     Returns:
         ``(observations, failures)`` as :func:`detect_session`.
@@ -288,10 +298,14 @@ def detect_session_to_file(
     from jcalib.io.observations import save_observations
 
     notes: dict[str, str] = {}
-    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes)
+    warned: dict[str, str] = {}
+    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes, jobs=jobs,
+                                   warnings=warned)
     console = Console(stderr=True, soft_wrap=True)
     for what, note in notes.items():
         console.print(f"retried {what}: {note}", highlight=False, markup=False)
+    for what, warning in warned.items():
+        console.print(f"[yellow]warning[/] {escape(f'{what}: {warning}')}", highlight=False)
     for f in failures:
         console.print(f"[yellow]skipped[/] {escape(str(f))}", highlight=False)
     if not obs.stations:
@@ -303,7 +317,8 @@ def detect_session_to_file(
     save_observations(out, obs)
     console.print(
         escape(f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
-               f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else "")),
+               f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else "")
+               + (f", {len(warned)} with an ambiguous orientation" if warned else "")),
         highlight=False,
     )  # fmt: skip
     return obs, failures

@@ -316,8 +316,10 @@ def detect_many(
         target: the target to find.
         progress: show a rich progress bar (on stderr).
         jobs: worker processes (None: every core, :func:`default_jobs`). Each image is detected alone,
-            so the results are the same as with one process, in the same order; batches of fewer than
-            two images per worker stay in this process (starting a worker costs about a second).
+            so the results are the same as with one process, in the same order; fewer than four images
+            per worker run in fewer workers (starting one costs about a second). Workers are spawned, not
+            forked (the caller may hold JAX's threads): a script calling this with ``jobs != 1`` needs the
+            ``if __name__ == "__main__":`` guard, as with any spawned ``multiprocessing``.
         **options: passed to :func:`detect_target`.
 
     Returns:
@@ -330,7 +332,7 @@ def detect_many(
     workers = default_jobs() if jobs is None else jobs
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise BadInputError(f"detect_many: option 'jobs' got {jobs!r}, expected an integer >= 1 (or None: every core)")
-    workers = min(int(workers), len(items) // 2)
+    workers = min(int(workers), len(items) // 4)
     jobs_list = [(i, item, target, options) for i, item in enumerate(items)]
     if workers <= 1:
         results = map(_worker, jobs_list)
