@@ -36,8 +36,9 @@ class TargetDetection:
             ``max_edge_width_px``, ``"points_dropped"`` when points inconsistent with the board
             were left out (see ``dropped``).
         attempt: which attempts of :mod:`jcalib.vision.attempts` found what was kept: ``"default"``
-            when the finders' defaults sufficed, else e.g. ``"default+clahe"`` (ChArUco markers
-            collected over several attempts) or ``"downscale_2x"``.
+            when the default search sufficed, else e.g. ``"default+clahe"`` (ChArUco markers
+            collected over several attempts) or ``"downscale_2x"``; ``"tracked"`` when
+            :func:`jcalib.vision.track_target` found it around the previous frame's detection.
         attempts: every attempt run, in order (``("default",)`` when nothing was retried).
         dropped: points (or ChArUco markers) found but left out because they disagree with the board
             layout and their neighbours (:mod:`jcalib.vision.validate`).
@@ -59,7 +60,13 @@ class TargetDetection:
     @property
     def retried(self) -> bool:
         """Whether the defaults did not suffice (another attempt found points that were kept)."""
-        return self.attempt != "default"
+        return self.attempt not in ("default", "tracked")
+
+    @property
+    def tracked(self) -> bool:
+        """Whether :func:`jcalib.vision.track_target` found it around the previous frame's detection
+        (False: a whole-frame detection)."""
+        return self.attempt == "tracked"
 
     @property
     def num_points(self) -> int:
