@@ -23,7 +23,9 @@ Image sets:
   that ``--before FILE`` recorded (run this script with ``--save FILE`` and ``PYTHONPATH`` at that code),
   and OpenCV's finder alone (``findChessboardCornersSB`` with ``CALIB_CB_EXHAUSTIVE | CALIB_CB_ACCURACY``,
   ``CharucoDetector``, ``findCirclesGrid``; labels matched to the truth up to the board's symmetries).
-- ``--jobs`` (``--jobs-check``): ``detect_many`` on image files with 1 and 2 processes, wall time.
+- ``jobs``: ``detect_many`` on image files with 1 and 2 processes, wall time, and whether the results agree.
+- ``track``: :func:`jcalib.vision.track_target` through a rendered 1280x960 sequence, per target type.
+- with ``--real``: OpenCV's left01 with an outer row or column of corners covered (no board may be returned).
 
 Run: ``.venv/bin/python benchmarks/bench_detection.py [--real tests/data/real] [--views 10] [--before FILE]``
 """
@@ -353,8 +355,8 @@ def speed(folder: Path, sizes: list[str], count: int, count_large: int, before: 
 
     cv2.setNumThreads(1)
     mine: dict[str, list[dict]] = {}
-    print(f"\nspeed and robustness: CPU ms per image on one core (cv2.setNumThreads(1)); found/pts/wrong: boards, "
-          f"corners, wrong boards; rms: sub-pixel RMS of the right corners against the truth, px")  # fmt: skip
+    print("\nspeed and robustness: CPU ms per image on one core (cv2.setNumThreads(1)); found/pts/wrong: boards, "
+          "corners, wrong boards; rms: sub-pixel RMS of the right corners against the truth, px")  # fmt: skip
     for ti, (tname, target) in enumerate(targets().items()):
         for size in sizes:
             if size == "1600x1200" and not tname.startswith("charuco"):
@@ -376,7 +378,7 @@ def speed(folder: Path, sizes: list[str], count: int, count_large: int, before: 
     return mine
 
 
-def jobs_check(folder: Path, tmp: Path) -> None:
+def jobs_check(folder: Path) -> None:
     """``detect_many`` on the 640x480 chessboard sets written as files: 1 and 2 processes, wall time."""
     from detection_sets import CONDITIONS, load_or_render, targets
 
@@ -389,18 +391,91 @@ def jobs_check(folder: Path, tmp: Path) -> None:
         load_or_render(folder, tname, target, "640x480", cond, 10, 10 * ci + 7)
         paths += sorted(d.glob("*.png"))
     print(f"\n--jobs: detect_many on {len(paths)} image files ({tname}, 640x480, every set), wall time")
-    ref = None
+    walls, outs = {}, {}
     for jobs in (1, 2):
         t0 = time.perf_counter()
-        out = detect_many(paths, target, progress=False, jobs=jobs)
-        wall = time.perf_counter() - t0
-        same = ref is None or all(type(a) is type(b) and (not hasattr(a, "pixels") or np.array_equal(a.pixels, b.pixels))
-                                  for a, b in zip(ref, out))  # fmt: skip
-        ref = ref or out
-        print(f"  --jobs {jobs}: {wall:6.2f} s  ({1e3 * wall / len(paths):5.1f} ms per image)"
-              + ("" if jobs == 1 else f"  speed-up {t1 / wall:4.2f}x, results identical to --jobs 1: {same}"))
-        if jobs == 1:
-            t1 = wall
+        outs[jobs] = detect_many(paths, target, progress=False, jobs=jobs)
+        walls[jobs] = time.perf_counter() - t0
+    same = all(type(a) is type(b) and (not hasattr(a, "pixels") or np.array_equal(a.pixels, b.pixels))
+               for a, b in zip(outs[1], outs[2]))  # fmt: skip
+    for jobs in (1, 2):
+        extra = f"  speed-up {walls[1] / walls[2]:4.2f}x, results identical to --jobs 1: {same}" if jobs == 2 else ""
+        print(f"  --jobs {jobs}: {walls[jobs]:6.2f} s  ({1e3 * walls[jobs] / len(paths):5.1f} ms per image){extra}")
+
+
+def tracking(frames: int = 30) -> None:
+    """``track_target`` through a rendered 1280x960 sequence (the board turns and slides), each target type:
+    CPU time per frame on one core, frames tracked, and a whole-frame ``detect_target`` of the same frames."""
+    from detection_sets import camera, targets
+
+    from jcalib.vision import track_target
+
+    cv2.setNumThreads(1)
+    size = (1280, 960)
+    cam = camera(size)
+    print(f"\ntracking: {frames} frames of 1280x960, the board turning 1.2° and sliding 2 mm per frame; CPU ms per "
+          "frame on one core")  # fmt: skip
+    print(f"{'target':18s} {'track med':>9s} {'p95':>6s} {'tracked':>7s} {'lost':>4s} {'full med':>8s} {'p95':>6s}")
+    for tname, target in targets().items():
+        spacing = getattr(target, "square", None) or target.spacing
+        texture = target_texture(target, spacing / 24)
+        T0 = random_calibration_views(cam, target.points, 1, 3, fill=(0.4, 0.5))[0]
+        prev, t_track, t_full, tracked, lost = None, [], [], 0, 0
+        for k in range(frames):
+            T = T0.copy()
+            T[:3, :3] = T0[:3, :3] @ cv2.Rodrigues(np.array([0.0, 0.0, math.radians(1.2 * k)]))[0]
+            T[:3, 3] = T0[:3, 3] + np.array([0.002 * k, 0.001 * k, 0.0])
+            img = render_target_image(cam, T, texture, RenderOptions(), rng=k)
+            t0 = time.process_time()
+            try:
+                prev = track_target(img, target, prev)
+                tracked += prev.tracked
+            except DetectionError:
+                prev, lost = None, lost + 1
+            t_track.append(time.process_time() - t0)
+            t0 = time.process_time()
+            try:
+                detect_target(img, target)
+            except DetectionError:
+                pass
+            t_full.append(time.process_time() - t0)
+        a, b = 1e3 * np.array(t_track), 1e3 * np.array(t_full)
+        print(f"{tname:18s} {np.median(a):9.1f} {np.percentile(a, 95):6.1f} {tracked:7d} {lost:4d} {np.median(b):8.1f} "
+              f"{np.percentile(b, 95):6.1f}")  # fmt: skip
+
+
+def covered_rows(root: Path) -> None:
+    """OpenCV's left01 with an outer row or column of corners painted over: boards returned (must be 0)."""
+    img = cv2.imread(str(root / "opencv_left_right_chessboard" / "images" / "left01.jpg"), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        return
+    board = Checkerboard(9, 6, 0.03)
+    det = detect_target(img, board)
+    P = det.pixels[np.argsort(det.point_index)].reshape(6, 9, 2)
+    print("\nOpenCV's left01 with one outer row or column of corners covered (a board returned would be wrong):")
+    for which, (inner, outer) in {"last row": (P[4], P[5]), "first row": (P[1], P[0]), "last column": (P[:, 7], P[:, 8]),
+                                  "first column": (P[:, 1], P[:, 0])}.items():  # fmt: skip
+        mid, beyond = 0.5 * (inner + outer), outer + 0.5 * (outer - inner)
+        a, b = mid[0] - 1.5 * (mid[1] - mid[0]), mid[-1] + 1.5 * (mid[-1] - mid[-2])
+        c, d = beyond[0] - 1.5 * (beyond[1] - beyond[0]), beyond[-1] + 1.5 * (beyond[-1] - beyond[-2])
+        covered = img.copy()
+        cv2.fillConvexPoly(covered, np.array([a, b, d, c]).round().astype(np.int32), 255)
+        try:
+            found = detect_target(covered, board)
+            print(f"  {which:13s} FOUND by attempt {found.attempt}: {found.num_points} points  <-- wrong board")
+        except DetectionError as e:
+            print(f"  {which:13s} rejected ({e.reason}): {str(e)[:150]}")
+
+
+def reference_ms() -> float:
+    """CPU time of a fixed workload (sigma-1 Gaussian blur of a 640x480 float image, one thread): how fast the
+    machine runs while the tables are measured (about 0.3-0.5 ms on a quiet core of this machine)."""
+    cv2.setNumThreads(1)
+    f = np.random.default_rng(0).random((480, 640)).astype(np.float32)
+    t0 = time.process_time()
+    for _ in range(200):
+        cv2.GaussianBlur(f, (0, 0), 1.0)
+    return 1e3 * (time.process_time() - t0) / 200
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -409,8 +484,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--charuco-photo", type=Path, default=ROOT / "tests" / "data" / "charuco_opencv" / "choriginal.jpg")
     ap.add_argument("--views", type=int, default=10, help="rendered views per case and board (hard cases)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--sections", default="speed,jobs,hard,photo,real",
-                    help="comma-separated: speed, jobs, hard (rendered hard cases), photo, real")
+    ap.add_argument("--sections", default="speed,jobs,track,hard,photo,real",
+                    help="comma-separated: speed, jobs, track, hard (rendered hard cases), photo, real")
     ap.add_argument("--sets", type=Path, default=Path(tempfile.gettempdir()) / "jcalib-bench-detection",
                     help="folder of the rendered image sets (made on first use)")
     ap.add_argument("--sizes", default="640x480,1280x960,1600x1200,6016x4016")
@@ -422,11 +497,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     sections = set(args.sections.split(","))
     t0 = time.perf_counter()
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores); "
+          f"reference: {reference_ms():.2f} ms for a 640x480 float Gaussian blur on one core")  # fmt: skip
     if "speed" in sections:
         before = json.loads(args.before.read_text()) if args.before is not None else None
         speed(args.sets, args.sizes.split(","), args.count, args.count_large, before, args.save, not args.no_opencv)
     if "jobs" in sections:
-        jobs_check(args.sets, Path(tempfile.gettempdir()))
+        jobs_check(args.sets)
+    if "track" in sections:
+        tracking()
     if "hard" in sections:
         totals = rendered(args.views, args.seed)
         (f0, f1, w0, w1) = (sum(c[0][0] for c in totals), sum(c[1][0] for c in totals),
@@ -435,8 +514,10 @@ def main(argv: list[str] | None = None) -> int:
     if "photo" in sections:
         photo(args.charuco_photo)
     if "real" in sections and args.real is not None:
+        covered_rows(args.real)
         real_sets(args.real)
-    print(f"\n{time.perf_counter() - t0:.0f} s")
+    print(f"\nload average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; reference: {reference_ms():.2f} ms")
+    print(f"{time.perf_counter() - t0:.0f} s")
     return 0
 
 
