@@ -89,21 +89,26 @@ def detect_target(
 ) -> TargetDetection:
     """Find a calibration target's points in one image.
 
-    Chessboard: ``cv2.findChessboardCorners`` (``findChessboardCornersSB`` when it fails), then
-    ``cornerSubPix`` on a lightly smoothed image (see :mod:`jcalib.vision.chessboard` for the
-    measured accuracy); the whole board must be visible. ChArUco: ArUco markers, then
-    ``cv2.aruco.CharucoDetector``'s corners, partial views allowed (at least ``min_points``
-    corners). Circle grids: ``cv2.findCirclesGrid``; the whole grid must be visible. Point indices of
-    chessboards and circle grids follow :mod:`jcalib.vision.orientation` (180°-symmetric boards get
-    the warning ``"orientation_ambiguous"``).
+    Chessboard: a fast pass on a reduced image, then (where the X-junction locator finds a lattice)
+    ``cv2.findChessboardCorners`` and ``findChessboardCornersSB`` on the located region at the level its
+    squares suggest, then ``cornerSubPix`` and a saddle-point fit on the full-resolution image (see
+    :mod:`jcalib.vision.chessboard` for the search and the measured accuracy); the whole board must be
+    visible, and every corner must be an inner corner of a checker pattern (a board with a row covered is
+    rejected, not numbered 180° off). ChArUco: ArUco markers, then ``cv2.aruco.CharucoDetector``'s
+    corners, partial views allowed (at least ``min_points`` corners, each id checked against the markers
+    around it). Circle grids: ``cv2.findCirclesGrid`` after a quick look for a lattice of blobs; the whole
+    grid must be visible. Point indices of chessboards and circle grids follow
+    :mod:`jcalib.vision.orientation` (180°-symmetric boards get the warning ``"orientation_ambiguous"``,
+    a circle grid with an ``origin_dot`` is labelled from its larger dot).
 
-    When the defaults find no board (chessboards, circle grids) or miss markers the board predicts
-    inside the image (ChArUco), the detection is tried again with adapted preparations and parameters
-    (:mod:`jcalib.vision.attempts`: threshold windows, board-guided marker recovery, CLAHE, 2x up- and
-    down-scaling, smoothing); ``attempt`` / ``attempts`` of the result say which. Every detection,
-    default or not, is checked against the board model (:mod:`jcalib.vision.validate`): points whose
-    position disagrees with their neighbours on the board are dropped (``dropped``); a grid with more
-    than a tenth of its points inconsistent is not the board and counts as not found.
+    When the default search finds no board and the image plausibly holds one (chessboards, circle
+    grids), or misses markers the board predicts inside the image (ChArUco), the detection is tried
+    again with adapted preparations and parameters (:mod:`jcalib.vision.attempts`: threshold windows,
+    board-guided marker recovery, CLAHE, 2x up- and down-scaling, smoothing); ``attempt`` / ``attempts``
+    of the result say which. Every detection, default or not, is checked against the board model
+    (:mod:`jcalib.vision.validate`): points whose position disagrees with their neighbours on the board
+    are dropped (``dropped``); a grid with more than a tenth of its points inconsistent is not the board
+    and counts as not found.
 
     Args:
         image: a path, or an (H, W[, 3|4]) uint8 / uint16 array (colour in BGR order).
