@@ -57,6 +57,7 @@ from jcalib.vision import detect_target
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # detection_sets
+from detection_sets import CONDITIONS  # noqa: E402
 K = np.array([[800.0, 0.0, 322.0], [0.0, 798.0, 241.0], [0.0, 0.0, 1.0]])
 DIST = np.array([-0.2, 0.08, 0.0, 0.0, 0.0])
 SIZE = (640, 480)
@@ -349,9 +350,9 @@ SPEED_HEAD = f"{'ms med':>6s} {'p95':>6s} {'found':>5s} {'pts':>5s} {'wrong':>5s
 
 
 def speed(folder: Path, sizes: list[str], count: int, count_large: int, before: dict | None, save: Path | None,
-          with_opencv: bool) -> dict:
+          with_opencv: bool, conditions=CONDITIONS) -> dict:
     """The speed tables (module docstring); returns this code's records {set key: [records]}."""
-    from detection_sets import CONDITIONS, load_or_render, targets
+    from detection_sets import load_or_render, targets
 
     cv2.setNumThreads(1)
     mine: dict[str, list[dict]] = {}
@@ -366,6 +367,8 @@ def speed(folder: Path, sizes: list[str], count: int, count_large: int, before: 
             print(f"{'set':13s} | {'before':^38s} | {'after':^38s}" + (f" | {'OpenCV alone':^38s}" if with_opencv else ""))
             print(f"{'':13s} | {SPEED_HEAD} | {SPEED_HEAD}" + (f" | {SPEED_HEAD}" if with_opencv else ""))
             for ci, cond in enumerate(CONDITIONS):
+                if cond not in conditions:
+                    continue
                 key = f"{tname}|{size}|{cond}"
                 cases = load_or_render(folder, tname, target, size, cond, n, 1000 * ti + 10 * ci + 7)
                 mine[key] = run_detector("jcalib", cases, target)
@@ -491,7 +494,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default="640x480,1280x960,1600x1200,6016x4016")
     ap.add_argument("--count", type=int, default=10, help="images per set")
     ap.add_argument("--count-large", type=int, default=3, help="images per set at 6016x4016")
-    ap.add_argument("--before", type=Path, default=None, help="records saved by --save with the code before")
+    ap.add_argument("--before", type=Path, nargs="+", default=None,
+                    help="records saved by --save with the code before (several files are merged)")
+    ap.add_argument("--conditions", default=",".join(CONDITIONS), help="comma-separated sets to run")
     ap.add_argument("--save", type=Path, default=None, help="write this code's speed records (JSON)")
     ap.add_argument("--no-opencv", action="store_true", help="leave out OpenCV's finders alone")
     args = ap.parse_args(argv)
@@ -500,8 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores); "
           f"reference: {reference_ms():.2f} ms for a 640x480 float Gaussian blur on one core")  # fmt: skip
     if "speed" in sections:
-        before = json.loads(args.before.read_text()) if args.before is not None else None
-        speed(args.sets, args.sizes.split(","), args.count, args.count_large, before, args.save, not args.no_opencv)
+        before = {k: v for f in args.before for k, v in json.loads(f.read_text()).items()} if args.before else None
+        speed(args.sets, args.sizes.split(","), args.count, args.count_large, before, args.save, not args.no_opencv,
+              args.conditions.split(","))
     if "jobs" in sections:
         jobs_check(args.sets)
     if "track" in sections:

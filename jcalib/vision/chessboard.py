@@ -444,10 +444,10 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
     from jcalib.vision.attempts import GRID_ATTEMPTS, prepare, to_original
 
     rejected: list[str] = []
-
     suspects: list[np.ndarray] = []
 
-    def keep(c_level: np.ndarray | None, level: int, name: str, method: str) -> np.ndarray | None:
+    def keep(c_level: np.ndarray | None, level: int, name: str) -> np.ndarray | None:
+        """The grid found on ``level`` by attempt ``name``, refined and checked (None: rejected, recorded)."""
         if c_level is None:
             return None
         full, suspect, why = _checked(gray, _to_full(gray, c_level, level, cols, rows), cols, rows, level == 0)
@@ -463,7 +463,7 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
     # 1. the fast pass: the whole image, reduced, with the classic finder's quick rejection
     k1 = level_with_side(gray, FAST_SIDE_PX)
     c, method = _classic_then_sb(gray.level(k1), cols, rows, _FAST_FLAGS, sb=False)
-    pixels = keep(c, k1, "default", method)
+    pixels = keep(c, k1, "default")
     if pixels is not None:
         return found(pixels, method, k1, ("default",))
     # 2. where is a board, and how large are its squares?
@@ -497,7 +497,7 @@ def find_chessboard(gray: GrayImage, cols: int, rows: int, *, retry: bool = True
             c, method = _classic_then_sb(img, cols, rows, _FIND_FLAGS, sb=True)
             if c is not None:
                 c = to_original(c, attempt) + origin
-            pixels = keep(c, level, attempt.name, method)
+            pixels = keep(c, level, attempt.name)
             if pixels is not None:
                 return found(pixels, method, level, tuple(tried), hint)
     if len(attempts) == 1:
