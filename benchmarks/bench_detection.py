@@ -13,15 +13,31 @@ Image sets:
   images): no ground truth; a wrong board would show as a large reprojection error of
   ``cv2.calibrateCamera`` on the found corners (printed: RMS and worst point).
 
-Run: ``.venv/bin/python benchmarks/bench_detection.py [--real /path/to/data/real] [--views 10]``
+- speed and robustness (``--speed``): a table per target type and image size (640x480, 1280x960,
+  1600x1200, 6016x4016: the sensor of the bundled mrcal set, whose images are not bundled, so its views are
+  rendered) for the sets of ``benchmarks/detection_sets.py`` (board present, absent, partly out of view,
+  blur, low contrast, glare, steep tilt): CPU time per image on one core (``cv2.setNumThreads(1)``,
+  ``time.process_time``: median and 95th percentile), boards found, corners found, wrong boards
+  (a point farther than 0.15 spacings and 1 px from its true projection, or found outside the image),
+  sub-pixel RMS of the right points against the truth, px. Side by side: this code ("after"), the code
+  that ``--before FILE`` recorded (run this script with ``--save FILE`` and ``PYTHONPATH`` at that code),
+  and OpenCV's finder alone (``findChessboardCornersSB`` with ``CALIB_CB_EXHAUSTIVE | CALIB_CB_ACCURACY``,
+  ``CharucoDetector``, ``findCirclesGrid``; labels matched to the truth up to the board's symmetries).
+- ``jobs``: ``detect_many`` on image files with 1 and 2 processes, wall time, and whether the results agree.
+- ``track``: :func:`jcalib.vision.track_target` through a rendered 1280x960 sequence, per target type.
+- with ``--real``: OpenCV's left01 with an outer row or column of corners covered (no board may be returned).
+
+Run: ``.venv/bin/python benchmarks/bench_detection.py [--real tests/data/real] [--views 10] [--before FILE]``
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,6 +56,8 @@ from jcalib.sim.textures import target_texture
 from jcalib.vision import detect_target
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # detection_sets
+from detection_sets import CONDITIONS  # noqa: E402
 K = np.array([[800.0, 0.0, 322.0], [0.0, 798.0, 241.0], [0.0, 0.0, 1.0]])
 DIST = np.array([-0.2, 0.08, 0.0, 0.0, 0.0])
 SIZE = (640, 480)
@@ -241,22 +259,271 @@ def real_sets(root: Path) -> None:
             print(f"{'':24s} calibrateCamera on the corners found with retries: RMS {rms:.3f} px, worst point {worst:.2f} px")
 
 
+# ------------------------------------------------------------------------------------------- speed
+
+
+def _symmetric_best(target, pixels: np.ndarray, index: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``index`` relabelled by the board symmetry (proper rotations) that puts the points nearest the truth:
+    OpenCV's own finders number a grid in their own order."""
+    from jcalib.vision.orientation import point_symmetries
+
+    best, best_err = index, np.inf
+    for perm in point_symmetries(target.points[:, :2]):
+        t = truth[perm[index]]
+        e = np.nanmean(np.linalg.norm(pixels - t, axis=1)) if np.any(np.isfinite(t)) else np.inf
+        if e < best_err:
+            best, best_err = perm[index], e
+    return best
+
+
+def opencv_alone(image: np.ndarray, target):
+    """(point_index, pixels) from OpenCV's own finder for the target type, or None."""
+    from jcalib.geometry.targets import Charuco, Checkerboard
+
+    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if gray.dtype != np.uint8:
+        gray = cv2.normalize(gray, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if isinstance(target, Checkerboard):
+        ok, c = cv2.findChessboardCornersSB(gray, (target.cols, target.rows),
+                                            flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+        return (np.arange(target.num_points), c.reshape(-1, 2).astype(np.float64)) if ok else None
+    if isinstance(target, Charuco):
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
+        board = cv2.aruco.CharucoBoard((target.squares_x, target.squares_y), target.square, target.marker, d)
+        board.setLegacyPattern(target.legacy)
+        corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(gray)
+        if ids is None or len(ids) < 6:
+            return None
+        return ids.reshape(-1).astype(np.int64), corners.reshape(-1, 2).astype(np.float64)
+    flags = cv2.CALIB_CB_ASYMMETRIC_GRID if target.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
+    ok, c = cv2.findCirclesGrid(gray, (target.cols, target.rows), flags=flags)
+    return (np.arange(target.num_points), c.reshape(-1, 2).astype(np.float64)) if ok else None
+
+
+def _record(found, truth: np.ndarray, seconds: float, target=None) -> dict:
+    """One image's outcome: found, corners, wrong, squared errors of the right points, CPU seconds."""
+    rec = {"found": False, "corners": 0, "wrong": False, "sq": [], "s": seconds}
+    if found is None:
+        return rec
+    index, pixels = found
+    if target is not None:
+        index = _symmetric_best(target, pixels, index, truth)
+    t = truth[index]
+    err = np.linalg.norm(pixels - t, axis=1)
+    d = np.linalg.norm(truth[:, None, :] - truth[None, :, :], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    with np.errstate(invalid="ignore"):
+        spacing = np.nanmin(np.where(np.isfinite(d), d, np.inf), axis=1)[index]
+        ok = err <= np.maximum(WRONG_SPACING * spacing, 1.0)
+    rec.update(found=True, corners=int(len(index)), wrong=bool(np.any(~ok)), sq=(err[ok] ** 2).tolist())
+    return rec
+
+
+def run_detector(kind: str, cases, target) -> list[dict]:
+    """Per-image records of ``kind`` ("jcalib" or "opencv") on a set, CPU time on one core."""
+    out = []
+    for case in cases:
+        t0 = time.process_time()
+        if kind == "opencv":
+            found = opencv_alone(case.image, target)
+        else:
+            try:
+                det = detect_target(case.image, target)
+                found = (det.point_index, det.pixels)
+            except DetectionError:
+                found = None
+        out.append(_record(found, case.truth, time.process_time() - t0, target if kind == "opencv" else None))
+    return out
+
+
+def _cells(records: list[dict] | None) -> str:
+    if not records:
+        return f"{'':>6s} {'':>6s} {'':>5s} {'':>5s} {'':>5s} {'':>6s}"
+    ms = 1e3 * np.array([r["s"] for r in records])
+    sq = [e for r in records for e in r["sq"]]
+    rms = f"{np.sqrt(np.mean(sq)):6.3f}" if sq else f"{'-':>6s}"
+    return (f"{np.median(ms):6.1f} {np.percentile(ms, 95):6.1f} {sum(r['found'] for r in records):5d} "
+            f"{sum(r['corners'] for r in records):5d} {sum(r['wrong'] for r in records):5d} {rms}")  # fmt: skip
+
+
+SPEED_HEAD = f"{'ms med':>6s} {'p95':>6s} {'found':>5s} {'pts':>5s} {'wrong':>5s} {'rms px':>6s}"
+
+
+def speed(folder: Path, sizes: list[str], count: int, count_large: int, before: dict | None, save: Path | None,
+          with_opencv: bool, conditions=CONDITIONS) -> dict:
+    """The speed tables (module docstring); returns this code's records {set key: [records]}."""
+    from detection_sets import load_or_render, targets
+
+    cv2.setNumThreads(1)
+    mine: dict[str, list[dict]] = {}
+    print("\nspeed and robustness: CPU ms per image on one core (cv2.setNumThreads(1)); found/pts/wrong: boards, "
+          "corners, wrong boards; rms: sub-pixel RMS of the right corners against the truth, px")  # fmt: skip
+    for ti, (tname, target) in enumerate(targets().items()):
+        for size in sizes:
+            if size == "1600x1200" and not tname.startswith("charuco"):
+                continue
+            n = count_large if size == "6016x4016" else count
+            print(f"\n{tname}, {size}, {n} images per set")
+            print(f"{'set':13s} | {'before':^38s} | {'after':^38s}" + (f" | {'OpenCV alone':^38s}" if with_opencv else ""))
+            print(f"{'':13s} | {SPEED_HEAD} | {SPEED_HEAD}" + (f" | {SPEED_HEAD}" if with_opencv else ""))
+            for ci, cond in enumerate(CONDITIONS):
+                if cond not in conditions:
+                    continue
+                key = f"{tname}|{size}|{cond}"
+                cases = load_or_render(folder, tname, target, size, cond, n, 1000 * ti + 10 * ci + 7)
+                mine[key] = run_detector("jcalib", cases, target)
+                line = f"{cond:13s} | {_cells((before or {}).get(key))} | {_cells(mine[key])}"
+                if with_opencv:
+                    line += f" | {_cells(run_detector('opencv', cases, target))}"
+                print(line, flush=True)
+                if save is not None:
+                    save.write_text(json.dumps(mine))
+    return mine
+
+
+def jobs_check(folder: Path) -> None:
+    """``detect_many`` on the 640x480 chessboard sets written as files: 1 and 2 processes, wall time."""
+    from detection_sets import CONDITIONS, load_or_render, targets
+
+    from jcalib.vision import detect_many
+
+    tname, target = next(iter(targets().items()))
+    paths = []
+    for ci, cond in enumerate(CONDITIONS):
+        d = Path(folder) / f"{tname}_640x480_{cond}_10_{10 * ci + 7}".replace(" ", "-")
+        load_or_render(folder, tname, target, "640x480", cond, 10, 10 * ci + 7)
+        paths += sorted(d.glob("*.png"))
+    print(f"\n--jobs: detect_many on {len(paths)} image files ({tname}, 640x480, every set), wall time")
+    walls, outs = {}, {}
+    for jobs in (1, 2):
+        t0 = time.perf_counter()
+        outs[jobs] = detect_many(paths, target, progress=False, jobs=jobs)
+        walls[jobs] = time.perf_counter() - t0
+    same = all(type(a) is type(b) and (not hasattr(a, "pixels") or np.array_equal(a.pixels, b.pixels))
+               for a, b in zip(outs[1], outs[2]))  # fmt: skip
+    for jobs in (1, 2):
+        extra = f"  speed-up {walls[1] / walls[2]:4.2f}x, results identical to --jobs 1: {same}" if jobs == 2 else ""
+        print(f"  --jobs {jobs}: {walls[jobs]:6.2f} s  ({1e3 * walls[jobs] / len(paths):5.1f} ms per image){extra}")
+
+
+def tracking(frames: int = 30) -> None:
+    """``track_target`` through a rendered 1280x960 sequence (the board turns and slides), each target type:
+    CPU time per frame on one core, frames tracked, and a whole-frame ``detect_target`` of the same frames."""
+    from detection_sets import camera, targets
+
+    from jcalib.vision import track_target
+
+    cv2.setNumThreads(1)
+    size = (1280, 960)
+    cam = camera(size)
+    print(f"\ntracking: {frames} frames of 1280x960, the board turning 1.2° and sliding 2 mm per frame; CPU ms per "
+          "frame on one core")  # fmt: skip
+    print(f"{'target':18s} {'track med':>9s} {'p95':>6s} {'tracked':>7s} {'lost':>4s} {'full med':>8s} {'p95':>6s}")
+    for tname, target in targets().items():
+        spacing = getattr(target, "square", None) or target.spacing
+        texture = target_texture(target, spacing / 24)
+        T0 = random_calibration_views(cam, target.points, 1, 3, fill=(0.4, 0.5))[0]
+        prev, t_track, t_full, tracked, lost = None, [], [], 0, 0
+        for k in range(frames):
+            T = T0.copy()
+            T[:3, :3] = T0[:3, :3] @ cv2.Rodrigues(np.array([0.0, 0.0, math.radians(1.2 * k)]))[0]
+            T[:3, 3] = T0[:3, 3] + np.array([0.002 * k, 0.001 * k, 0.0])
+            img = render_target_image(cam, T, texture, RenderOptions(), rng=k)
+            t0 = time.process_time()
+            try:
+                prev = track_target(img, target, prev)
+                tracked += prev.tracked
+            except DetectionError:
+                prev, lost = None, lost + 1
+            t_track.append(time.process_time() - t0)
+            t0 = time.process_time()
+            try:
+                detect_target(img, target)
+            except DetectionError:
+                pass
+            t_full.append(time.process_time() - t0)
+        a, b = 1e3 * np.array(t_track), 1e3 * np.array(t_full)
+        print(f"{tname:18s} {np.median(a):9.1f} {np.percentile(a, 95):6.1f} {tracked:7d} {lost:4d} {np.median(b):8.1f} "
+              f"{np.percentile(b, 95):6.1f}")  # fmt: skip
+
+
+def covered_rows(root: Path) -> None:
+    """OpenCV's left01 with an outer row or column of corners painted over: boards returned (must be 0)."""
+    img = cv2.imread(str(root / "opencv_left_right_chessboard" / "images" / "left01.jpg"), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        return
+    board = Checkerboard(9, 6, 0.03)
+    det = detect_target(img, board)
+    P = det.pixels[np.argsort(det.point_index)].reshape(6, 9, 2)
+    print("\nOpenCV's left01 with one outer row or column of corners covered (a board returned would be wrong):")
+    for which, (inner, outer) in {"last row": (P[4], P[5]), "first row": (P[1], P[0]), "last column": (P[:, 7], P[:, 8]),
+                                  "first column": (P[:, 1], P[:, 0])}.items():  # fmt: skip
+        mid, beyond = 0.5 * (inner + outer), outer + 0.5 * (outer - inner)
+        a, b = mid[0] - 1.5 * (mid[1] - mid[0]), mid[-1] + 1.5 * (mid[-1] - mid[-2])
+        c, d = beyond[0] - 1.5 * (beyond[1] - beyond[0]), beyond[-1] + 1.5 * (beyond[-1] - beyond[-2])
+        covered = img.copy()
+        cv2.fillConvexPoly(covered, np.array([a, b, d, c]).round().astype(np.int32), 255)
+        try:
+            found = detect_target(covered, board)
+            print(f"  {which:13s} FOUND by attempt {found.attempt}: {found.num_points} points  <-- wrong board")
+        except DetectionError as e:
+            print(f"  {which:13s} rejected ({e.reason}): {str(e)[:150]}")
+
+
+def reference_ms() -> float:
+    """CPU time of a fixed workload (sigma-1 Gaussian blur of a 640x480 float image, one thread): how fast the
+    machine runs while the tables are measured (about 0.3-0.5 ms on a quiet core of this machine)."""
+    cv2.setNumThreads(1)
+    f = np.random.default_rng(0).random((480, 640)).astype(np.float32)
+    t0 = time.process_time()
+    for _ in range(200):
+        cv2.GaussianBlur(f, (0, 0), 1.0)
+    return 1e3 * (time.process_time() - t0) / 200
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--real", type=Path, default=None, help="folder with opencv_left_right_chessboard/ (shared data/real)")
     ap.add_argument("--charuco-photo", type=Path, default=ROOT / "tests" / "data" / "charuco_opencv" / "choriginal.jpg")
-    ap.add_argument("--views", type=int, default=10, help="rendered views per case and board")
+    ap.add_argument("--views", type=int, default=10, help="rendered views per case and board (hard cases)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sections", default="speed,jobs,track,hard,photo,real",
+                    help="comma-separated: speed, jobs, track, hard (rendered hard cases), photo, real")
+    ap.add_argument("--sets", type=Path, default=Path(tempfile.gettempdir()) / "jcalib-bench-detection",
+                    help="folder of the rendered image sets (made on first use)")
+    ap.add_argument("--sizes", default="640x480,1280x960,1600x1200,6016x4016")
+    ap.add_argument("--count", type=int, default=10, help="images per set")
+    ap.add_argument("--count-large", type=int, default=3, help="images per set at 6016x4016")
+    ap.add_argument("--before", type=Path, nargs="+", default=None,
+                    help="records saved by --save with the code before (several files are merged)")
+    ap.add_argument("--conditions", default=",".join(CONDITIONS), help="comma-separated sets to run")
+    ap.add_argument("--save", type=Path, default=None, help="write this code's speed records (JSON)")
+    ap.add_argument("--no-opencv", action="store_true", help="leave out OpenCV's finders alone")
     args = ap.parse_args(argv)
+    sections = set(args.sections.split(","))
     t0 = time.perf_counter()
-    totals = rendered(args.views, args.seed)
-    (f0, f1, w0, w1) = (sum(c[0][0] for c in totals), sum(c[1][0] for c in totals),
-                        sum(c[0][2] for c in totals), sum(c[1][2] for c in totals))  # fmt: skip
-    print(f"rendered total: boards found {f0} -> {f1} with retries; wrong boards {w0} -> {w1}")
-    photo(args.charuco_photo)
-    if args.real is not None:
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores); "
+          f"reference: {reference_ms():.2f} ms for a 640x480 float Gaussian blur on one core")  # fmt: skip
+    if "speed" in sections:
+        before = {k: v for f in args.before for k, v in json.loads(f.read_text()).items()} if args.before else None
+        speed(args.sets, args.sizes.split(","), args.count, args.count_large, before, args.save, not args.no_opencv,
+              args.conditions.split(","))
+    if "jobs" in sections:
+        jobs_check(args.sets)
+    if "track" in sections:
+        tracking()
+    if "hard" in sections:
+        totals = rendered(args.views, args.seed)
+        (f0, f1, w0, w1) = (sum(c[0][0] for c in totals), sum(c[1][0] for c in totals),
+                            sum(c[0][2] for c in totals), sum(c[1][2] for c in totals))  # fmt: skip
+        print(f"rendered total: boards found {f0} -> {f1} with retries; wrong boards {w0} -> {w1}")
+    if "photo" in sections:
+        photo(args.charuco_photo)
+    if "real" in sections and args.real is not None:
+        covered_rows(args.real)
         real_sets(args.real)
-    print(f"\n{time.perf_counter() - t0:.0f} s")
+    print(f"\nload average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; reference: {reference_ms():.2f} ms")
+    print(f"{time.perf_counter() - t0:.0f} s")
     return 0
 
 

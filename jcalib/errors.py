@@ -47,6 +47,9 @@ class DetectionError(JcalibError):
         super().__init__(message)
         self.reason = reason
 
+    def __reduce__(self):  # picklable (detection in worker processes)
+        return (type(self), (str(self), self.reason))
+
 
 class DeviceError(JcalibError):
     """A camera or robot could not be reached or refused a command. CLI exit status 4."""

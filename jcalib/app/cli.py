@@ -107,8 +107,15 @@ def detect(
         Optional[Path],
         typer.Option("--session", help="Capture session: detect in all its images (cell, -o optional)."),
     ] = None,
+    jobs: Annotated[
+        Optional[int], typer.Option("--jobs", "-j", help="Worker processes (default: every core; 1: none).")
+    ] = None,
 ) -> None:
     """Detect the cell's calibration target in images (or a capture session) and write observations.json."""
+    if jobs is not None and jobs < 1:
+        from jcalib.errors import BadInputError
+
+        raise BadInputError(f"--jobs: got {jobs}, expected an integer >= 1 (or leave it out: every core)")
     if session is not None:
         from jcalib.errors import BadInputError
         from jcalib.pipeline.session import detect_session_to_file
@@ -117,7 +124,7 @@ def detect(
             raise BadInputError(f"--session {session}: no such folder (expected a jcalib capture session)")
         check_outputs({"-o": out if out is not None else session / "observations.json"}, [cell, *(images or [])],
                       input_dirs={session: ["observations.json"]})  # fmt: skip
-        detect_session_to_file(session, cell, out, target=target)
+        detect_session_to_file(session, cell, out, target=target, jobs=jobs)
         return
     if not images or cell is None or camera is None or out is None:
         from jcalib.errors import BadInputError
@@ -126,9 +133,7 @@ def detect(
     check_outputs({"-o": out}, [cell, *images])
     from jcalib.pipeline.images import detect_images_to_file
 
-    detect_images_to_file(
-        cell_path=cell, camera=camera, image_paths=images, out_path=out, target=target
-    )
+    detect_images_to_file(cell_path=cell, camera=camera, image_paths=images, out_path=out, target=target, jobs=jobs)
 
 
 def _opt(help_: str, *flags: str):

@@ -14,7 +14,8 @@ use for the same board, with the origin where OpenCV puts its first object point
   first inner corner at ``(square, square, 0)``).
 - :class:`CircleGrid` ``(cols, rows)`` circles; symmetric: ``(j * spacing, i * spacing, 0)``;
   asymmetric: ``((2 * j + i % 2) * spacing, i * spacing, 0)`` (OpenCV's calibration sample), for
-  ``k = i * cols + j``.
+  ``k = i * cols + j``; a symmetric grid may carry a larger origin dot at one corner (``origin_dot``,
+  ROS-Industrial's modified circle grid), which fixes its orientation.
 
 This module uses numpy only (no OpenCV): marker bit patterns are drawn by :mod:`jcalib.sim.textures`.
 """
@@ -50,6 +51,10 @@ ARUCO_DICTIONARIES: dict[str, tuple[int, int]] = {
     "DICT_APRILTAG_36h11": (6, 587),
     "DICT_ARUCO_MIP_36h12": (6, 250),
 }
+
+
+#: Corners of a circle grid that can carry the origin dot (:class:`CircleGrid`).
+ORIGIN_CORNERS = ("top_left", "top_right", "bottom_left", "bottom_right")
 
 
 def _check_count(name: str, value: Any, minimum: int) -> int:
@@ -264,8 +269,15 @@ class CircleGrid:
             distance between consecutive rows, which is also their horizontal offset; centres in one
             row are ``2 * spacing`` apart (OpenCV's ``squareSize`` for ``ASYMMETRIC_GRID``).
         asymmetric: OpenCV's asymmetric (staggered) grid; ``rows`` must then be odd.
-        diameter: printed circle diameter, m (optional, default ``spacing / 2``); only the texture
-            uses it.
+        diameter: printed circle diameter, m (optional, default ``spacing / 2``, or ``0.4 spacing`` with an
+            origin dot); only the texture uses it.
+        origin_dot: a *modified* circle grid (ROS-Industrial's ``ModifiedCircleGridTarget``): the circle at
+            this corner of the grid is printed larger (twice the diameter), which fixes the board's
+            orientation: ``"top_left"`` (point 0), ``"top_right"`` (point ``cols - 1``), ``"bottom_left"``
+            (point ``(rows - 1) * cols``) or ``"bottom_right"`` (the last point), the printed face seen with
+            target x to the right and y down. A ROS-Industrial print (large dot at the bottom left, x along
+            the bottom row, y up) is ``"bottom_left"``, and jcalib's point k is then its point k. Symmetric
+            grids only (an asymmetric grid's layout already fixes its orientation). None: a plain grid.
     """
 
     cols: int
@@ -273,6 +285,7 @@ class CircleGrid:
     spacing: float
     asymmetric: bool = False
     diameter: float | None = None
+    origin_dot: str | None = None
 
     type = "circles"
 
@@ -290,15 +303,38 @@ class CircleGrid:
                 f"target field 'rows': got {self.rows} for an asymmetric circle grid, expected an odd "
                 "number (e.g. cols=4, rows=11, as OpenCV's acircles pattern)"
             )
+        if self.origin_dot is not None:
+            if self.origin_dot not in ORIGIN_CORNERS:
+                raise BadInputError(f"target field 'origin_dot': got {self.origin_dot!r}, expected one of "
+                                    f"{list(ORIGIN_CORNERS)} (the grid corner with the larger dot)")
+            if self.asymmetric:
+                raise BadInputError("target field 'origin_dot': an asymmetric circle grid's layout already fixes its "
+                                    "orientation; an origin dot is for symmetric grids (asymmetric: false)")
         if self.diameter is None:
-            object.__setattr__(self, "diameter", 0.5 * self.spacing)
+            object.__setattr__(self, "diameter", (0.4 if self.origin_dot else 0.5) * self.spacing)
         d = _check_length("diameter", self.diameter)
         nearest = self.spacing * (math.sqrt(2.0) if self.asymmetric else 1.0)
         if d >= nearest:
             raise BadInputError(
                 f"target field 'diameter': got {d!r} m, expected less than the centre distance {nearest!r} m"
             )
+        if self.origin_dot and 1.5 * d >= self.spacing:  # the origin dot (2 d) must not touch its neighbours
+            raise BadInputError(f"target field 'diameter': got {d!r} m; with an origin dot (twice the diameter) it "
+                                f"must be below {self.spacing / 1.5:.6g} m (2/3 of the spacing)")
         object.__setattr__(self, "diameter", d)
+
+    @property
+    def origin_index(self) -> int | None:
+        """The point index of the origin dot (None without one)."""
+        if self.origin_dot is None:
+            return None
+        n = self.cols * self.rows
+        return {"top_left": 0, "top_right": self.cols - 1, "bottom_left": n - self.cols, "bottom_right": n - 1}[self.origin_dot]
+
+    @property
+    def origin_diameter(self) -> float | None:
+        """Diameter of the origin dot, m (twice :attr:`diameter`; None without one)."""
+        return None if self.origin_dot is None else 2.0 * self.diameter
 
     @property
     def num_points(self) -> int:
@@ -323,12 +359,15 @@ class CircleGrid:
     def extent_m(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) of the printed circles, m."""
         p = self.points
-        r = 0.5 * self.diameter
+        r = 0.5 * (self.origin_diameter or self.diameter)  # the origin dot (a corner) reaches furthest
         return (float(p[:, 0].min()) - r, float(p[:, 1].min()) - r, float(p[:, 0].max()) + r, float(p[:, 1].max()) + r)
 
     def to_spec(self) -> dict:
-        """Cell-spec entry ``{type: circles, cols, rows, spacing, asymmetric, diameter}``."""
-        return {"type": self.type, **asdict(self)}
+        """Cell-spec entry ``{type: circles, cols, rows, spacing, asymmetric, diameter[, origin_dot]}``."""
+        spec = {"type": self.type, **asdict(self)}
+        if spec["origin_dot"] is None:
+            del spec["origin_dot"]
+        return spec
 
 
 Target = Union[Checkerboard, Charuco, CircleGrid]
@@ -336,7 +375,7 @@ Target = Union[Checkerboard, Charuco, CircleGrid]
 _SPEC_FIELDS: dict[str, tuple[type, tuple[str, ...], tuple[str, ...]]] = {
     "checkerboard": (Checkerboard, ("cols", "rows", "square"), ()),
     "charuco": (Charuco, ("squares_x", "squares_y", "square", "marker"), ("dictionary", "legacy")),
-    "circles": (CircleGrid, ("cols", "rows", "spacing"), ("asymmetric", "diameter")),
+    "circles": (CircleGrid, ("cols", "rows", "spacing"), ("asymmetric", "diameter", "origin_dot")),
 }
 # Keys a cell-spec target entry may carry that are not geometry (used by the cell, not here).
 _NON_GEOMETRY_KEYS = {"type", "mount", "pose"}

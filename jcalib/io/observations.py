@@ -33,6 +33,10 @@ class Detection:
         tool: tool id for a tool-tip detection (then ``pixels`` is (1, 2), ``point_index`` empty).
         axis: tool-tip detections only: optional ``(L, 2)`` points on the imaged tool axis (pixels), e.g.
             along the axis direction the tip detector found; they determine the tool's orientation.
+        orientation_ambiguous: target detections only: the board looks the same turned by 180° (or 90°)
+            and nothing printed on it told which way round it was seen, so ``point_index`` is one of the
+            labellings its symmetry allows (JSON key ``"orientation_ambiguous": true``, written only
+            when set); the calibration resolves it from the robot motion or refuses by name.
     """
 
     camera: str
@@ -41,6 +45,7 @@ class Detection:
     point_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     tool: str | None = None
     axis: np.ndarray | None = None
+    orientation_ambiguous: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"camera": self.camera}
@@ -53,6 +58,8 @@ class Detection:
             out["target"] = self.target
             out["point_index"] = self.point_index.astype(int).tolist()
             out["pixels"] = self.pixels.tolist()
+            if self.orientation_ambiguous:
+                out["orientation_ambiguous"] = True
         return out
 
 
@@ -222,7 +229,8 @@ def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict,
         )
     if np.unique(index).size != index.size:
         raise _fail(where + ".point_index", "a target point appears twice in one detection")
-    return Detection(camera=camera, target=target, point_index=index, pixels=pixels)
+    return Detection(camera=camera, target=target, point_index=index, pixels=pixels,
+                     orientation_ambiguous=bool(d.get("orientation_ambiguous", False)))
 
 
 def parse_observations(data: Any, source: str = "<dict>") -> Observations:

@@ -13,13 +13,16 @@ from jcalib.io.observations import Detection, Observations, Station, save_observ
 
 def detect_images(
     cell, camera: str, image_paths: Sequence[str | os.PathLike], target: str | None = None,
-    progress: bool = True, notes: dict[str, str] | None = None,
+    progress: bool = True, notes: dict[str, str] | None = None, jobs: int | None = None,
+    warnings: dict[str, str] | None = None,
 ) -> tuple[Observations, dict[str, DetectionError]]:
     """Detect the cell's target in each image; one station per image (id = file stem).
 
     ``notes``, when given, is filled with ``{image path: what the detector did}`` for the images where
     the defaults did not suffice or points inconsistent with the board were left out
-    (:func:`retry_note`).
+    (:func:`retry_note`); ``warnings`` with ``{image path: warning}`` where the board's orientation is
+    ambiguous (:func:`orientation_warning`; the detection carries ``orientation_ambiguous`` too).
+    ``jobs``: worker processes (None: every core; :func:`jcalib.vision.detect_many`).
 
     Returns:
         The observations of the images where the target was found, and ``{image path: error}`` for
@@ -37,7 +40,7 @@ def detect_images(
     ids = [p.stem for p in paths]
     if len(set(ids)) != len(ids):
         raise BadInputError("two images share a file name stem; station ids must be unique")
-    results = detect_many(paths, geometry, progress=progress)
+    results = detect_many(paths, geometry, progress=progress, jobs=jobs)
     image_size = None
     stations, failures = [], {}
     for path, sid, res in zip(paths, ids, results):
@@ -54,7 +57,11 @@ def detect_images(
         note = retry_note(res)
         if notes is not None and note:
             notes[str(path)] = note
-        det = Detection(camera=camera, target=target_spec.name, point_index=res.point_index, pixels=res.pixels)
+        ambiguous = "orientation_ambiguous" in res.warnings
+        if warnings is not None and ambiguous:
+            warnings[str(path)] = orientation_warning(target_spec.name)
+        det = Detection(camera=camera, target=target_spec.name, point_index=res.point_index, pixels=res.pixels,
+                        orientation_ambiguous=ambiguous)
         stations.append(Station(id=sid, detections=(det,)))
     obs = Observations(
         cameras={camera: image_size} if image_size else {},
@@ -62,6 +69,14 @@ def detect_images(
         stations=tuple(stations),
     )
     return obs, failures
+
+
+def orientation_warning(target: str) -> str:
+    """The warning printed for a detection whose labelling the board's symmetry leaves open."""
+    return (f"orientation_ambiguous: target '{target}' looks the same turned by 180° and nothing printed on it "
+            "tells which way round it was seen; its point indices may be flipped in this view (recorded in "
+            "observations.json; the calibration resolves it from the robot motion or stops naming it). A board "
+            "with cols + rows odd, a ChArUco board or a circle grid with an origin dot has no such ambiguity")
 
 
 def retry_note(det) -> str:
@@ -74,16 +89,20 @@ def retry_note(det) -> str:
     return "; ".join(parts)
 
 
-def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None) -> Observations:
-    """``jcalib detect``: detect, write observations.json, print a summary of retries and failures."""
+def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None, jobs: int | None = None) -> Observations:
+    """``jcalib detect``: detect, write observations.json, print a summary of retries, warnings and failures."""
     from rich.console import Console
     from rich.markup import escape
 
     notes: dict[str, str] = {}
-    obs, failures = detect_images(cell_path, camera, image_paths, target=target, notes=notes)
+    warned: dict[str, str] = {}
+    obs, failures = detect_images(cell_path, camera, image_paths, target=target, notes=notes, jobs=jobs,
+                                  warnings=warned)
     console = Console(stderr=True)
     for path, note in notes.items():
         console.print(f"retried {path}: {note}", highlight=False, markup=False)
+    for path, warning in warned.items():
+        console.print(f"[yellow]warning[/] {escape(f'{path}: {warning}')}", highlight=False)
     for path, err in failures.items():
         console.print(f"[yellow]skipped[/] {escape(f'{path}: {err.reason} — {err}')}", highlight=False)
     if not obs.stations:
@@ -96,6 +115,7 @@ def detect_images_to_file(cell_path, camera, image_paths, out_path, target=None)
         escape(
             f"wrote {out_path}: {len(obs.stations)} stations, {len(failures)} images skipped"
             + (f", {len(notes)} found or cleaned by retries" if notes else "")
+            + (f", {len(warned)} with an ambiguous orientation" if warned else "")
         ),
         highlight=False,
     )

@@ -73,6 +73,8 @@ def detect_session(
     progress: bool = True,
     notes: dict[str, str] | None = None,
     cache: dict | None = None,
+    jobs: int | None = None,
+    warnings: dict[str, str] | None = None,
 ):
     """Detect the cell's targets (and tool tips) in every station image of a capture session.
 
@@ -90,6 +92,9 @@ def detect_session(
         cache: a dict kept between calls (the operator app's): each image's detection results are stored
             under its path, size and modification time, so a second call detects only new or changed
             images. The caller empties it when the cell's targets or tools change.
+        jobs: worker processes for the detection (None: every core; :func:`jcalib.vision.detect_many`).
+        warnings: filled with ``{"<station> <camera> <target>": warning}`` where the board's orientation
+            is ambiguous (the detection carries ``orientation_ambiguous`` too).
 
     Returns:
         ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
@@ -105,7 +110,7 @@ def detect_session(
     from jcalib.io.exclusions import load_exclusions
     from jcalib.io.session import read_session
     from jcalib.io.observations import Detection, Observations, Station
-    from jcalib.pipeline.images import retry_note
+    from jcalib.pipeline.images import orientation_warning, retry_note
     from jcalib.vision import detect_many
 
     d = Path(session_dir)
@@ -128,7 +133,7 @@ def detect_session(
     geometries = {t.name: t.geometry() for t in targets}
 
     failures: list[SessionFailure] = []
-    jobs: list[tuple[str, str, Path]] = []  # (station, camera, image path)
+    images: list[tuple[str, str, Path]] = []  # (station, camera, image path)
     excluded = load_exclusions(d)
     for rec in records:
         sid = str(rec["id"])
@@ -152,7 +157,7 @@ def detect_session(
             if not path.is_file():
                 failures.append(SessionFailure(sid, cam, None, "missing_image", f"{path} does not exist"))
                 continue
-            jobs.append((sid, cam, path))
+            images.append((sid, cam, path))
 
     found: dict[tuple[str, str, str], Any] = {}
     sizes: dict[str, tuple[int, int]] = {}
@@ -177,9 +182,9 @@ def detect_session(
         return [cache[k] for k in keys]
 
     for tname, geom in geometries.items():
-        results = cached(f"target {tname}", [p for _, _, p in jobs],
-                         lambda paths, geom=geom: detect_many(paths, geom, progress=progress))
-        for (sid, cam, path), res in zip(jobs, results, strict=True):
+        results = cached(f"target {tname}", [p for _, _, p in images],
+                         lambda paths, geom=geom: detect_many(paths, geom, progress=progress, jobs=jobs))
+        for (sid, cam, path), res in zip(images, results, strict=True):
             if isinstance(res, DetectionError):
                 image_failures.setdefault((sid, cam), []).append(SessionFailure(sid, cam, tname, res.reason, str(res)))
                 continue
@@ -188,10 +193,12 @@ def detect_session(
             note = retry_note(res)
             if notes is not None and note:
                 notes[f"{sid} {cam} {tname}"] = note
+            if warnings is not None and "orientation_ambiguous" in res.warnings:
+                warnings[f"{sid} {cam} {tname}"] = orientation_warning(tname)
 
     # tool tips: images of a camera observing a tool in which no target was found at all
     tips: dict[tuple[str, str], tuple[str, np.ndarray, np.ndarray]] = {}
-    for sid, cam, path in jobs:
+    for sid, cam, path in images:
         fails = image_failures.get((sid, cam), [])
         if cam not in tool_of or any(f.reason != "not_found" for f in fails) or len(fails) < len(geometries):
             continue
@@ -209,7 +216,7 @@ def detect_session(
         axis = pixel + AXIS_POINT_PX * np.asarray(res.axis_direction, dtype=np.float64).reshape(1, 2)
         tips[(sid, cam)] = (tname, pixel, axis)
         image_failures[(sid, cam)] = []  # a tool image: its targets were not expected
-    for sid, cam, _ in jobs:
+    for sid, cam, _ in images:
         failures.extend(image_failures.get((sid, cam), []))
 
     stations = []
@@ -217,7 +224,8 @@ def detect_session(
         sid = str(rec["id"])
         dets = [
             Detection(camera=cam, target=tname, point_index=np.asarray(r.point_index, dtype=np.int64),
-                      pixels=np.asarray(r.pixels, dtype=np.float64))
+                      pixels=np.asarray(r.pixels, dtype=np.float64),
+                      orientation_ambiguous="orientation_ambiguous" in r.warnings)
             for (s, cam, tname), r in found.items() if s == sid
         ]  # fmt: skip
         dets += [Detection(camera=cam, pixels=px, tool=tname, axis=axis)
@@ -229,10 +237,10 @@ def detect_session(
             Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64),
                     joints_deg=_joints(rec.get("joints_deg")))
         )
-    for cam in {c for _, c, _ in jobs} - set(sizes):  # cameras that never saw a target: size from an image
+    for cam in {c for _, c, _ in images} - set(sizes):  # cameras that never saw a target: size from an image
         from jcalib.vision.image import image_header_size
 
-        size = image_header_size(next(p for _, c, p in jobs if c == cam))
+        size = image_header_size(next(p for _, c, p in images if c == cam))
         if size is not None:
             sizes[cam] = size
     obs = Observations(
@@ -305,8 +313,10 @@ def detect_session_to_file(
     target: str | None = None,
     progress: bool = True,
     cache: dict | None = None,
+    jobs: int | None = None,
 ):
-    """``jcalib detect --session``: detect, write ``observations.json`` (default: in the session), report failures.
+    """``jcalib detect --session``: detect, write ``observations.json`` (default: in the session), report
+    retries, orientation warnings and failures (``jobs``: worker processes, None: every core).
 
     Returns:
         ``(observations, failures)`` as :func:`detect_session`.
@@ -320,10 +330,14 @@ def detect_session_to_file(
     from jcalib.io.observations import save_observations
 
     notes: dict[str, str] = {}
-    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes, cache=cache)
+    warned: dict[str, str] = {}
+    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes, jobs=jobs,
+                                   warnings=warned, cache=cache)
     console = Console(stderr=True, soft_wrap=True)
     for what, note in notes.items():
         console.print(f"retried {what}: {note}", highlight=False, markup=False)
+    for what, warning in warned.items():
+        console.print(f"[yellow]warning[/] {escape(f'{what}: {warning}')}", highlight=False)
     for f in failures:
         word = "[cyan]excluded[/]" if f.reason == "excluded" else "[yellow]skipped[/]"
         console.print(f"{word} {escape(str(f))}", highlight=False)
@@ -336,7 +350,8 @@ def detect_session_to_file(
     save_observations(out, obs)
     console.print(
         escape(f"wrote {out}: {len(obs.stations)} stations, {obs.num_detections()} detections, "
-               f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else "")),
+               f"{len(failures)} failures" + (f", {len(notes)} found or cleaned by retries" if notes else "")
+               + (f", {len(warned)} with an ambiguous orientation" if warned else "")),
         highlight=False,
     )  # fmt: skip
     return obs, failures

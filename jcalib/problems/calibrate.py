@@ -29,6 +29,7 @@ from jcalib.problems.graph import Graph
 from jcalib.problems.heldout import heldout_accuracy
 from jcalib.problems.options import CalibrationOptions, check_applicable
 from jcalib.problems.refine import refine
+from jcalib.problems.orientation import relabel, resolve_orientations
 from jcalib.problems.start import Start, start_intrinsics, start_poses
 from jcalib.problems.tools import start_tools
 
@@ -150,6 +151,13 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     seed = prior if prior is not None else start
     s = Start()
     start_intrinsics(g, s, seed)
+    turns, turned = resolve_orientations(g, s.views)  # symmetric boards: labels from the robot motion
+    if turns:
+        obs = relabel(obs, turns)
+        g = Graph(cell, obs, options.reference_camera)
+        s = Start()
+        start_intrinsics(g, s, seed)
+    s.warnings += turned
     for spec in list(cell.cameras.values()) + list(cell.targets.values()):
         m = g.mount_name(spec)
         if spec.pose is not None and m is not None:

@@ -84,8 +84,8 @@ def target_texture(target, metres_per_pixel: float, margin_m: float | None = Non
 
     if isinstance(target, CircleGrid):
         r = 0.5 * target.diameter / mpp
-        for cx, cy in zip(*to_px(target.points[:, 0], target.points[:, 1])):
-            _add_disc(ink, cx, cy, r)
+        for k, (cx, cy) in enumerate(zip(*to_px(target.points[:, 0], target.points[:, 1]))):
+            _add_disc(ink, cx, cy, r if k != target.origin_index else 0.5 * target.origin_diameter / mpp)
     else:
         for rx0, ry0, rx1, ry1 in _black_rectangles(target):
             (a0, b0), (a1, b1) = to_px(rx0, ry0), to_px(rx1, ry1)

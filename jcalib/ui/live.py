@@ -169,7 +169,7 @@ class LiveDetector:
 
     def analyse(self, image: np.ndarray, seq: int = 0) -> dict:
         """The overlay of one frame (also usable without the thread)."""
-        from jcalib.vision import detect_target
+        from jcalib.vision import track_target
 
         h, w = np.asarray(image).shape[:2]
         quality = image_quality(image)
@@ -178,7 +178,7 @@ class LiveDetector:
         for name, geometry in self.targets.items():
             entry: dict[str, Any] = {"target": name, "found": False}
             try:
-                det = detect_target(image, geometry, name=f"{self.camera.name} live", retry=False)
+                det = track_target(image, geometry, self._previous.get(name), name=f"{self.camera.name} live")
             except DetectionError as e:
                 self._previous.pop(name, None)
                 entry.update(reason=e.reason, message=str(e).split(": ", 1)[-1])
@@ -192,7 +192,7 @@ class LiveDetector:
                                               for (u, v), i in zip(px, idx)],
                          outline=hull.round(2).tolist(), num_points=int(len(idx)),
                          num_board_points=int(len(geometry.points)), warnings=list(det.warnings),
-                         tracked=bool(getattr(det, "tracked", False)))  # fmt: skip
+                         tracked=bool(det.tracked))  # fmt: skip
             if cam is not None:
                 pts = np.asarray(geometry.points, dtype=np.float64)[idx]
                 entry["pose"] = board_pose(pts, px, cam[0], cam[1])

@@ -14,9 +14,15 @@ Each attempt is one way of looking at the image again, aimed at one cause of a m
   so a blurred board looks sharp to the finder;
 - ``smooth``: a Gaussian of σ = 1.5 px: sensor noise that breaks the finders' thresholds.
 
+Where the attempts look: chessboards, on the region the X-junction locator found, reduced to the level
+where its squares are a few pixels wide (:mod:`jcalib.vision.chessboard`: ``default`` is there the fast
+pass and that region, the others run only when the image plausibly holds a board that is not cut by the
+image border); ChArUco markers and circle grids, on the image (reduced when it is larger than 2000 px),
+the retries only when a marker, a marker-like candidate or a lattice of blobs says a board is there.
+
 Whatever an attempt finds is mapped back to the original pixels and refined there, so the accuracy of
 a point does not depend on the attempt that found it; and it is checked against the board model
-(:mod:`jcalib.vision.validate`) before it is kept.
+(:mod:`jcalib.vision.validate`, and the chessboard checks) before it is kept, by every attempt alike.
 """
 
 from __future__ import annotations

@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 
 from jcalib.vision.attempts import CHARUCO_ATTEMPTS, Attempt, aruco_parameters, prepare, to_original
-from jcalib.vision.chessboard import refine_corners
-from jcalib.vision.image import GrayImage
-from jcalib.vision.validate import consistent_markers
+from jcalib.vision.chessboard import refine_corners, windows
+from jcalib.vision.image import GrayImage, from_level
+from jcalib.vision.validate import homography_steps, batched_homographies, consistent_markers
 
 __all__ = ["CharucoFound", "find_charuco", "CORNER_TOLERANCE"]
 
@@ -69,19 +69,50 @@ def _charuco_detector(target) -> cv2.aruco.CharucoDetector:
     return cv2.aruco.CharucoDetector(board, cv2.aruco.CharucoParameters(), aruco_parameters(CHARUCO_ATTEMPTS[0]))
 
 
-def _detect_markers(img: np.ndarray, target, attempt: Attempt) -> dict[int, np.ndarray]:
+def _detect_markers(img: np.ndarray, target, attempt: Attempt) -> tuple[dict[int, np.ndarray], int]:
+    """This board's markers found in ``img`` (corners in ``img``'s pixels before the attempt's scaling) and
+    the number of marker-like candidates rejected."""
     d, board, index, *_ = _board(target)
     detector = cv2.aruco.ArucoDetector(d, aruco_parameters(attempt))
     corners, ids, rejected = detector.detectMarkers(img)
     if attempt.refine_markers and ids is not None and len(ids) > 0:
         corners, ids, rejected, _ = detector.refineDetectedMarkers(img, board, corners, ids, rejected)
     if ids is None:
-        return {}
+        return {}, len(rejected)
     out = {}
     for c, i in zip(corners, np.asarray(ids).reshape(-1)):
         if int(i) in index and int(i) not in out:  # ids of other boards of the dictionary are not ours
             out[int(i)] = to_original(np.asarray(c, dtype=np.float64).reshape(4, 2), attempt)
-    return out
+    return out, len(rejected)
+
+
+def _markers_to_full(gray: GrayImage, markers: dict[int, np.ndarray], level: int) -> dict[int, np.ndarray]:
+    """Marker corners found on pyramid level ``level`` -> full resolution, each moved by ``cornerSubPix`` on
+    a window of the full image (a marker's corner is the corner of its black border)."""
+    if level == 0 or not markers:
+        return markers
+    keys = list(markers)
+    c = from_level(np.concatenate([markers[i] for i in keys]), level)
+    side = np.min(np.linalg.norm(np.stack([markers[i] for i in keys]) - np.roll(np.stack([markers[i] for i in keys]), 1, axis=1),
+                                 axis=-1)) * 2**level  # fmt: skip
+    half = int(np.clip(0.1 * side, 2, 8))
+    image, local = windows(gray, c, half + 6)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 1e-3)
+    moved = cv2.cornerSubPix(image, local.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), criteria)
+    moved = moved.reshape(-1, 2).astype(np.float64) - local
+    c = c + np.where(np.linalg.norm(moved, axis=1, keepdims=True) < 2.0**level, moved, 0.0)
+    return {i: c[4 * k:4 * k + 4] for k, i in enumerate(keys)}
+
+
+#: Markers of an image whose longer side exceeds this are searched on the pyramid level below it (px).
+MARKER_SIDE_PX = 2000
+#: With no marker of the board found by the defaults, the retries run only when the detector rejected at
+#: least this many marker-like candidates (measured at 640x480: 0-10 in board-free cluttered scenes,
+#: 19-35 on boards blurred beyond reading, 3-5 on the low-contrast boards no attempt finds).
+MIN_REJECTED_TO_RETRY = 12
+#: ... or when the image's contrast (0..1) is below this: the default thresholds may miss every marker of a
+#: faded or dim board (OpenCV's ChArUco photograph at 5 % contrast: no candidate at all).
+LOW_CONTRAST = 0.25
 
 
 def _apply(H, xy):
@@ -118,31 +149,30 @@ def _all_expected_found(found: dict[int, np.ndarray], target, image_size: tuple[
 def _check_corners(target, found: dict[int, np.ndarray], ids: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """(n,) bool: each corner agrees with the homography of the (up to 4) kept markers nearest to it."""
     _, _, index, marker_xy, corner_xy = _board(target)
+    if len(ids) == 0:
+        return np.zeros(0, dtype=bool)
     ks = np.array([index[i] for i in found])
     mpx = np.stack(list(found.values()))
     centres = marker_xy[ks].mean(axis=1)
-    ok = np.zeros(len(ids), dtype=bool)
-    for j, (cid, p) in enumerate(zip(ids, pixels)):
-        xy = corner_xy[cid]
-        near = np.argsort(np.linalg.norm(centres - xy, axis=1))[:4]
-        H, _ = cv2.findHomography(marker_xy[ks[near]].reshape(-1, 2), mpx[near].reshape(-1, 2), 0)
-        if H is None:
-            continue
-        pred = _apply(H, xy[None])[0]
-        step = _apply(H, np.array([xy, xy + [target.square, 0.0], xy + [0.0, target.square]]))
-        square_px = min(np.linalg.norm(step[1] - step[0]), np.linalg.norm(step[2] - step[0]))
-        ok[j] = np.linalg.norm(pred - p) <= CORNER_TOLERANCE * square_px
-    return ok
+    xy = corner_xy[ids]
+    near = np.argsort(np.linalg.norm(xy[:, None, :] - centres[None, :, :], axis=-1), axis=1, kind="stable")[:, :4]
+    H = batched_homographies(marker_xy[ks[near]].reshape(len(ids), -1, 2), mpx[near].reshape(len(ids), -1, 2))
+    pred, square_px = homography_steps(H, xy, target.square)
+    with np.errstate(invalid="ignore"):
+        return np.linalg.norm(pred - pixels, axis=1) <= CORNER_TOLERANCE * square_px
 
 
-def find_charuco(gray: GrayImage, target, *, retry: bool = True) -> CharucoFound:
+def find_charuco(gray: GrayImage, target, *, retry: bool = True, contrast: float = 1.0) -> CharucoFound:
     """ChArUco corners seen in an image, checked against the board (module docstring).
 
     Args:
         gray: the image.
         target: a :class:`jcalib.geometry.targets.Charuco`.
         retry: run the further attempts of :data:`jcalib.vision.attempts.CHARUCO_ATTEMPTS` while
-            markers the board predicts inside the image are missing (False: the default attempt only).
+            markers the board predicts inside the image are missing (False: the default attempt only);
+            with no marker found, only when the detector rejected at least :data:`MIN_REJECTED_TO_RETRY`
+            marker-like candidates or the image's ``contrast`` is below :data:`LOW_CONTRAST`.
+        contrast: the image's grey-level spread, 0..1 (:func:`jcalib.vision.image.image_stats`).
 
     Returns:
         :class:`CharucoFound`; ``ids`` may be empty.
@@ -152,9 +182,15 @@ def find_charuco(gray: GrayImage, target, *, retry: bool = True) -> CharucoFound
     tried: list[str] = []
     contributing: list[str] = []
     dropped: set[int] = set()  # ids of markers found somewhere inconsistent with the board
+    level = 0
+    while max(gray.size) / 2**level > MARKER_SIDE_PX:
+        level += 1
     for attempt in CHARUCO_ATTEMPTS if retry else CHARUCO_ATTEMPTS[:1]:
         tried.append(attempt.name)
-        new = {i: c for i, c in _detect_markers(prepare(gray.u8, attempt), target, attempt).items() if i not in found}
+        markers, rejected = _detect_markers(prepare(gray.level(level), attempt), target, attempt)
+        if attempt is CHARUCO_ATTEMPTS[0] and not markers and rejected < MIN_REJECTED_TO_RETRY and contrast > LOW_CONTRAST:
+            break  # no marker and nothing marker-like in a well-exposed image: no board here
+        new = {i: c for i, c in _markers_to_full(gray, markers, level).items() if i not in found}
         if new:
             union = {**found, **new}
             keys = list(union)
@@ -193,26 +229,20 @@ def _local_scales(xy: np.ndarray, pixels: np.ndarray, neighbours: int = LOCAL_NE
     the scale near the rim (by 15 % and more on rendered 180° fisheye views), and a white gap taken too
     wide lets the refinement window reach the marker edges (corners moved by 1-1.5 px, measured).
     """
-    out = np.full(len(xy), np.nan)
-    for j in range(len(xy)):
-        near = np.argsort(np.linalg.norm(xy - xy[j], axis=1), kind="stable")[:neighbours]
-        if len(near) < 5:
-            continue
-        centred = xy[near] - xy[near].mean(axis=0)
-        sv = np.linalg.svd(centred, compute_uv=False)
-        if sv[1] <= 1e-6 * sv[0]:
-            continue
-        H, _ = cv2.findHomography(xy[near], pixels[near], 0)
-        if H is None or not np.all(np.isfinite(H)):
-            continue
-        w = H[2] @ [xy[j, 0], xy[j, 1], 1.0]
-        if abs(w) < 1e-12:
-            continue
-        p = (H[:2] @ [xy[j, 0], xy[j, 1], 1.0]) / w
-        J = (H[:2, :2] - np.outer(p, H[2, :2])) / w  # d(pixel)/d(board xy) at the corner
-        if np.all(np.isfinite(J)):
-            out[j] = np.min(np.linalg.norm(J, axis=0))
-    return out
+    n = len(xy)
+    if n < 5:
+        return np.full(n, np.nan)
+    near = np.argsort(np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1), axis=1, kind="stable")[:, :neighbours]
+    src = xy[near]
+    sv = np.linalg.svd(src - src.mean(axis=1, keepdims=True), compute_uv=False)
+    H = batched_homographies(src, pixels[near])
+    w = np.einsum("bj,bj->b", H[:, 2, :2], xy) + H[:, 2, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = (np.einsum("bij,bj->bi", H[:, :2, :2], xy) + H[:, :2, 2]) / w[:, None]
+        J = (H[:, :2, :2] - p[:, :, None] * H[:, 2:3, :2]) / w[:, None, None]  # d(pixel)/d(board xy)
+        out = np.min(np.linalg.norm(J, axis=1), axis=1)
+    ok = (sv[:, 1] > 1e-6 * sv[:, 0]) & (np.abs(w) >= 1e-12) & np.isfinite(out)
+    return np.where(ok, out, np.nan)
 
 
 def _refine(gray: GrayImage, target, ids: np.ndarray, pixels: np.ndarray) -> np.ndarray:

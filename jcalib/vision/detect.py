@@ -12,7 +12,7 @@ from jcalib.errors import BadInputError, DetectionError
 from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid
 from jcalib.vision.image import image_stats, load_image, to_gray
 
-__all__ = ["TargetDetection", "detect_target", "detect_many", "DETECTION_FAILURE_REASONS"]
+__all__ = ["DETECTION_FAILURE_REASONS", "TargetDetection", "default_jobs", "detect_many", "detect_target"]
 
 DETECTION_FAILURE_REASONS = ("not_found", "partially_visible", "too_blurred", "unreadable")
 
@@ -36,8 +36,9 @@ class TargetDetection:
             ``max_edge_width_px``, ``"points_dropped"`` when points inconsistent with the board
             were left out (see ``dropped``).
         attempt: which attempts of :mod:`jcalib.vision.attempts` found what was kept: ``"default"``
-            when the finders' defaults sufficed, else e.g. ``"default+clahe"`` (ChArUco markers
-            collected over several attempts) or ``"downscale_2x"``.
+            when the default search sufficed, else e.g. ``"default+clahe"`` (ChArUco markers
+            collected over several attempts) or ``"downscale_2x"``; ``"tracked"`` when
+            :func:`jcalib.vision.track_target` found it around the previous frame's detection.
         attempts: every attempt run, in order (``("default",)`` when nothing was retried).
         dropped: points (or ChArUco markers) found but left out because they disagree with the board
             layout and their neighbours (:mod:`jcalib.vision.validate`).
@@ -59,7 +60,13 @@ class TargetDetection:
     @property
     def retried(self) -> bool:
         """Whether the defaults did not suffice (another attempt found points that were kept)."""
-        return self.attempt != "default"
+        return self.attempt not in ("default", "tracked")
+
+    @property
+    def tracked(self) -> bool:
+        """Whether :func:`jcalib.vision.track_target` found it around the previous frame's detection
+        (False: a whole-frame detection)."""
+        return self.attempt == "tracked"
 
     @property
     def num_points(self) -> int:
@@ -82,21 +89,26 @@ def detect_target(
 ) -> TargetDetection:
     """Find a calibration target's points in one image.
 
-    Chessboard: ``cv2.findChessboardCorners`` (``findChessboardCornersSB`` when it fails), then
-    ``cornerSubPix`` on a lightly smoothed image (see :mod:`jcalib.vision.chessboard` for the
-    measured accuracy); the whole board must be visible. ChArUco: ArUco markers, then
-    ``cv2.aruco.CharucoDetector``'s corners, partial views allowed (at least ``min_points``
-    corners). Circle grids: ``cv2.findCirclesGrid``; the whole grid must be visible. Point indices of
-    chessboards and circle grids follow :mod:`jcalib.vision.orientation` (180°-symmetric boards get
-    the warning ``"orientation_ambiguous"``).
+    Chessboard: a fast pass on a reduced image, then (where the X-junction locator finds a lattice)
+    ``cv2.findChessboardCorners`` and ``findChessboardCornersSB`` on the located region at the level its
+    squares suggest, then ``cornerSubPix`` and a saddle-point fit on the full-resolution image (see
+    :mod:`jcalib.vision.chessboard` for the search and the measured accuracy); the whole board must be
+    visible, and every corner must be an inner corner of a checker pattern (a board with a row covered is
+    rejected, not numbered 180° off). ChArUco: ArUco markers, then ``cv2.aruco.CharucoDetector``'s
+    corners, partial views allowed (at least ``min_points`` corners, each id checked against the markers
+    around it). Circle grids: ``cv2.findCirclesGrid`` after a quick look for a lattice of blobs; the whole
+    grid must be visible. Point indices of chessboards and circle grids follow
+    :mod:`jcalib.vision.orientation` (180°-symmetric boards get the warning ``"orientation_ambiguous"``,
+    a circle grid with an ``origin_dot`` is labelled from its larger dot).
 
-    When the defaults find no board (chessboards, circle grids) or miss markers the board predicts
-    inside the image (ChArUco), the detection is tried again with adapted preparations and parameters
-    (:mod:`jcalib.vision.attempts`: threshold windows, board-guided marker recovery, CLAHE, 2x up- and
-    down-scaling, smoothing); ``attempt`` / ``attempts`` of the result say which. Every detection,
-    default or not, is checked against the board model (:mod:`jcalib.vision.validate`): points whose
-    position disagrees with their neighbours on the board are dropped (``dropped``); a grid with more
-    than a tenth of its points inconsistent is not the board and counts as not found.
+    When the default search finds no board and the image plausibly holds one (chessboards, circle
+    grids), or misses markers the board predicts inside the image (ChArUco), the detection is tried
+    again with adapted preparations and parameters (:mod:`jcalib.vision.attempts`: threshold windows,
+    board-guided marker recovery, CLAHE, 2x up- and down-scaling, smoothing); ``attempt`` / ``attempts``
+    of the result say which. Every detection, default or not, is checked against the board model
+    (:mod:`jcalib.vision.validate`): points whose position disagrees with their neighbours on the board
+    are dropped (``dropped``); a grid with more than a tenth of its points inconsistent is not the board
+    and counts as not found.
 
     Args:
         image: a path, or an (H, W[, 3|4]) uint8 / uint16 array (colour in BGR order).
@@ -126,8 +138,10 @@ def detect_target(
     common = dict(image_size=gray.size, name=name, edge_width_px=edge_width, contrast=contrast)
     blurred = ("blurred",) if edge_width > max_edge_width_px else ()
 
-    def fail(partial_detail: str | None) -> DetectionError:
+    def fail(partial_detail: str | None, rejected: tuple[str, ...] = ()) -> DetectionError:
         what = f"{target.type} {_describe(target)}"
+        if rejected:  # grids found but not the board: say why, whatever else is true
+            return DetectionError(f"{name}: {what} not found; grids rejected: {'; '.join(rejected)}", "not_found")
         if contrast < min_contrast:
             return DetectionError(
                 f"{name}: {what} not found (the image is nearly uniform: contrast {contrast:.3f} < {min_contrast})",
@@ -146,7 +160,7 @@ def detect_target(
     if isinstance(target, Charuco):
         from jcalib.vision.charuco import find_charuco
 
-        found = find_charuco(gray, target, retry=retry)
+        found = find_charuco(gray, target, retry=retry, contrast=contrast)
         ids, pixels = found.ids, found.pixels
         dropped = found.dropped_markers + found.dropped_corners
         if len(ids) < min_points:
@@ -178,33 +192,37 @@ def detect_target(
     from jcalib.vision.validate import consistent_points
 
     if isinstance(target, Checkerboard):
-        from jcalib.vision.chessboard import find_chessboard, find_partial_chessboard
+        from jcalib.vision.chessboard import find_chessboard
 
-        pixels, method, tried = find_chessboard(gray, target.cols, target.rows, retry=retry)
+        grid = find_chessboard(gray, target.cols, target.rows, retry=retry, contrast=contrast)
+        pixels, method, tried = grid.pixels, grid.method, grid.attempts
         if pixels is None:
-            size = find_partial_chessboard(gray)
+            size = grid.partial
             detail = None
             if size is not None:
                 detail = (
                     f"a {size[0]}x{size[1]} corner chessboard is visible, {target.cols}x{target.rows} expected; "
                     "check that the whole board is in view (and the cols/rows of the target)"
                 )
-            raise fail(detail)
+            raise fail(detail, grid.rejected)
     else:
         from jcalib.vision.circles import count_blobs, find_circles
 
-        pixels, tried = find_circles(gray, target, retry=retry)
+        pixels, tried, seen = find_circles(gray, target, retry=retry)
         method = "findCirclesGrid"
         if pixels is None:
-            n_blobs, n_border = count_blobs(gray)
+            n_blobs, n_border = count_blobs(gray) if seen is not None else (0, 0)
             detail = None
             if n_blobs >= max(4, target.num_points // 4) and (n_border > 0 or n_blobs < target.num_points):
                 detail = (
                     f"{n_blobs} of {target.num_points} circles found, {n_border} of them at the image border"
                 )
             raise fail(detail)
-    point_index, ambiguous = assign_grid_indices(target, pixels, gray.f32)
-    good = consistent_points(target.points[point_index, :2], pixels)
+    point_index, ambiguous = assign_grid_indices(target, pixels, gray)
+    if isinstance(target, Checkerboard):
+        good = ~grid.suspect  # every check, the board's homography included (jcalib.vision.chessboard)
+    else:
+        good = consistent_points(target.points[point_index, :2], pixels)
     dropped = int(np.sum(~good))
     if dropped > 0.1 * len(good):
         raise DetectionError(
@@ -269,8 +287,39 @@ def _describe(target) -> str:
     return f"{target.cols}x{target.rows}{kind}"
 
 
+def _detect_or_error(i: int, item, target, options: dict) -> TargetDetection | DetectionError:
+    """One image of :func:`detect_many`: its detection, or the :class:`DetectionError` saying why not."""
+    label = os.fspath(item) if isinstance(item, (str, os.PathLike)) else f"<array {i}>"
+    try:
+        return detect_target(item, target, name=label, **options)
+    except DetectionError as e:
+        return e
+    except BadInputError as e:  # arguments were checked by the caller: this is the image
+        return DetectionError(f"{label}: {e}", "unreadable")
+    except Exception as e:  # noqa: BLE001  (an OpenCV failure on one image must not stop a batch)
+        return DetectionError(f"{label}: detection failed ({type(e).__name__}: {e})", "not_found")
+
+
+def _worker_init() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # one process per core: OpenCV's own threads would only compete
+
+
+def _worker(job):
+    return _detect_or_error(*job)
+
+
+def default_jobs() -> int:
+    """The cores this process may run on (``--jobs`` default)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def detect_many(
-    images: Iterable | Sequence, target, progress: bool = True, **options
+    images: Iterable | Sequence, target, progress: bool = True, jobs: int | None = 1, **options
 ) -> list[TargetDetection | DetectionError]:
     """Detect a target in many images; never stops on a bad image.
 
@@ -278,6 +327,11 @@ def detect_many(
         images: paths and/or arrays.
         target: the target to find.
         progress: show a rich progress bar (on stderr).
+        jobs: worker processes (None: every core, :func:`default_jobs`). Each image is detected alone,
+            so the results are the same as with one process, in the same order; fewer than four images
+            per worker run in fewer workers (starting one costs about a second). Workers are spawned, not
+            forked (the caller may hold JAX's threads): a script calling this with ``jobs != 1`` needs the
+            ``if __name__ == "__main__":`` guard, as with any spawned ``multiprocessing``.
         **options: passed to :func:`detect_target`.
 
     Returns:
@@ -287,28 +341,35 @@ def detect_many(
     """
     items = list(images)
     _check_arguments(target, options.get("min_points", 6))
-    results: list[TargetDetection | DetectionError] = []
+    workers = default_jobs() if jobs is None else jobs
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise BadInputError(f"detect_many: option 'jobs' got {jobs!r}, expected an integer >= 1 (or None: every core)")
+    workers = min(int(workers), len(items) // 4)
+    jobs_list = [(i, item, target, options) for i, item in enumerate(items)]
+    if workers <= 1:
+        results = map(_worker, jobs_list)
+        pool = None
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
 
-    def one(i, item):
-        label = os.fspath(item) if isinstance(item, (str, os.PathLike)) else f"<array {i}>"
-        try:
-            return detect_target(item, target, name=label, **options)
-        except DetectionError as e:
-            return e
-        except BadInputError as e:  # arguments were checked above: this is the image
-            return DetectionError(f"{label}: {e}", "unreadable")
-        except Exception as e:  # noqa: BLE001  (an OpenCV failure on one image must not stop a batch)
-            return DetectionError(f"{label}: detection failed ({type(e).__name__}: {e})", "not_found")
+        # spawn: the parent may hold JAX's threads, which a fork would copy half-initialised
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+        results = pool.map(_worker, jobs_list, chunksize=1)
+    try:
+        if not progress:
+            return list(results)
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    if not progress:
-        return [one(i, item) for i, item in enumerate(items)]
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    columns = (TextColumn("detecting {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
-        task = bar.add_task(f"{target.type}", total=len(items))
-        for i, item in enumerate(items):
-            results.append(one(i, item))
-            bar.advance(task)
-    return results
+        columns = (TextColumn("detecting {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+        out: list[TargetDetection | DetectionError] = []
+        with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+            task = bar.add_task(f"{target.type}", total=len(items))
+            for r in results:
+                out.append(r)
+                bar.advance(task)
+        return out
+    finally:
+        if pool is not None:
+            pool.shutdown()

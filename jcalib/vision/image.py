@@ -4,34 +4,113 @@ from __future__ import annotations
 
 import os
 import threading
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
 
-__all__ = ["GrayImage", "image_header_size", "load_image", "max_image_pixels", "to_gray", "image_stats"]
+__all__ = ["GrayImage", "from_level", "image_header_size", "image_stats", "load_image", "max_image_pixels", "mosaic",
+           "to_gray", "to_level"]
 
 
-@dataclass(frozen=True)
 class GrayImage:
-    """A grey image prepared for the detectors.
+    """A grey image prepared for the detectors, with its pyramid.
 
     Attributes:
         u8: (H, W) uint8, what OpenCV's pattern finders take (16-bit input is scaled, not clipped).
-        f32: (H, W) float32 on the same 0..255 scale, full precision (used for sub-pixel refinement).
+        f32: (H, W) float32 on the same 0..255 scale, full precision (used for sub-pixel refinement);
+            made from ``u8`` on first use when not given (8-bit input).
         name: the file path, or ``"<array>"``, used in messages.
     """
 
-    u8: np.ndarray
-    f32: np.ndarray
-    name: str
+    __slots__ = ("u8", "name", "_f32", "_levels")
+
+    def __init__(self, u8: np.ndarray, f32: np.ndarray | None = None, name: str = "<array>"):
+        self.u8 = u8
+        self.name = name
+        self._f32 = f32
+        self._levels = [u8]
+
+    @property
+    def f32(self) -> np.ndarray:
+        if self._f32 is None:
+            self._f32 = self.u8.astype(np.float32)
+        return self._f32
 
     @property
     def size(self) -> tuple[int, int]:
         """(width, height), px."""
         return (int(self.u8.shape[1]), int(self.u8.shape[0]))
+
+    def level(self, k: int) -> np.ndarray:
+        """The uint8 image reduced ``2**k`` times (area average of 2x2 blocks per step; cached).
+
+        Pixel ``(u, v)`` of level ``k`` covers full-resolution pixels whose centres map to it by
+        :func:`to_level` (a trailing odd row or column is dropped)."""
+        while len(self._levels) <= k:
+            prev = self._levels[-1]
+            h, w = prev.shape
+            self._levels.append(cv2.resize(prev[: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA))
+        return self._levels[k]
+
+    def tiles(self, centres: np.ndarray, half: int) -> np.ndarray:
+        """(N, 2 half + 1, 2 half + 1) float32 windows around integer pixel ``centres`` (N, 2) (x, y),
+        the image's border pixels repeated outside it."""
+        c = np.asarray(centres, np.int64).reshape(-1, 2)
+        h, w = self.u8.shape
+        d = np.arange(-half, half + 1)
+        xs = np.clip(c[:, 0:1] + d[None], 0, w - 1)
+        ys = np.clip(c[:, 1:2] + d[None], 0, h - 1)
+        src = self._f32 if self._f32 is not None else self.u8
+        return src[ys[:, :, None], xs[:, None, :]].astype(np.float32)
+
+    def sample(self, points: np.ndarray) -> np.ndarray:
+        """(N,) float64 grey values at float pixel positions (bilinear; clamped to the image)."""
+        p = np.asarray(points, np.float64).reshape(-1, 2)
+        h, w = self.u8.shape
+        x = np.clip(p[:, 0], 0.0, w - 1.000001)
+        y = np.clip(p[:, 1], 0.0, h - 1.000001)
+        x0, y0 = np.floor(x).astype(np.intp), np.floor(y).astype(np.intp)
+        fx, fy = x - x0, y - y0
+        src = self._f32 if self._f32 is not None else self.u8
+        a, b = src[y0, x0].astype(np.float64), src[y0, x0 + 1].astype(np.float64)
+        c, d = src[y0 + 1, x0].astype(np.float64), src[y0 + 1, x0 + 1].astype(np.float64)
+        return (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy
+
+    def f32_patch(self, x0: int, y0: int, x1: int, y1: int) -> tuple[np.ndarray, int, int]:
+        """The float image over ``[x0, x1) x [y0, y1)`` clipped to the image, and its clipped origin."""
+        h, w = self.u8.shape
+        x0, y0 = max(0, int(x0)), max(0, int(y0))
+        x1, y1 = min(w, int(x1)), min(h, int(y1))
+        src = self._f32 if self._f32 is not None else self.u8
+        return src[y0:y1, x0:x1].astype(np.float32, copy=self._f32 is None), x0, y0
+
+
+def mosaic(tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Windows (N, T, T) laid side by side in one image (filters run once over all of them).
+
+    Returns:
+        ``(image, origins)``: the (rows * T, cols * T) float32 mosaic and (N, 2) the mosaic pixel
+        (x, y) of each window's pixel (0, 0).
+    """
+    n, t, _ = tiles.shape
+    cols = int(np.ceil(np.sqrt(n)))
+    rows = int(np.ceil(n / cols))
+    grid = np.zeros((rows * cols, t, t), np.float32)
+    grid[:n] = tiles
+    image = grid.reshape(rows, cols, t, t).transpose(0, 2, 1, 3).reshape(rows * t, cols * t)
+    k = np.arange(n)
+    return np.ascontiguousarray(image), np.stack([(k % cols) * t, (k // cols) * t], axis=1)
+
+
+def to_level(points: np.ndarray, k: int) -> np.ndarray:
+    """Full-resolution pixels -> pixels of pyramid level ``k`` (OpenCV pixel-centre convention)."""
+    return (np.asarray(points, np.float64) + 0.5) / (2.0**k) - 0.5
+
+
+def from_level(points: np.ndarray, k: int) -> np.ndarray:
+    """Pixels of pyramid level ``k`` -> full-resolution pixels."""
+    return (np.asarray(points, np.float64) + 0.5) * (2.0**k) - 0.5
 
 
 def max_image_pixels() -> int:
@@ -100,6 +179,8 @@ def to_gray(image, name: str = "<array>") -> GrayImage:
         raise BadInputError(
             f"{name}: argument 'image' has shape {a.shape}, expected (H, W), (H, W, 3) or (H, W, 4) with H, W >= 8"
         )
+    if a.dtype == np.uint8 and a.ndim == 2:  # the common case: no float copy until one is needed
+        return GrayImage(u8=np.ascontiguousarray(a), name=name)
     if a.dtype == np.uint8:
         f = a.astype(np.float32)
     elif a.dtype == np.uint16:
@@ -121,23 +202,58 @@ def to_gray(image, name: str = "<array>") -> GrayImage:
     return GrayImage(u8=u8, f32=np.ascontiguousarray(f, dtype=np.float32), name=name)
 
 
+#: Pixels :func:`image_stats` looks at: larger images are sampled in bands of rows.
+STATS_PIXELS = 1_000_000
+_BAND_ROWS = 24
+
+
+def _stats_bands(gray: GrayImage) -> list[np.ndarray]:
+    h, w = gray.u8.shape
+    if h * w <= STATS_PIXELS or h <= 2 * _BAND_ROWS:
+        return [gray.f32 if gray._f32 is not None else gray.u8]
+    n = max(1, int(STATS_PIXELS // (w * _BAND_ROWS)))
+    starts = np.linspace(0, h - _BAND_ROWS, n).astype(int)
+    return [gray.f32_patch(0, y, w, y + _BAND_ROWS)[0] for y in starts]
+
+
+def _histogram_percentiles(hist: np.ndarray, q: tuple[float, ...]) -> list[float]:
+    """Percentiles (in bins, interpolated within a bin) of a 256-bin grey histogram."""
+    c = np.cumsum(hist, dtype=np.float64)
+    c /= c[-1]
+    out = []
+    for p in q:
+        i = int(np.searchsorted(c, p / 100.0))
+        below = c[i - 1] if i > 0 else 0.0
+        out.append(i - 0.5 + min(max((p / 100.0 - below) / max(c[i] - below, 1e-12), 0.0), 1.0))
+    return out
+
+
 def image_stats(gray: GrayImage) -> tuple[float, float]:
     """Contrast and edge width of an image, to tell "nothing there" from "too blurred".
 
     Contrast is the spread between the 0.5 % and 99.5 % grey levels of the (slightly smoothed)
     image, on a 0..1 scale. Edge width is contrast divided by the steepest gradients (99.9th
     percentile of the gradient magnitude, per pixel): about 1 px for a focused step edge and
-    ``sqrt(2 pi) * sigma`` ≈ 2.5 sigma px for a Gaussian blur of ``sigma`` px.
+    ``sqrt(2 pi) * sigma`` ≈ 2.5 sigma px for a Gaussian blur of ``sigma`` px. The grey levels are
+    counted in a 256-bin histogram (interpolated within a bin); an image over :data:`STATS_PIXELS` is
+    sampled in bands of rows spread over its height.
 
     Returns:
         (contrast, edge_width_px); edge width is ``inf`` for a flat image.
     """
-    f = cv2.GaussianBlur(gray.f32, (0, 0), 0.7) / np.float32(255.0)
-    lo, hi = np.percentile(f, [0.5, 99.5])
-    contrast = float(hi - lo)
-    gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3) / np.float32(8.0)
-    gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3) / np.float32(8.0)
-    g = float(np.percentile(np.hypot(gx, gy), 99.9))
+    grey_hist = np.zeros(256)
+    grads = []
+    for band in _stats_bands(gray):
+        f = cv2.GaussianBlur(band.astype(np.float32, copy=False), (0, 0), 0.7)
+        grey_hist += cv2.calcHist([cv2.convertScaleAbs(f)], [0], None, [256], [0, 256]).ravel()
+        gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
+        grads.append(cv2.magnitude(gx, gy)[1:-1, 1:-1].ravel())
+    lo, hi = _histogram_percentiles(grey_hist, (0.5, 99.5))
+    contrast = float(hi - lo) / 255.0
+    g = np.concatenate(grads) if len(grads) > 1 else grads[0]
+    k = int(0.999 * (len(g) - 1))
+    top = float(np.partition(g, k)[k]) / (8.0 * 255.0)
     # The 0.7 px pre-smoothing widens a focused edge slightly; the Sobel kernel averages 3 rows.
-    width = contrast / g if g > 1e-6 else float("inf")
+    width = contrast / top if top > 1e-6 else float("inf")
     return contrast, width

@@ -17,10 +17,9 @@ noise and the lens's departure from a homography over a few squares stay far bel
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
-__all__ = ["consistent_points", "consistent_markers", "GRID_TOLERANCE", "MARKER_TOLERANCE"]
+__all__ = ["GRID_TOLERANCE", "MARKER_TOLERANCE", "batched_homographies", "consistent_markers", "consistent_points", "homography_steps"]
 
 #: Largest distance of a grid point from its neighbours' prediction, in local spacings (but at least
 #: :data:`MIN_TOLERANCE_PX`). 0.2 let a block of corners dragged 5-7 px by glare through (35 px squares).
@@ -31,27 +30,50 @@ MIN_TOLERANCE_PX = 1.5
 MARKER_TOLERANCE = 0.3
 
 
-def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
-    if len(src) < 4:
-        return None
-    H, _ = cv2.findHomography(src.astype(np.float64), dst.astype(np.float64), 0)
-    if H is None or not np.all(np.isfinite(H)):
-        return None
+def batched_homographies(src: np.ndarray, dst: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """(B, 3, 3) least-squares homographies (normalised DLT) mapping ``src`` (B, K, 2) to ``dst`` (B, K, 2),
+    all at once; ``weight`` (B, K) in {0, 1} leaves points out. NaN where a set is degenerate."""
+    w = np.ones(src.shape[:2]) if weight is None else np.asarray(weight, np.float64)
+    count = np.maximum(w.sum(axis=1, keepdims=True), 1.0)
+
+    def normalise(p):
+        mean = (p * w[..., None]).sum(axis=1) / count
+        d = np.sqrt(((p - mean[:, None, :]) ** 2).sum(axis=-1))
+        scale = np.sqrt(2.0) / np.maximum((d * w).sum(axis=1) / count[:, 0], 1e-300)
+        T = np.zeros((len(p), 3, 3))
+        T[:, 0, 0] = T[:, 1, 1] = scale
+        T[:, :2, 2] = -scale[:, None] * mean
+        T[:, 2, 2] = 1.0
+        return (p - mean[:, None, :]) * scale[:, None, None], T
+
+    s, Ts = normalise(np.asarray(src, np.float64))
+    d, Td = normalise(np.asarray(dst, np.float64))
+    x, y, u, v = s[..., 0], s[..., 1], d[..., 0], d[..., 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    ru = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=-1)
+    rv = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=-1)
+    A = np.concatenate([ru, rv], axis=1) * np.concatenate([w, w], axis=1)[..., None]
+    with np.errstate(invalid="ignore"):
+        vals, vecs = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)
+    h = vecs[..., 0].reshape(-1, 3, 3)
+    H = np.linalg.solve(Td, h) @ Ts
+    bad = ~np.all(np.isfinite(H), axis=(1, 2)) | (np.abs(H[:, 2, 2]) < 1e-300) | (vals[:, 1] <= 1e-12 * vals[:, -1])
+    H = H / np.where(np.abs(H[:, 2:3, 2:3]) > 1e-300, H[:, 2:3, 2:3], 1.0)
+    H[bad] = np.nan
     return H
 
 
-def _apply(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    p = np.column_stack([xy, np.ones(len(xy))]) @ H.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return p[:, :2] / p[:, 2:]
+def homography_steps(H: np.ndarray, xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(B, 2) ``H[b]`` applied to ``xy[b]`` and (B,) the image length of a board step there (smaller axis)."""
+    def apply(p):
+        q = np.einsum("bij,bj->bi", H, np.concatenate([p, np.ones((len(p), 1))], axis=1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return q[:, :2] / q[:, 2:]
 
-
-def _local_scale(H: np.ndarray, xy: np.ndarray, step: float) -> np.ndarray:
-    """Image length (px) of a board step of ``step`` (m) at each ``xy``, the smaller of the two axes."""
-    p0 = _apply(H, xy)
-    dx = np.linalg.norm(_apply(H, xy + [step, 0.0]) - p0, axis=1)
-    dy = np.linalg.norm(_apply(H, xy + [0.0, step]) - p0, axis=1)
-    return np.minimum(dx, dy)
+    p0 = apply(xy)
+    dx = np.linalg.norm(apply(xy + [step, 0.0]) - p0, axis=1)
+    dy = np.linalg.norm(apply(xy + [0.0, step]) - p0, axis=1)
+    return p0, np.minimum(dx, dy)
 
 
 def consistent_points(
@@ -83,18 +105,21 @@ def consistent_points(
     d_board = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
     np.fill_diagonal(d_board, np.inf)
     spacing_m = float(np.min(d_board))
+    k = max(4, neighbours)
+    safe_px = np.where(np.isfinite(px), px, 0.0)
 
-    def error(i: int, idx: np.ndarray) -> float:
-        others = idx[idx != i]
-        near = others[np.argsort(d_board[i, others])[: max(4, neighbours)]]
-        H = _homography(xy[near], px[near])
-        if H is None:
-            return np.inf
-        pred = _apply(H, xy[i : i + 1])[0]
-        scale = _local_scale(H, xy[i : i + 1], spacing_m)[0]
-        return float(np.linalg.norm(pred - px[i])) / max(scale, MIN_TOLERANCE_PX / tolerance, 1e-9)
+    def errors(points: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """Prediction errors (local spacings) of ``points`` from their nearest ``members`` (never themselves)."""
+        d = d_board[np.ix_(points, members)]
+        order = np.argsort(d, axis=1, kind="stable")[:, : min(k, len(members))]
+        near = members[order]  # (P, K)
+        use = np.isfinite(np.take_along_axis(d, order, axis=1))
+        H = batched_homographies(xy[near], safe_px[near], use)
+        pred, scale = homography_steps(H, xy[points], spacing_m)
+        err = np.linalg.norm(pred - px[points], axis=1) / np.maximum(scale, max(MIN_TOLERANCE_PX / tolerance, 1e-9))
+        return np.where(np.isfinite(err) & (use.sum(axis=1) >= 4), err, np.inf)
 
-    return _prune(ok, error, tolerance, minimum=5)
+    return _prune_batched(ok, errors, tolerance, minimum=5)
 
 
 def consistent_markers(
@@ -126,34 +151,40 @@ def consistent_markers(
     d_board = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=-1)
     np.fill_diagonal(d_board, np.inf)
     side_m = float(np.median(np.linalg.norm(xy[:, 1] - xy[:, 0], axis=1)))
+    safe_px = np.where(np.isfinite(px), px, 0.0)
 
-    def error(i: int, idx: np.ndarray) -> float:
-        others = idx[idx != i]
-        near = others[np.argsort(d_board[i, others])[:neighbours]]
-        H = _homography(xy[near].reshape(-1, 2), px[near].reshape(-1, 2))
-        if H is None:
-            return np.inf
-        pred = _apply(H, xy[i])
-        side_px = float(np.mean(_local_scale(H, xy[i], side_m)))
-        return float(np.max(np.linalg.norm(pred - px[i], axis=1))) / max(side_px, 1e-9)
+    def errors(points: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """Corner prediction errors (marker sides) of ``points`` from their nearest ``members``."""
+        d = d_board[np.ix_(points, members)]
+        order = np.argsort(d, axis=1, kind="stable")[:, : min(neighbours, len(members))]
+        near = members[order]  # (P, K)
+        use = np.repeat(np.isfinite(np.take_along_axis(d, order, axis=1)), 4, axis=1)
+        H = batched_homographies(xy[near].reshape(len(points), -1, 2), safe_px[near].reshape(len(points), -1, 2), use)
+        Hc = np.repeat(H, 4, axis=0)
+        pred, scale = homography_steps(Hc, xy[points].reshape(-1, 2), side_m)
+        side_px = np.maximum(scale.reshape(-1, 4).mean(axis=1), 1e-9)
+        err = np.max(np.linalg.norm(pred.reshape(-1, 4, 2) - px[points], axis=-1), axis=1) / side_px
+        return np.where(np.isfinite(err) & (use.sum(axis=1) >= 4), err, np.inf)
 
-    return _prune(ok, error, tolerance, minimum=2)
+    return _prune_batched(ok, errors, tolerance, minimum=2)
 
 
-def _prune(ok: np.ndarray, error, tolerance: float, minimum: int) -> np.ndarray:
+def _prune_batched(ok: np.ndarray, errors, tolerance: float, minimum: int) -> np.ndarray:
     """Drop the worst point while any error exceeds ``tolerance``; then re-admit dropped points that
-    the kept ones predict within it (a good point can look bad while a wrong neighbour is still in)."""
+    the kept ones predict within it (a good point can look bad while a wrong neighbour is still in).
+    ``errors(points, members)`` gives the errors of ``points`` predicted from ``members`` (all at once)."""
+    finite = ok.copy()
     ok = ok.copy()
     while True:
         idx = np.flatnonzero(ok)
         if len(idx) < minimum:
             return np.zeros(len(ok), dtype=bool)
-        errors = np.array([error(i, idx) for i in idx])
-        worst = int(np.argmax(errors))
-        if not errors[worst] > tolerance:
+        err = errors(idx, idx)
+        worst = int(np.argmax(err))
+        if not err[worst] > tolerance:
             break
         ok[idx[worst]] = False
-    idx = np.flatnonzero(ok)
-    back = [i for i in np.flatnonzero(~ok) if error(i, np.append(idx, i)) <= tolerance]
-    ok[back] = True
+    out = np.flatnonzero(~ok & finite)
+    if len(out):
+        ok[out[errors(out, np.flatnonzero(ok)) <= tolerance]] = True
     return ok

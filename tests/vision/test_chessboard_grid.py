@@ -33,9 +33,9 @@ def _errors(corners, truth):
 
 def test_every_corner_of_the_kept_view_is_found_where_it_is():
     img, cols, rows, truth = _kept_view()
-    corners, method, _ = find_chessboard(GrayImage(img, img.astype(np.float32), "kept"), cols, rows)
-    assert corners is not None
-    assert _errors(corners, truth).max() < 0.3, method
+    found = find_chessboard(GrayImage(img, img.astype(np.float32), "kept"), cols, rows)
+    assert found.pixels is not None
+    assert _errors(found.pixels, truth).max() < 0.3, found.method
 
 
 def test_grid_error_says_which_classic_grid_has_a_corner_off_it():

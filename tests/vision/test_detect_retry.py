@@ -159,7 +159,7 @@ def test_consistent_points_flags_a_dragged_corner_and_a_skipped_row():
     assert not consistent_points(xy[:4], px[:4]).any()
 
 
-def test_rendered_faded_chessboard_found_by_a_retry_and_accurate():
+def test_rendered_faded_chessboard_found_and_accurate():
     K = np.array([[800.0, 0.0, 322.0], [0.0, 798.0, 241.0], [0.0, 0.0, 1.0]])
     camera = camera_from_opencv(K, np.array([-0.2, 0.08, 0.0, 0.0, 0.0]), (640, 480))
     board = Checkerboard(9, 6, 0.03)
@@ -167,10 +167,9 @@ def test_rendered_faded_chessboard_found_by_a_retry_and_accurate():
     # a faded print: ink reflects 0.75, paper 0.8
     img = render_target_image(camera, T, target_texture(board, 0.03 / 24),
                               RenderOptions(ink_reflectance=0.75, paper_reflectance=0.8), rng=1)  # fmt: skip
-    with pytest.raises(DetectionError):
-        detect_target(img, board, retry=False)
+    # (OpenCV's finders on the full image miss it; the search on the located region finds it at once)
     det = detect_target(img, board)
-    assert det.attempt != "default" and det.num_points >= 50
+    assert det.num_points >= 50
     truth, _ = project_target(camera, T, board.points)
     err = np.linalg.norm(det.pixels - truth[det.point_index], axis=1)
     spacing = np.min(np.linalg.norm(np.diff(truth.reshape(6, 9, 2), axis=1), axis=-1))

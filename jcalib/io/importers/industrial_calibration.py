@@ -25,10 +25,11 @@ Conventions assumed (those of the tool's ``ExtrinsicHandEyeProblem2D3D``):
 - Target finders: ``CharucoGridTargetFinder`` (``cv::aruco::CharucoBoard::create(cols, rows,
   chessboard_dim, aruco_marker_dim, dictionary)``, OpenCV's pre-4.6 API, hence ``legacy: true``;
   ``dictionary`` is OpenCV's integer id), ``ModifiedCircleGridTargetFinder`` (``rows x cols`` dots,
-  ``spacing`` m between centres; imported as a symmetric circle grid: jcalib numbers the dots as OpenCV's
-  ``findCirclesGrid`` does, not from the larger origin dot, which only moves the target frame that
-  ``T_base_<target>`` absorbs). ``ArucoGridTargetFinder`` (marker corners of an ArUco GridBoard) is
-  refused: jcalib has no GridBoard target type yet.
+  ``spacing`` m between centres, the larger origin dot at the bottom left of the print with x along
+  the bottom row and y up: imported as a symmetric circle grid with ``origin_dot: bottom_left``, whose
+  point k is the tool's point k and whose labels follow the dot at any camera roll; its frame differs
+  from the tool's by a fixed rigid motion that ``T_base_<target>`` absorbs). ``ArucoGridTargetFinder``
+  (marker corners of an ArUco GridBoard) is refused: jcalib has no GridBoard target type yet.
 """
 
 from __future__ import annotations
@@ -97,7 +98,8 @@ def target_entry(finder: Any, where: str) -> dict:
                 "marker": float(marker), "dictionary": _dictionary_name(dictionary, where), "legacy": True}
     if kind == "ModifiedCircleGridTargetFinder":
         rows, cols, spacing = need("rows", "cols", "spacing")
-        return {"type": "circles", "cols": int(cols), "rows": int(rows), "spacing": float(spacing)}
+        return {"type": "circles", "cols": int(cols), "rows": int(rows), "spacing": float(spacing),
+                "origin_dot": "bottom_left"}
     if kind == "ArucoGridTargetFinder":
         raise BadInputError(f"{where}: ArucoGridTargetFinder (the corners of an ArUco GridBoard's markers) has no "
                             "jcalib target type yet; detect such boards elsewhere, or use a ChArUco board "

@@ -45,7 +45,7 @@ Mount = Literal["flange", "base", "world", "free"]
 TARGET_FIELDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "checkerboard": (("cols", "rows", "square"), ()),
     "charuco": (("squares_x", "squares_y", "square", "marker"), ("dictionary", "legacy")),
-    "circles": (("cols", "rows", "spacing"), ("asymmetric", "diameter")),
+    "circles": (("cols", "rows", "spacing"), ("asymmetric", "diameter", "origin_dot")),
     "points": ((), ()),
 }
 _GRID_FIELDS = sorted({f for req, opt in TARGET_FIELDS.values() for f in req + opt})
@@ -142,6 +142,7 @@ class Target(Closed):
     spacing: Positive | None = None
     asymmetric: bool | None = None
     diameter: Positive | None = None
+    origin_dot: Literal["top_left", "top_right", "bottom_left", "bottom_right"] | None = None
 
     @model_validator(mode="after")
     def _fields_of_type(self) -> "Target":

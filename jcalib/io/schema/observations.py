@@ -11,7 +11,8 @@ pixel); a few pixels just outside give an :class:`~jcalib.errors.InputWarning` n
 
 Extensions accepted here (their meaning is the calibration code's): stations ``joints_deg`` (a list,
 or a mapping robot -> list, as sessions record them) and ``poses: [{camera, target, T_cam_target}]``
-(6-DOF pose measurements, m).
+(6-DOF pose measurements, m); target detections ``orientation_ambiguous: true`` (the labelling is one of
+those the board's symmetry allows).
 """
 
 from __future__ import annotations
@@ -72,11 +73,12 @@ class Detection(Closed):
     pixels: list[Pixel] | None = None
     pixel: Pixel | None = None
     axis: Annotated[list[Pixel], Field(min_length=1)] | None = None
+    orientation_ambiguous: bool = False
 
     @model_validator(mode="after")
     def _kind(self) -> "Detection":
         if self.tool is not None:
-            for key in ("target", "point_index"):
+            for key in ("target", "point_index", "orientation_ambiguous"):
                 if key in self.model_fields_set:
                     raise PydanticCustomError("jcalib_check", "{why}", {
                         "key": key, "why": "a tool-tip detection has 'tool' and one 'pixel', no target or point_index"})

@@ -16,6 +16,7 @@ import yaml
 from importer_roundtrip import assert_pose_near, cli, detect_and_calibrate
 
 from jcalib.geometry.se3 import invert, quat_from_matrix
+from jcalib.io.cell import load_cell
 from jcalib.io.importers import import_session
 from jcalib.io.importers.calibration_rs import rotation_from_values
 from jcalib.errors import BadInputError
@@ -196,5 +197,7 @@ def test_industrial_calibration_refuses_what_it_cannot_know(charuco_set, tmp_pat
     import_session("industrial-calibration", src, tmp_path / "s5", intrinsics="initial")
     cell = yaml.safe_load((tmp_path / "s5" / "cell.yaml").read_text())
     assert cell["cameras"]["cam0"]["mount"] == "base" and "fix" not in cell["cameras"]["cam0"]
-    assert cell["targets"]["board"] == {"type": "circles", "cols": 10, "rows": 10, "spacing": 0.0254, "mount": "flange"}
+    assert cell["targets"]["board"] == {"type": "circles", "cols": 10, "rows": 10, "spacing": 0.0254,
+                                        "origin_dot": "bottom_left", "mount": "flange"}
+    assert load_cell(tmp_path / "s5" / "cell.yaml").target("board").geometry().origin_index == 90  # bottom left
     assert json.loads((tmp_path / "s5" / "session.json").read_text())["imported_from"]["format"] == "industrial-calibration"
