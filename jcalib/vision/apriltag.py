@@ -300,7 +300,7 @@ class _Search:
     def add(self, quads, name: str, expected: dict[int, np.ndarray] | None = None) -> None:
         """Decode quadrilaterals (clockwise; ``expected``: id -> quad in OpenCV's order, decoded there only
         as that id); refine and check the new tags."""
-        wanted = set(int(t) for t in self.target.tag_ids)
+        wanted = {int(t) for t in self.target.tag_ids}
         new = set()
         if self.quads and len(quads):
             ids = sorted(self.quads)
@@ -389,10 +389,10 @@ class _Search:
             r, c = np.divmod(found, cols)
             ring = {int(rr * cols + cc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)
                     for rr, cc in zip(r + dr, c + dc) if 0 <= rr < self.target.rows and 0 <= cc < cols}
-            todo = np.array(sorted(ring - set(int(t) for t in found) - tried - self.duplicates), np.int64)
+            todo = np.array(sorted(ring - {int(t) for t in found} - tried - self.duplicates), np.int64)
             if len(todo) == 0:
                 return
-            tried |= set(int(t) for t in todo)
+            tried |= {int(t) for t in todo}
             before = len(self.quads)
             expected = self.predict(todo)
             if expected:
@@ -509,7 +509,7 @@ def _refine_x(gray: GrayImage, target: AprilGrid, tag_ids: np.ndarray, raw: np.n
     up to half a cell off), then ``refine_corners`` in crops of the image around the tags (the
     smoothing stays local). Where the X-junction's fit strays more than :data:`_X_AGREE_PX` from the
     edges' corner, the edges' corner is kept (seen under strong noise: 1-2 px off a good start)."""
-    lines, fitted, _ = _refine_l(gray, target, raw)
+    lines, fitted, _ = _refine_l(gray, target, raw, curved=False)  # a start: lines are less noisy
     raw = np.where(fitted[..., None], lines, raw)
     radius_m = min(target.gap, target.border_bits * _bit_size(target))
     radius = _local_scale(target, tag_ids, raw) * radius_m  # px, the pure X around each corner
@@ -536,15 +536,15 @@ def _refine_x(gray: GrayImage, target: AprilGrid, tag_ids: np.ndarray, raw: np.n
     return pixels, room & (xok | fitted), room
 
 
-def _refine_l(gray: GrayImage, target, raw: np.ndarray):
+def _refine_l(gray: GrayImage, target, raw: np.ndarray, curved: bool = True):
     """Edge refinement of tags' outer corners (:func:`jcalib.vision.tag_edges.refine_square_corners`):
     ``(pixels, ok, room)``, each (M, 4[, 2]); a corner may move at most a cell (the decoded corners of
     large tags are half a cell off: the detector's threshold windows are smaller than their border)."""
     n_cells = APRILTAG_FAMILIES[target.family][1] + 2 * target.border_bits
     cell = _side_px(raw) / n_cells  # (M,)
-    pixels, ok = refine_square_corners(gray, raw, target.border_bits * cell)
+    pixels, ok = refine_square_corners(gray, raw, target.border_bits * cell, curved=curved)
     w, h = gray.size
-    reach = (0.5 * target.border_bits * cell + 3.0)[:, None]
+    reach = (0.25 * target.border_bits * cell + 3.0)[:, None]
     room = (raw[..., 0] >= reach) & (raw[..., 0] <= w - 1 - reach) & (raw[..., 1] >= reach) & (raw[..., 1] <= h - 1 - reach)
     ok &= room & (np.linalg.norm(pixels - raw, axis=-1) <= np.maximum(cell, 2.0)[:, None])
     return np.where(ok[..., None], pixels, raw), ok, room
