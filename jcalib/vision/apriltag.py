@@ -58,9 +58,16 @@ _CELL_PX = 6
 _MAX_BORDER_ERRORS = 0.15
 #: OpenCV's error correction rate (``DetectorParameters.errorCorrectionRate``'s default).
 _CORRECTION_RATE = 0.6
-#: A grid corner's X-junction fit may move it at most this fraction of the pure-X radius (and 2 px)
-#: from a start the tag's edges did not give, and :data:`_X_AGREE_PX` from the edges' corner.
-_MAX_MOVE = 0.6
+#: Smallest difference between the mean grey of a tag's dark and light cells, grey levels (0..255), and
+#: (a candidate the board does not predict) in units of the classes' spreads: a quadrilateral a cell
+#: off the tag's outline (an inner contour) reads mixed cells, and now and then a tag after correction.
+_MIN_CONTRAST = 8.0
+_MIN_SEPARATION = 2.0
+#: Smallest cell (side of a tag over its cells) of a tag whose corners are measured, px, along its
+#: shortest side: smaller cells decode by luck and their corners are off by a pixel (measured on rendered
+#: grids seen at 70°).
+_MIN_CELL_PX = 1.5
+#: A grid corner's X-junction fit may move it at most this far from the tag's edges' corner, px.
 _X_AGREE_PX = 0.5
 
 
@@ -159,14 +166,21 @@ def _candidates(u8: np.ndarray, target, attempt: TagAttempt) -> list[np.ndarray]
     """(4, 2) float64 quadrilaterals (clockwise) from OpenCV's marker detector on an attempt's image."""
     det = cv2.aruco.ArucoDetector(_dictionary(target.family), _parameters(attempt, target.border_bits))
     corners, _, rejected = det.detectMarkers(_prepare(u8, attempt))
-    quads = [np.asarray(c, np.float64).reshape(4, 2) for c in list(corners) + list(rejected)]
+    if not len(corners) + len(rejected):
+        return []
+    quads = np.concatenate([np.asarray(c, np.float64).reshape(-1, 4, 2) for c in list(corners) + list(rejected)])
     n = _dictionary(target.family).markerSize + 2 * target.border_bits
-    return [_clockwise(q) for q in quads if np.all(np.isfinite(q)) and _side_px(q[None])[0] >= 2.0 * n]
+    keep = np.all(np.isfinite(quads), axis=(1, 2)) & (_side_px(quads) >= 2.0 * n)  # 2 px per cell at least
+    return [_clockwise(q) for q in quads[keep]]
 
 
-def _decode(f32: np.ndarray, quad: np.ndarray, target) -> tuple[int, np.ndarray, int] | None:
+def _decode(f32: np.ndarray, quad: np.ndarray, target, expect: int | None = None) -> tuple[int, np.ndarray, int] | None:
     """Read a clockwise quadrilateral as a tag: ``(id, (4, 2) corners in OpenCV's order, bit errors)``
-    or None (no tag: no dark border, no contrast, bits of no tag of the family)."""
+    or None (no tag: no dark border, no contrast, bits of no tag of the family).
+
+    With ``expect`` (a tag the board predicts there, corners in OpenCV's order) only that tag in that
+    rotation is read, with the family's full error correction (half its minimum distance, where
+    OpenCV's default corrects 60 % of that): a blurred tag's isolated bits read grey."""
     d = _dictionary(target.family)
     bits, border = d.markerSize, target.border_bits
     n = bits + 2 * border
@@ -180,18 +194,22 @@ def _decode(f32: np.ndarray, quad: np.ndarray, target) -> tuple[int, np.ndarray,
     v = np.sort(cells.ravel())
     # Otsu's split between the sorted cell means
     k = np.arange(1, v.size)
-    c0, c1 = np.cumsum(v)[:-1], v.sum() - np.cumsum(v)[:-1]
-    between = (c0 / k - c1 / (v.size - k)) ** 2 * k * (v.size - k)
+    c0 = np.cumsum(v)[:-1]
+    between = (c0 / k - (v.sum() - c0) / (v.size - k)) ** 2 * k * (v.size - k)
     split = int(np.argmax(between)) + 1
     dark, light = v[:split], v[split:]
-    if light.mean() - dark.mean() < max(8.0, 3.0 * (dark.std() + light.std())):
+    spread = 0.0 if expect is not None else _MIN_SEPARATION * (dark.std() + light.std())
+    if light.mean() - dark.mean() < max(_MIN_CONTRAST, spread):
         return None
-    white = cells > 0.5 * (dark.max() + light.min())
+    white = cells > 0.5 * (dark[-1] + light[0])
     ring = np.ones((n, n), bool)
     ring[border:-border, border:-border] = False
     if np.sum(white & ring) > _MAX_BORDER_ERRORS * np.sum(ring):
         return None
     data = white[border:-border, border:-border].astype(np.uint8)
+    if expect is not None:
+        errors = int(d.getDistanceToId(data, int(expect), False))
+        return (int(expect), quad, errors) if errors <= d.maxCorrectionBits else None
     ok, idx, rotation = d.identify(data, _CORRECTION_RATE)
     if not ok:
         return None
@@ -272,6 +290,12 @@ def _consistent_tags(xy: np.ndarray, px: np.ndarray, tolerance: float = MARKER_T
     return np.zeros(m, bool)
 
 
+def _area(quad: np.ndarray) -> float:
+    """Area of a quadrilateral (4, 2), px²."""
+    x, y = quad[:, 0], quad[:, 1]
+    return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+
+
 def _side_px(quads: np.ndarray) -> np.ndarray:
     """(M,) mean side length of quadrilaterals (M, 4, 2), px."""
     return np.mean(np.linalg.norm(quads - np.roll(quads, 1, axis=-2), axis=-1), axis=-1)
@@ -302,22 +326,22 @@ class _Search:
         as that id); refine and check the new tags."""
         wanted = {int(t) for t in self.target.tag_ids}
         new = set()
-        if self.quads and len(quads):
-            ids = sorted(self.quads)
-            known = self.corners(ids)
+        if self.quads and len(quads):  # candidates where a tag is already known: skipped
+            known = self.corners(sorted(self.quads))
             centres, sides = known.mean(axis=1), _side_px(known)
-            quads = [q for q in quads
-                     if np.min(np.linalg.norm(centres - q.mean(axis=0), axis=1) / sides) > 0.35]
+            at = np.stack([q.mean(axis=0) for q in quads])
+            near = np.min(np.linalg.norm(at[:, None] - centres[None], axis=-1) / sides[None], axis=1) <= 0.35
+            quads = [q for q, n in zip(quads, near) if not n]
         items = [(None, q) for q in quads] + [(t, q) for t, q in (expected or {}).items()]
         for want, q in items:
-            r = _decode(self.gray.f32, q, self.target)
+            r = _decode(self.gray.f32, q, self.target, expect=want)
             if r is None or r[0] not in wanted or r[0] in self.duplicates:
                 continue
             tid, corners, errors = r
-            if want is not None and (tid != want or np.abs(corners - q).max() > 1e-9):
-                continue  # not the tag the board predicts there (or turned)
             raw = np.empty_like(corners)
             raw[OPENCV_TO_POINT] = corners
+            if np.min(np.linalg.norm(raw - np.roll(raw, 1, axis=0), axis=1)) < _MIN_CELL_PX * _bit_cells(self.target):
+                continue  # too small (or too foreshortened) to measure: cells under 1.5 px
             if tid in self.quads:
                 old = self.quads[tid]
                 if np.linalg.norm(old.mean(axis=0) - raw.mean(axis=0)) > 0.3 * _side_px(old[None])[0]:
@@ -325,6 +349,10 @@ class _Search:
                     for d in (self.quads, self.errors, self.fine, self.ok, self.room):
                         d.pop(tid, None)
                     new.discard(tid)
+                elif tid in new and (errors, -_area(raw)) < (self.errors[tid], -_area(old)):
+                    # the same tag twice in this batch (an outline and an inner one, read with a bit error
+                    # or two): the better read, then the larger outline, is the tag's
+                    self.quads[tid], self.errors[tid] = raw, errors
                 continue
             self.quads[tid], self.errors[tid] = raw, errors
             new.add(tid)
@@ -462,7 +490,8 @@ MIN_CORNER_TOLERANCE_PX = 1.0
 def _consistent_corners(target: AprilGrid, ids: np.ndarray, fine: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """(M, 4) bool: refined corners that the homography of the (up to 4) nearest other tags' accepted
     corners predicts within the tolerance; the worst offender is dropped and the check repeated. A
-    tag without neighbours cannot be checked here (its decoding and refinement are the evidence)."""
+    corner that cannot be checked (a tag found alone) is not kept: an unverifiable detection is not
+    accepted (as :mod:`jcalib.vision.validate`)."""
     ok = ok.copy()
     xy = _tag_xy(target, ids)
     centres = xy.mean(axis=1)
@@ -479,7 +508,7 @@ def _consistent_corners(target: AprilGrid, ids: np.ndarray, fine: np.ndarray, ok
         step = _project(H, xy + [gap, 0.0]) - pred, _project(H, xy + [0.0, gap]) - pred
         gap_px = np.minimum(np.linalg.norm(step[0], axis=-1), np.linalg.norm(step[1], axis=-1))
         err = np.linalg.norm(pred - fine, axis=-1) / np.maximum(CORNER_TOLERANCE * gap_px, MIN_CORNER_TOLERANCE_PX)
-        err = np.where(ok & np.isfinite(err), err, 0.0)
+        err = np.where(ok, np.where(np.isfinite(err), err, np.inf), 0.0)  # unverifiable: dropped
         worst = np.unravel_index(int(np.argmax(err)), err.shape)
         if not err[worst] > 1.0:
             return ok
@@ -498,6 +527,11 @@ def _local_scale(target, tag_ids: np.ndarray, raw: np.ndarray) -> np.ndarray:
     return np.minimum(dx, dy) / d
 
 
+def _bit_cells(target) -> int:
+    """Cells along a tag's side (data bits and both borders)."""
+    return APRILTAG_FAMILIES[target.family][1] + 2 * target.border_bits
+
+
 def _bit_size(target) -> float:
     """Side of one cell of a tag, m."""
     return target.tag_size / (APRILTAG_FAMILIES[target.family][1] + 2 * target.border_bits)
@@ -508,8 +542,11 @@ def _refine_x(gray: GrayImage, target: AprilGrid, tag_ids: np.ndarray, raw: np.n
     room (M, 4))``. Starts from the tags' edges (:func:`_refine_l`: the decoded corners of large tags are
     up to half a cell off), then ``refine_corners`` in crops of the image around the tags (the
     smoothing stays local). Where the X-junction's fit strays more than :data:`_X_AGREE_PX` from the
-    edges' corner, the edges' corner is kept (seen under strong noise: 1-2 px off a good start)."""
-    lines, fitted, _ = _refine_l(gray, target, raw, curved=False)  # a start: lines are less noisy
+    edges' corner, the edges' corner is kept (seen under strong noise: 1-2 px off a good start); where
+    the edges cannot be fitted, the corner is not kept."""
+    # the start: lines (less noisy than parabolas); the decoded corners can be a crossing square off
+    lines, fitted, _ = _refine_l(gray, target, raw, curved=False, passes=2,
+                                 max_move_cells=0.5 * _bit_cells(target))
     raw = np.where(fitted[..., None], lines, raw)
     radius_m = min(target.gap, target.border_bits * _bit_size(target))
     radius = _local_scale(target, tag_ids, raw) * radius_m  # px, the pure X around each corner
@@ -530,21 +567,23 @@ def _refine_x(gray: GrayImage, target: AprilGrid, tag_ids: np.ndarray, raw: np.n
         origin = np.array([x0, y0], np.float64)
         fine = refine_corners(crop, pts - origin, spacing_px=(hw + 0.5) / 0.35) + origin
         pixels[sel] = fine.reshape(-1, 4, 2)
-    moved = np.linalg.norm(pixels - raw, axis=-1)
-    xok = room & (moved <= np.where(fitted, _X_AGREE_PX, np.maximum(_MAX_MOVE * radius, 2.0)))
+    xok = room & (np.linalg.norm(pixels - raw, axis=-1) <= _X_AGREE_PX)
     pixels = np.where(xok[..., None], pixels, raw)
-    return pixels, room & (xok | fitted), room
+    return pixels, room & fitted, room
 
 
-def _refine_l(gray: GrayImage, target, raw: np.ndarray, curved: bool = True):
+def _refine_l(gray: GrayImage, target, raw: np.ndarray, curved: bool = True, passes: int = 3,
+              max_move_cells: float = 1.0):
     """Edge refinement of tags' outer corners (:func:`jcalib.vision.tag_edges.refine_square_corners`):
-    ``(pixels, ok, room)``, each (M, 4[, 2]); a corner may move at most a cell (the decoded corners of
-    large tags are half a cell off: the detector's threshold windows are smaller than their border)."""
+    ``(pixels, ok, room)``, each (M, 4[, 2]); a corner may move at most ``max_move_cells`` cells (and
+    2 px) from ``raw``: the decoded corners of large single tags are half a cell off (the detector's
+    threshold windows are smaller than their border), a grid's up to the size of a crossing square
+    (the tag's outline bends into the squares)."""
     n_cells = APRILTAG_FAMILIES[target.family][1] + 2 * target.border_bits
     cell = _side_px(raw) / n_cells  # (M,)
-    pixels, ok = refine_square_corners(gray, raw, target.border_bits * cell, curved=curved)
+    pixels, ok = refine_square_corners(gray, raw, target.border_bits * cell, passes=passes, curved=curved)
     w, h = gray.size
     reach = (0.25 * target.border_bits * cell + 3.0)[:, None]
     room = (raw[..., 0] >= reach) & (raw[..., 0] <= w - 1 - reach) & (raw[..., 1] >= reach) & (raw[..., 1] <= h - 1 - reach)
-    ok &= room & (np.linalg.norm(pixels - raw, axis=-1) <= np.maximum(cell, 2.0)[:, None])
+    ok &= room & (np.linalg.norm(pixels - raw, axis=-1) <= np.maximum(max_move_cells * cell, 2.0)[:, None])
     return np.where(ok[..., None], pixels, raw), ok, room
