@@ -1,4 +1,5 @@
-"""Vision: images -> observations with OpenCV (chessboards, ChArUco boards, circle grids, tool tips)."""
+"""Vision: images -> observations with OpenCV (chessboards, ChArUco boards, circle grids, AprilGrids and
+AprilTags, tool tips)."""
 
 from jcalib.vision.detect import DETECTION_FAILURE_REASONS, TargetDetection, detect_many, detect_target
 from jcalib.vision.image import load_image
