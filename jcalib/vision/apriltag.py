@@ -4,32 +4,35 @@ Tags are found with OpenCV's ArUco module (its AprilTag dictionaries), and every
 quadrilateral is decoded by jcalib on the original image:
 
 1. **Candidates.** ``cv2.aruco.ArucoDetector`` (black border of ``border_bits``) runs on the attempts
-   of :data:`TAG_ATTEMPTS`; its accepted markers and the quadrilaterals it rejected are candidates.
-   On an AprilGrid every tag touches the black squares at its four corners, so a thresholded tag and
-   its squares form one blob whose outline is no quadrilateral: measured on rendered 5x4 grids, the
-   detector finds 1-6 of 20 tags under the renderer's realistic noise and blur. Shrinking the dark
-   regions by a pixel (a 3x3 grey dilation) separates the tags from the squares; the candidates it
-   gives are decoded on the original image, whose cells it would corrupt.
+   of :data:`TAG_ATTEMPTS` (the image as it is, smoothed, with the dark regions shrunk by a pixel, ...)
+   until every tag the found ones predict inside the image is found; its accepted markers and the
+   quadrilaterals it rejected are candidates. On an AprilGrid every tag touches the black squares at
+   its four corners, so a thresholded tag and its squares can form one blob whose outline is no
+   quadrilateral (measured on rendered 5x4 grids: 1-6 of 20 tags found by the detector alone under the
+   renderer's realistic noise and blur); shrinking the dark regions separates them, and the candidates
+   are decoded on the original image, whose cells the shrinking would corrupt.
 2. **Decoding.** A candidate is sampled on a grid of cells (means over each cell's inner pixels);
-   Otsu's threshold between the cell means splits black from white, the border cells must be black,
-   and the data bits are identified in the family's dictionary (``cv2.aruco.Dictionary.identify``,
-   OpenCV's error correction) in the 4 rotations, which order the corners. Ids the target does not
-   have are ignored (other tags, clutter); an id decoded at two places is dropped (a second copy of
-   the tag in view).
-3. **Board** (grids). Every tag must sit where its neighbours put it
-   (:func:`jcalib.vision.validate.consistent_markers`: a wrong id or rotation is dropped), and the
-   tags the found ones predict well inside the image are decoded where they are predicted.
-4. **Corners.** On a grid every tag corner is an X-junction (the tag and a crossing square meet
-   there, white gaps on the other two sides): it is refined like a chessboard corner
+   Otsu's threshold between the cell means splits black from white (the two classes well apart), the
+   border cells must be black, and the data bits are identified in the family's dictionary
+   (``cv2.aruco.Dictionary.identify``, OpenCV's error correction) in the 4 rotations, which order the
+   corners. Ids the target does not have are ignored (other tags, clutter); an id decoded at two
+   places is dropped (a second copy of the tag in view); two reads of one tag keep the better.
+3. **Board** (grids). Every tag must sit where its neighbours put it (:func:`_consistent_tags`, as
+   :func:`jcalib.vision.validate.consistent_markers`: a wrong id or rotation is a tag away), and the
+   missing neighbours of found tags are read where the board predicts them, as the tag expected there
+   (with the family's full error correction: blurred small bits read grey), until none is added.
+4. **Corners.** A tag's sides are fitted to sub-pixel edge points (:mod:`jcalib.vision.tag_edges`):
+   the decoded corners of a grid's tags are 1-4 px off (measured on rendered grids: the outline bends
+   into the crossing squares; OpenCV's own corners likewise), a large single tag's half a cell. On a
+   grid every tag corner is an X-junction (the tag and a crossing square meet there, white gaps on the
+   other two sides): from the edges' corner it is refined like a chessboard corner
    (:func:`jcalib.vision.chessboard.refine_corners`, ``cornerSubPix`` then a saddle-point fit) in
-   windows inside the pure X around it (radius ``min(gap, 2 bits)``). OpenCV's ArUco corners are
-   1-4 px off there (measured on rendered grids: the outline bends into the squares). A single tag's
-   corners are the outer corners of its border, L-junctions: each side of the border is fitted as a
-   line through its sub-pixel edge points (the middle of the side) and the corners are where
-   adjacent sides meet (a blur rounds a corner, but not a straight edge).
-5. **Checks.** Only tags wholly in view (with room for the refinement windows) give corners; a
-   corner whose refinement moved it too far, or that disagrees with its neighbours on the board
-   (:func:`jcalib.vision.validate.consistent_points`), is dropped.
+   windows inside the pure X around it (radius ``min(gap, 2 cells)``), which an ink spread or a
+   blur leaves in place; where that fit strays from the edges' corner (strong noise) the edges' corner
+   is kept. A single tag's corners are its edges' corners (L-junctions).
+5. **Checks.** Only tags wholly in view (with room for the refinement windows) and with cells of at
+   least 1.5 px give corners; a grid corner that its neighbour tags' corners do not predict
+   (:func:`_consistent_corners`), or that cannot be checked (a grid tag found alone), is dropped.
 """
 
 from __future__ import annotations
