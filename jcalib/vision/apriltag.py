@@ -70,7 +70,14 @@ _MIN_SEPARATION = 2.0
 #: shortest side: smaller cells decode by luck and their corners are off by a pixel (measured on rendered
 #: grids seen at 70°).
 _MIN_CELL_PX = 1.5
-#: A grid corner's X-junction fit may move it at most this far from the tag's edges' corner, px.
+#: A grid corner is kept where its X-junction fit and its edges' corner agree within this, px; the kept
+#: corner is the X-junction fit's. Each check alone lets wrong corners through (measured on rendered
+#: grids, ``benchmarks/bench_apriltag.py``): an X-junction fit strays 1-2 px now and then, even on
+#: clean views, and one that jumps to the next junction (a gap away) in a whole region at once fools
+#: the neighbours' check; the edges' corner is off by 0.3 px (median) under the renderer's realistic
+#: noise and by up to 0.7 px at 70° of tilt, where the X-junction fit is good to 0.02 px. Agreement
+#: within 1 gap in 3 (up to 1.5 px) kept 10-58 corners more than 1 px off per 1152; within 0.5 px none,
+#: at the price of a quarter of the corners under the realistic noise at 640x480.
 _X_AGREE_PX = 0.5
 
 
@@ -544,12 +551,10 @@ def _refine_x(gray: GrayImage, target: AprilGrid, tag_ids: np.ndarray, raw: np.n
     """X-junction refinement of a grid's corners ``raw`` (M, 4, 2): ``(pixels (M, 4, 2), ok (M, 4),
     room (M, 4))``. Starts from the tags' edges (:func:`_refine_l`: the decoded corners of large tags are
     up to half a cell off), then ``refine_corners`` in crops of the image around the tags (the
-    smoothing stays local). Where the X-junction's fit strays more than :data:`_X_AGREE_PX` from the
-    edges' corner, the edges' corner is kept (seen under strong noise: 1-2 px off a good start); where
-    the edges cannot be fitted, the corner is not kept."""
+    smoothing stays local). A corner is kept where the edges were fitted and the X-junction's fit agrees
+    with the edges' corner (:data:`_X_AGREE_PX`): neither is trusted alone."""
     # the start: lines (less noisy than parabolas); the decoded corners can be a crossing square off
-    lines, fitted, _ = _refine_l(gray, target, raw, curved=False, passes=2,
-                                 max_move_cells=0.5 * _bit_cells(target))
+    lines, fitted, _ = _refine_l(gray, target, raw, curved=False, passes=2, max_move_cells=0.5 * _bit_cells(target))
     raw = np.where(fitted[..., None], lines, raw)
     radius_m = min(target.gap, target.border_bits * _bit_size(target))
     radius = _local_scale(target, tag_ids, raw) * radius_m  # px, the pure X around each corner
@@ -571,8 +576,7 @@ def _refine_x(gray: GrayImage, target: AprilGrid, tag_ids: np.ndarray, raw: np.n
         fine = refine_corners(crop, pts - origin, spacing_px=(hw + 0.5) / 0.35) + origin
         pixels[sel] = fine.reshape(-1, 4, 2)
     xok = room & (np.linalg.norm(pixels - raw, axis=-1) <= _X_AGREE_PX)
-    pixels = np.where(xok[..., None], pixels, raw)
-    return pixels, room & fitted, room
+    return pixels, room & fitted & xok, room
 
 
 def _refine_l(gray: GrayImage, target, raw: np.ndarray, curved: bool = True, passes: int = 3,
@@ -584,7 +588,7 @@ def _refine_l(gray: GrayImage, target, raw: np.ndarray, curved: bool = True, pas
     (the tag's outline bends into the squares)."""
     n_cells = APRILTAG_FAMILIES[target.family][1] + 2 * target.border_bits
     cell = _side_px(raw) / n_cells  # (M,)
-    pixels, ok = refine_square_corners(gray, raw, target.border_bits * cell, passes=passes, curved=curved)
+    pixels, ok = refine_square_corners(gray, raw, target.border_bits / n_cells, passes=passes, curved=curved)
     w, h = gray.size
     reach = (0.25 * target.border_bits * cell + 3.0)[:, None]
     room = (raw[..., 0] >= reach) & (raw[..., 0] <= w - 1 - reach) & (raw[..., 1] >= reach) & (raw[..., 1] <= h - 1 - reach)

@@ -149,15 +149,17 @@ def _meet(pa, da, na, ca, la, pb, db, nb, cb) -> np.ndarray:
     return at(pa, da, na, ca, ta)
 
 
-def refine_square_corners(gray: GrayImage, corners: np.ndarray, border_px: np.ndarray, passes: int = 3,
+def refine_square_corners(gray: GrayImage, corners: np.ndarray, border: float, passes: int = 3,
                           curved: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The outer corners of dark squares from their sides' edges (module docstring).
 
     Args:
         gray: the image.
         corners: (M, 4, 2) rough corners of each square, in order around it, px.
-        border_px: (M,) width of each square's dark border, px (how far the edge is looked for: a whole
-            width each way in the first pass, half of it in the others).
+        border: width of the squares' dark border over their side (how far an edge is looked for: a whole
+            width each way in the first pass, half of it in the others; across each side, the square's
+            width there is its area over that side's length: a foreshortened square is narrow across
+            its long sides).
         passes: fits, each around the corners of the previous one.
         curved: fit the edges as parabolas (module docstring), else as lines.
 
@@ -177,7 +179,10 @@ def refine_square_corners(gray: GrayImage, corners: np.ndarray, border_px: np.nd
         out = np.stack([d[:, 1], -d[:, 0]], axis=1) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)[:, None]
         mid = 0.5 * (p0 + p1) - np.repeat(cur.mean(axis=1), 4, axis=0)
         out *= np.where(np.sum(mid * out, axis=1) < 0, -1.0, 1.0)[:, None]  # pointing away from the centre
-        half = np.repeat(np.asarray(border_px, np.float64), 4) * (1.0 if npass == 0 else 0.5)
+        x, y = cur[..., 0], cur[..., 1]
+        area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))  # (M,)
+        across = np.repeat(area, 4) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)  # width across each side
+        half = border * across * (1.0 if npass == 0 else 0.5)
         dirs, coef, fitted = _edges(smooth, p0, p1, out, half, steepest=npass == 0, curved=curved)
         a = (np.arange(4 * m).reshape(m, 4) + 3) % 4 + 4 * np.arange(m)[:, None]  # side k-1 ends at corner k
         a, b = a.reshape(-1), np.arange(4 * m)
