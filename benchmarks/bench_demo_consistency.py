@@ -50,7 +50,7 @@ from scipy import stats
 import jcalib
 from jcalib.acquisition.cameras.simulated import SimulatedCamera
 from jcalib.acquisition.capture import capture
-from jcalib.acquisition.layout import cell_layout
+from jcalib.planning.layout import cell_layout
 from jcalib.acquisition.robots.model import preset_model
 from jcalib.acquisition.robots.simulated import SimulatedController, SimulatedRobot
 from jcalib.app.demo_cell import DEMO_CELL, TOOL_STATIONS, plan_demo

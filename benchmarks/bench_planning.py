@@ -145,7 +145,7 @@ _BASE = {}
 
 def base_layout(preset: str):
     """The default layout of a hand-eye cell on ``preset`` (home, tool axis, work point, board centre)."""
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
 
     if preset not in _BASE:
         _BASE[preset] = cell_layout({"schema": "jcalib.cell/1", "robot": {"model": preset},
@@ -165,7 +165,7 @@ REDRAWN: dict[str, int] = {}
 def handeye_cells(index: int, seed: int, need_reference: bool = True) -> tuple[SimCell, SimCell]:
     """The hand-eye cell ``index``: (intrinsics estimated, intrinsics known), one truth; redrawn (a new
     random geometry, counted in :data:`REDRAWN`) until ``plan_cell(handeye)`` plans both."""
-    from jcalib.acquisition.planner import plan_cell
+    from jcalib.planning.stations import plan_cell
     from jcalib.errors import BadInputError
 
     for attempt in range(50):
@@ -183,7 +183,7 @@ def handeye_cells(index: int, seed: int, need_reference: bool = True) -> tuple[S
 
 
 def _handeye_cells(index: int, seed: int, attempt: int) -> tuple[SimCell, SimCell]:
-    from jcalib.acquisition.layout import cell_layout, frame_with_z
+    from jcalib.planning.layout import cell_layout, frame_with_z
     from jcalib.geometry.cameras import camera_from_opencv
     from jcalib.geometry.se3 import exp_so3, make_pose, rot_x, rot_z
     from jcalib.io.goals import parse_goals
@@ -245,7 +245,7 @@ def tcp_cell(index: int, seed: int, n: int) -> SimCell:
 
 
 def _tcp_cell(index: int, seed: int, attempt: int) -> SimCell:
-    from jcalib.acquisition.layout import cell_layout, look_at
+    from jcalib.planning.layout import cell_layout, look_at
     from jcalib.geometry.cameras import camera_from_opencv
     from jcalib.geometry.se3 import make_pose, rotation_z_to
     from jcalib.io.goals import parse_goals
@@ -297,8 +297,8 @@ def tcp_station_ok(layout, T: np.ndarray) -> bool:
 
 def thesis_plan(layout, n: int) -> np.ndarray:
     """The TCP thesis' scheme extended to ``n`` stations (module docstring; bench_tcp_thesis.joint_poses)."""
-    from jcalib.acquisition.candidates import reach
-    from jcalib.acquisition.planner import side_on_direction, turn_onto
+    from jcalib.planning.candidates import reach
+    from jcalib.planning.stations import side_on_direction, turn_onto
     from jcalib.geometry.se3 import exp_so3, make_pose
 
     Tc = layout.cameras["cam1"].pose
@@ -324,7 +324,7 @@ def thesis_plan(layout, n: int) -> np.ndarray:
 
 def plan_cell_first(layout, kind: str, n: int) -> np.ndarray:
     """The first ``n`` stations of ``plan_cell(kind)`` (asking for more candidates when some are dropped)."""
-    from jcalib.acquisition.planner import plan_cell
+    from jcalib.planning.stations import plan_cell
     from jcalib.errors import BadInputError
 
     T = np.zeros((0, 4, 4))
@@ -340,7 +340,7 @@ def plan_cell_first(layout, kind: str, n: int) -> np.ndarray:
 
 def predicted(pred, T: np.ndarray, pairs) -> tuple[np.ndarray, np.ndarray]:
     """``(σ (G,), Σ (G, 3, 3) parent frame, goal units²)`` the Predictor gives for stations ``T``."""
-    from jcalib.acquisition.candidates import Candidates, reach
+    from jcalib.planning.candidates import Candidates, reach
     from jcalib.planning.optimal import select
 
     _, q = reach(pred.layout, T)
@@ -495,7 +495,7 @@ CHECKS: dict[tuple[str, str], Check] = {}
 
 def check_plan(sc: SimCell, name: str, T: np.ndarray, pairs, q: np.ndarray | None = None) -> None:
     """Joints within limits, reach, view angle / tool view of every station of a plan (part c)."""
-    from jcalib.acquisition.planner import camera_frames, reachable
+    from jcalib.planning.stations import camera_frames, reachable
     from jcalib.geometry.kinematics import forward_kinematics
 
     L = sc.layout
@@ -626,7 +626,7 @@ def needs(met, ks: list[int]) -> int | None:
 
 
 def goal_met(goals, result) -> tuple[bool, dict]:
-    from jcalib.report.goals import achieved_sigmas
+    from jcalib.problems.goals import achieved_sigmas
 
     s = achieved_sigmas(goals, result.file if hasattr(result, "file") else result)
     return all(s[g.text] <= g.limit for g in goals), s
@@ -669,7 +669,7 @@ class CellB:
 
     def robocalib_met(self, k: int) -> bool:
         """RoboCalib's hand-eye plan of ``k`` candidate stations (``plan_cell(handeye, num_stations=k)``)."""
-        from jcalib.acquisition.planner import plan_cell
+        from jcalib.planning.stations import plan_cell
         from jcalib.errors import BadInputError
 
         if k not in self.cache:
@@ -685,7 +685,7 @@ class CellB:
     def random_plan(self):
         """Random views (the optimal planner's candidates, 45 deg), in a random order: ``(candidates, order,
         observations of all, met(k))``, the first ``k`` stations nested."""
-        from jcalib.acquisition import candidates as cands
+        from jcalib.planning import candidates as cands
 
         K = self.args.max_b
         c = cands.view_candidates(self.sc.layout, "cam0", "board", 3 * K,

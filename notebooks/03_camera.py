@@ -13,7 +13,7 @@
 # A 1280x960 opencv5 camera (fx 900 px, k1 -0.3, k2 0.12) on the flange of a KUKA KR10 sees a 9x6
 # checkerboard (25 mm) fixed in the cell; corner noise 0.3 px per axis. Two ways to choose the views:
 #
-# - **RoboCalib viewset plan** (`jcalib.acquisition.robocalib.viewset_stations`, eqs. 4.1–4.4): a
+# - **RoboCalib viewset plan** (`jcalib.planning.robocalib.viewset_stations`, eqs. 4.1–4.4): a
 #   frontal view, four views tilted ±30° about the board's x and y axes, the world-origin view and
 #   height poses (distance scale × roll about the optical axis), every view reachable by the robot
 #   (inverse kinematics) and the whole board in the image. The board stays near the image centre.
@@ -48,8 +48,8 @@ import numpy as np
 from matplotlib.colors import LogNorm
 
 import jcalib
-from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.robocalib import viewset_stations
+from jcalib.planning.layout import cell_layout
+from jcalib.planning.robocalib import viewset_stations
 from jcalib.geometry.views import viewing_distance
 from jcalib.solve.cache import enable_compilation_cache
 from jcalib.geometry.cameras import camera_from_opencv

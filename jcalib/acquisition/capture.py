@@ -17,10 +17,17 @@ capture every station again over its images. A capture holds its robot
 (:class:`jcalib.acquisition.robots.lock.RobotLock`): a second capture of the same robot is refused.
 Camera settings (GenICam feature names, e.g. ``{"cam0": {"ExposureTime": 5000}}``) are applied before
 the first station and recorded in ``session.json``.
+
+Operator control (:class:`CaptureControl`, from any thread): *pause* finishes the station in flight and
+waits before the next one until *resume*; *abort* finishes the station in flight and ends the capture
+(:attr:`CaptureResult.aborted`); *STOP* stops the robot at once through its driver (:meth:`Robot.stop
+<jcalib.acquisition.robots.base.Robot.stop>`) and ends the capture without recording the station in flight
+(:class:`CaptureInterrupted`). A stopped or aborted session is consistent and ``resume`` continues it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +36,8 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from jcalib.acquisition.cameras.base import Camera, UnsupportedFeatureError
-from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.control import CONTROL_STATES, CaptureControl, stop_on_sigint
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
 from jcalib.acquisition.robots.lock import RobotLock, needs_lock
 from jcalib.errors import BadInputError, DeviceError
 from jcalib.geometry.se3 import pose_distance
@@ -38,7 +46,9 @@ from jcalib.io.session import SessionWriter, utc_now
 
 #: ``check(camera_id, image, station) -> None`` when the image is usable, else the reason it is not.
 QualityCheck = Callable[[str, np.ndarray, Station], "str | None"]
-#: ``listener(event, station_id, detail)``; events: "start", "moved", "grabbed", "done", "skipped", "stopped".
+#: ``listener(event, station_id, detail)``; events: "start", "moved", "grabbed", "done", "skipped", "stopped"
+#: (detail: the reason), and with a :class:`CaptureControl` "paused", "resumed" (before the station named),
+#: "aborted" (the capture ends before the station named).
 EventListener = Callable[[str, str, str], None]
 #: ``adjust(station, state) -> (state, record fields)``: runs after the move and the pose check, may move
 #: the robot again (e.g. :func:`jcalib.acquisition.servo.servo_tool_tip`); the images are taken at the
@@ -62,6 +72,11 @@ class CaptureInterrupted(DeviceError):
         self.session_dir, self.station_id, self.num_done = session_dir, station_id, num_done
 
 
+__all__ = ["CONTROL_STATES", "RECORDED_FEATURES", "CaptureControl", "CaptureInterrupted", "CaptureResult",
+           "EventListener", "QualityCheck", "SkipStation", "StationAdjust", "apply_camera_settings", "capture",
+           "check_reached", "image_readable", "stop_on_sigint"]
+
+
 class SkipStation(DeviceError):
     """Raised by a :data:`StationAdjust` to skip the station; the message is recorded as the reason."""
 
@@ -77,6 +92,8 @@ class CaptureResult:
         skipped: id -> reason, for stations skipped by this run.
         already_done: stations that were in the session before this run (resume).
         elapsed_s: wall time of this run, s.
+        aborted: the capture ended early by :meth:`CaptureControl.abort` (the session is consistent;
+            ``resume`` continues it).
     """
 
     session_dir: Path
@@ -85,6 +102,7 @@ class CaptureResult:
     skipped: dict[str, str] = field(default_factory=dict)
     already_done: int = 0
     elapsed_s: float = 0.0
+    aborted: bool = False
 
 
 def _device_settings(robot: Robot, cameras: Mapping[str, Camera], requested: Mapping[str, Mapping[str, Any]]) -> dict:
@@ -177,6 +195,7 @@ def capture(
     pose_tolerance_deg: float = 0.1,
     adjust: StationAdjust | None = None,
     lock_robot: bool = True,
+    control: CaptureControl | None = None,
 ) -> CaptureResult:
     """Execute ``plan`` and write (or extend) the session in ``session_dir``.
 
@@ -201,17 +220,19 @@ def capture(
             after a move and the commanded one (mm, deg); beyond, the capture stops.
         adjust: optional step after the move (see :data:`StationAdjust`).
         lock_robot: hold the robot's capture lock (:class:`~jcalib.acquisition.robots.lock.RobotLock`).
+        control: the operator's pause / resume / abort / STOP (:class:`CaptureControl`).
 
     Returns:
-        A :class:`CaptureResult`.
+        A :class:`CaptureResult` (``aborted`` after :meth:`CaptureControl.abort`).
 
     Raises:
         BadInputError: no cameras, a session exists and ``resume`` is False, the plan or the camera
             settings differ from the session's, a session to resume without ``stations.jsonl``, or
             camera settings a camera refuses.
         DeviceError: another capture drives the robot.
-        CaptureInterrupted: lost robot connection, camera failure, or a reached pose that is not the
-            commanded one (session consistent; resume).
+        CaptureInterrupted: lost robot connection, camera failure, a reached pose that is not the
+            commanded one, a stop (:meth:`CaptureControl.stop`, or ``robot.stop()`` from elsewhere)
+            (session consistent; resume).
     """
     if not cameras:
         raise BadInputError("cameras: expected at least one camera")
@@ -257,6 +278,69 @@ def capture(
             n,
         )
 
+    def operator_stop(station: Station) -> CaptureInterrupted:
+        n = len(writer.stations)
+        emit("stopped", station.id, "stopped by the operator")
+        return CaptureInterrupted(
+            f"capture stopped by the operator (STOP) at station {station.id}: the robot stands where it braked and "
+            f"station {station.id} was not recorded.\n{n} of {len(plan)} stations are saved in {session_dir}; the "
+            f"session can be resumed. Check the cell, then resume: {hint}.",
+            session_dir,
+            station.id,
+            n,
+        )
+
+    def stopped() -> bool:
+        return control is not None and control.stop_requested
+
+    def run_station(station: Station) -> None:
+        """Move, check, adjust, grab, write one station; a stop anywhere before the write ends the capture."""
+        emit("start", station.id, "")
+        status(f"{station.id}: moving ({station.move})")
+        seen = robot.num_stops  # before the check: a stop after this read refuses the moves below
+        if stopped():
+            raise operator_stop(station)
+        with robot.stop_guard(seen):
+            try:
+                state = robot.move(station.T_base_flange, kind=station.move, settle_timeout_s=settle_timeout_s)
+                why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
+                if why:  # read once more: a robot still creeping in
+                    state = robot.wait_settled(timeout_s=settle_timeout_s)
+                    why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
+            except MotionRefusedError as e:
+                reason = f"unreachable: {e}"
+                finish(station, {"id": station.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(),
+                                 "images": {}, "status": f"skipped: {reason}"}, reason)  # fmt: skip
+                return
+            except DeviceError as e:
+                if stopped():
+                    raise operator_stop(station) from e
+                what = "robot stopped by a stop request" if isinstance(e, MotionStoppedError) else "robot"
+                raise interrupted(station, what, e) from e
+            if stopped():
+                raise operator_stop(station)
+            if why:
+                raise interrupted(station, "robot", DeviceError(why))
+            emit("moved", station.id, "")
+            extra: dict = {}
+            if adjust is not None:
+                try:
+                    state, extra = adjust(station, state)
+                except SkipStation as e:
+                    finish(station, _record(station, state, {}, f"skipped: {e}"), str(e))
+                    return
+                except DeviceError as e:
+                    if stopped():
+                        raise operator_stop(station) from e
+                    raise interrupted(station, "adjust", e) from e
+        images, reject = _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted)
+        emit("grabbed", station.id, reject)
+        if stopped():
+            raise operator_stop(station)
+        status(f"{station.id}: writing")
+        paths = {} if reject else {cid: writer.write_image(cid, station.id, img) for cid, img in images.items()}
+        finish(station, _record(station, state, paths, f"skipped: {reject}" if reject else "ok", extra), reject)
+
     def finish(station: Station, record: dict, reason: str) -> None:
         if station.id in retakes:
             record["retake"] = True
@@ -271,40 +355,21 @@ def capture(
             bar.advance(task)
 
     try:
-        for station in todo:
-            emit("start", station.id, "")
-            status(f"{station.id}: moving ({station.move})")
-            try:
-                state = robot.move(station.T_base_flange, kind=station.move, settle_timeout_s=settle_timeout_s)
-                why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
-                if why:  # read once more: a robot still creeping in
-                    state = robot.wait_settled(timeout_s=settle_timeout_s)
-                    why = check_reached(station, state, pose_tolerance_mm, pose_tolerance_deg)
-            except MotionRefusedError as e:
-                reason = f"unreachable: {e}"
-                finish(station, {"id": station.id, "T_base_flange": None, "joints_deg": None, "time": utc_now(),
-                                 "images": {}, "status": f"skipped: {reason}"}, reason)  # fmt: skip
-                continue
-            except DeviceError as e:
-                raise interrupted(station, "robot", e) from e
-            if why:
-                raise interrupted(station, "robot", DeviceError(why))
-            emit("moved", station.id, "")
-            extra: dict = {}
-            if adjust is not None:
-                try:
-                    state, extra = adjust(station, state)
-                except SkipStation as e:
-                    finish(station, _record(station, state, {}, f"skipped: {e}"), str(e))
-                    continue
-                except DeviceError as e:
-                    raise interrupted(station, "adjust", e) from e
-            images, reject = _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted)
-            emit("grabbed", station.id, reject)
-            status(f"{station.id}: writing")
-            paths = {} if reject else {cid: writer.write_image(cid, station.id, img) for cid, img in images.items()}
-            finish(station, _record(station, state, paths, f"skipped: {reject}" if reject else "ok", extra), reject)
-        status("done")
+        with control.active(robot) if control is not None else contextlib.nullcontext():
+            for station in todo:
+                if control is not None:
+                    try:
+                        verdict = control.checkpoint(station.id, emit, robot.state)
+                    except DeviceError as e:
+                        raise interrupted(station, "robot (while paused)", e) from e
+                    if verdict == "abort":
+                        result.aborted = True
+                        emit("aborted", station.id, "")
+                        status("aborted")
+                        break
+                run_station(station)
+            else:
+                status("done")
     finally:
         if bar is not None:
             bar.stop()
@@ -313,7 +378,6 @@ def capture(
             robot_lock.release()
     result.elapsed_s = time.monotonic() - t_start
     return result
-
 
 def _record(station: Station, state: RobotState, paths: dict, status: str, extra: dict | None = None) -> dict:
     """The stations.jsonl line of a station reached at ``state``."""

@@ -215,25 +215,11 @@ def export(
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID, KUKA KRL, or the calibrated robot
     kinematics as a cell-spec table with σ and controller offsets (kinematics) or a URDF (urdf)."""
-    from jcalib.errors import BadInputError
-
     check_outputs({"-o": out}, [result])
-    if camera is not None and format not in ("opencv", "ros"):
-        raise BadInputError(f"--camera applies to the opencv and ros formats, not {format!r}")
-    if module is not None and format != "rapid":
-        raise BadInputError(f"--module applies to the rapid format, not {format!r}")
-    if robot is not None and format not in ("kinematics", "urdf"):
-        raise BadInputError(f"--robot applies to the kinematics and urdf formats, not {format!r}")
     from jcalib.io.export import export_result
-    from jcalib.io.export._common import parse_tool_orientation
+    from jcalib.io.export.formats import export_options
 
-    orientations = dict(parse_tool_orientation(t) for t in tool_orientation or [])
-    if orientations and format not in ("rapid", "krl"):
-        raise BadInputError(f"--tool-orientation applies to the rapid and krl formats, not {format!r}")
-    options = {"opencv": {"cameras": camera}, "ros": {"camera": camera},
-               "rapid": {"module": module, "orientations": orientations or None},
-               "krl": {"orientations": orientations or None}, "kinematics": {"robots": robot},
-               "urdf": {"robot": robot}}.get(format, {})
+    options = export_options(format, camera=camera, module=module, robot=robot, tool_orientation=tool_orientation)
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")
 
@@ -285,7 +271,9 @@ def report(
     if plan is not None:
         from rich.console import Console
 
-        from jcalib.report.goals import goal_rows, goals_table, plan_goals
+        from jcalib.io.plan import plan_goals
+        from jcalib.problems.goals import goal_rows
+        from jcalib.report.goals import goals_table
 
         goals, predicted = plan_goals(plan)
         rows = goal_rows(goals, result, predicted)
@@ -483,7 +471,8 @@ def plan(
     check_outputs({"-o": out}, [cell])
     _check_cell(cell)
     enable_compilation_cache()
-    from jcalib.app.commands import check_plan_options, parse_image_size, run_plan
+    from jcalib.workflow.devices import parse_image_size
+    from jcalib.workflow.plan import check_plan_options, run_plan
 
     check_plan_options(kind, stations=stations, goal=goal, max_stations=max_stations, tool=tool, camera=camera,
                        target=target, candidates=candidates, sigma_px=sigma_px)
@@ -495,7 +484,7 @@ def plan(
         typer.echo(f"dropped {why}: {what}" if kind in ("kinematics", "optimal") else f"dropped {what}: {why}",
                    err=True)
     if kind in ("kinematics", "optimal"):
-        from jcalib.app.commands import kinematic_plan_lines, optimal_plan_lines
+        from jcalib.workflow.plan import kinematic_plan_lines, optimal_plan_lines
 
         for line in (kinematic_plan_lines if kind == "kinematics" else optimal_plan_lines)(planned):
             typer.echo(line)
@@ -526,6 +515,10 @@ def simulate(
     kinematic_error_scale: Annotated[
         float, typer.Option(help="--kinematic-errors: factor on their σ (1: ~0.05 deg, 0.5 mm).")
     ] = 1.0,
+    fast_noise: Annotated[
+        bool, typer.Option("--fast-noise", help="Draw sensor noise by its normal approximation (float32): a frame "
+                           "of a still robot then costs ~20 ms at 1280x960, for live views (jcalib ui --simulate).")
+    ] = False,
 ) -> None:
     """Run a simulated cell (robot server + fake GigE cameras) on loopback until interrupted."""
     check_outputs({"--truth": truth}, [cell])
@@ -534,7 +527,8 @@ def simulate(
     import signal
     import threading
 
-    from jcalib.app.commands import parse_image_size, parse_named, run_simulate
+    from jcalib.app.simulate import run_simulate
+    from jcalib.workflow.devices import parse_image_size, parse_named
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -547,7 +541,7 @@ def simulate(
     run_simulate(cell, robot_protocol=robot_protocol, robot_port=robot_port, camera_addresses=parse_named(camera),
                  truth=truth, robot=robot, image_size=parse_image_size(image_size), time_scale=time_scale,
                  seed=seed, noise=noise, stop=stop, on_ready=ready, kinematic_errors=kinematic_errors,
-                 kinematic_error_scale=kinematic_error_scale)  # fmt: skip
+                 kinematic_error_scale=kinematic_error_scale, fast_noise=fast_noise)  # fmt: skip
 
 
 @app.command()
@@ -605,7 +599,8 @@ def capture(
     from jcalib.io.plan import load_plan
 
     load_plan(plan)
-    from jcalib.app.commands import parse_named, parse_settings, run_capture
+    from jcalib.workflow.capture import run_capture
+    from jcalib.workflow.devices import parse_named, parse_settings
 
     res = run_capture(robot_url=robot, camera_urls=parse_named(camera), plan_path=plan, out=out, cell=cell,
                       resume=resume, packet_size=packet_size, settings=parse_settings(setting or []),

@@ -2,7 +2,7 @@
 
 The chain is the one a cell integrator runs on hardware, with simulators standing in for it:
 
-1. plan stations for the cell (:func:`jcalib.acquisition.planner.plan_cell`): hand-eye stations
+1. plan stations for the cell (:func:`jcalib.planning.stations.plan_cell`): hand-eye stations
    (``cam_hand`` over the board), then tool stations (``tcp``: the tip of the tool ``torch`` held in
    front of ``cam_fixed``, the tool turned about two axes), appended to one plan (ids ``s…``, ``t…``);
 2. serve a simulated robot controller (KUKAVARPROXY or ABB line protocol) and two fake GigE Vision
@@ -38,8 +38,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -50,59 +48,15 @@ from rich.markup import escape
 from rich.table import Table
 
 from jcalib.errors import BadInputError, DeviceError
+from jcalib.workflow.simulate import DEMO_ADDRESSES as ADDRESSES
+from jcalib.workflow.simulate import DEMO_CELL, start_simulator
 
-#: The demo cell: an eye-in-hand camera, a fixed camera, a checkerboard on the table, a tool whose TCP
-#: the fixed camera measures (its tip held in front of it, seen in silhouette).
-DEMO_CELL = """schema: jcalib.cell/1
-robot:
-  model: kuka_kr10_r1100_sixx
-  pose_noise: {translation_m: 0.000013, rotation_deg: 0.00115}  # the simulated robot's repeatability (ISO 9283: 0.04 mm)
-cameras:
-  cam_hand: {model: opencv4, mount: flange}
-  cam_fixed:
-    model: opencv5
-    mount: base
-    # a fixed camera that sees a fixed target cannot calibrate its own lens (every view is the same):
-    # its intrinsics come from an earlier camera calibration; its pose in the cell is calibrated here
-    intrinsics: {K: [[720.0, 0.0, 322.0], [0.0, 718.0, 241.0], [0.0, 0.0, 1.0]], dist: [-0.12, 0.05, 0.0, 0.0, 0.0]}
-    fix: [fx, fy, cx, cy, k1, k2, p1, p2, k3]
-targets:
-  board: {type: checkerboard, cols: 9, rows: 6, square: 0.025, mount: base}  # 9x6: no 180° ambiguity
-tools:
-  torch: {observed_by: [cam_fixed]}
-"""
 #: What the demo with kinematic errors calibrates of the arm (the identifiable subset is kept).
 KINEMATIC_GROUPS = ("joint_offsets", "link_lengths", "twists")
 #: Stations planned for the arm's kinematics (``kinematics`` planner) with ``--kinematic-errors``.
 KINEMATIC_STATIONS = 20
 #: Tool stations appended to the hand-eye plan (``tcp`` planner).
 TOOL_STATIONS = 7
-ADDRESSES = {"cam_hand": "127.0.0.1", "cam_fixed": "127.0.0.2"}
-_NETNS_ENV = "JCALIB_DEMO_IN_NETNS"
-
-
-def _in_private_namespace() -> bool:
-    return os.environ.get(_NETNS_ENV) == "1"
-
-
-def _reexec_in_namespace(argv: list[str]) -> int:
-    """Run ``python -m jcalib.app.demo_cell ARGV`` in a new network namespace with 127.0.0.2 on lo."""
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        raise DeviceError(
-            "the demo's second fake camera needs a private network namespace (util-linux `unshare` and "
-            "iproute2 `ip`); install them (./scripts/setup does) or run `jcalib demo --camera-only`"
-        )
-    flags = "-n" if os.geteuid() == 0 else "-rn"
-    inner = f"ip link set lo up && ip addr add 127.0.0.2/8 dev lo && exec {sys.executable} -m jcalib.app.demo_cell "
-    inner += " ".join(_quote(a) for a in argv)
-    env = {**os.environ, _NETNS_ENV: "1"}
-    return subprocess.call(["unshare", flags, "sh", "-c", inner], env=env)
-
-
-def _quote(s: str) -> str:
-    import shlex
-
-    return shlex.quote(s)
 
 
 def run_cell_demo(
@@ -130,7 +84,8 @@ def run_cell_demo(
     Returns:
         ``{quantity: (truth, estimate, σ)}`` in the units printed (px, mm, deg).
     """
-    from jcalib.app.commands import parse_image_size, run_capture
+    from jcalib.workflow.capture import run_capture
+    from jcalib.workflow.devices import parse_image_size
     from jcalib.problems.api import calibrate
     from jcalib.io.atomic import write_text_atomic
     from jcalib.io.export import export_result
@@ -160,33 +115,17 @@ def run_cell_demo(
     kin_text = f" + {num_kin} kinematic" if kinematic_errors else ""
     console.print(f"planned {num_handeye} hand-eye{kin_text} + {num_tool} tool stations for {robot}", highlight=False)
 
-    # The simulator runs as its own process (`jcalib simulate`), like the real controller and
-    # cameras: Aravis' fake cameras and its client do not share one process reliably.
+    # The simulator runs as its own process (`jcalib simulate`), like the real controller and cameras; its
+    # sensor noise is a real camera's ("realistic"): a fair table of errors in σ.
     t0 = time.perf_counter()
-    cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "simulate", "--cell", str(cell_path),
-           "--robot-protocol", protocol, "--robot-port", "0", "--time-scale", "0", "--truth",
-           str(out_dir / "truth.json"), "--robot", robot, "--image-size", image_size, "--seed", str(seed),
-           "--noise", "realistic"]  # sensor noise as a real camera has it: a fair table of errors in σ
-    if kinematic_errors:
-        cmd += ["--kinematic-errors", str(seed)]
-    for name, addr in ADDRESSES.items():
-        cmd += ["--camera", f"{name}={addr}"]
-    with open(out_dir / "simulate.log", "w") as log:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True)
+    sim = start_simulator(cell_path, addresses=ADDRESSES, log_path=out_dir / "simulate.log", protocol=protocol,
+                          robot=robot, image_size=image_size, seed=seed, time_scale=0.0, noise="realistic",
+                          truth=out_dir / "truth.json", kinematic_errors=seed if kinematic_errors else None)
     try:
-        line = proc.stdout.readline() if proc.stdout else ""
-        if not line.startswith("READY"):
-            raise DeviceError(f"the simulated cell did not start: {(out_dir / 'simulate.log').read_text()[-2000:]}")
-        robot_url = line.split()[2]
-        cameras = {name: f"gige://{a}" for name, a in ADDRESSES.items()}
-        run_capture(robot_url=robot_url, camera_urls=cameras, plan_path=out_dir / "plan.json",
+        run_capture(robot_url=sim.robot_url, camera_urls=sim.camera_urls, plan_path=out_dir / "plan.json",
                     out=out_dir / "session", cell=cell_path, packet_size=1400)  # fmt: skip
     finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        sim.stop()
     timings["capture"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -336,9 +275,9 @@ def plan_demo(
     Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key per part). Returns the number of
     hand-eye, tool and kinematic stations kept (reachable, in view).
     """
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.io.plan import make_plan
-    from jcalib.acquisition.planner import plan_cell
+    from jcalib.planning.stations import plan_cell
     from jcalib.io.atomic import write_json_atomic
 
     layout = cell_layout(cell_path, robot=robot, image_size=image_size)
@@ -423,11 +362,15 @@ def main(argv: list[str] | None = None) -> int:
 def demo(out_dir: Path, *, stations: int = 16, protocol: str = "kuka", image_size: str = "640x480",
          seed: int = 0, kinematic_errors: bool = False) -> None:
     """The ``jcalib demo`` command body: enter a private network namespace, then run the demo there."""
+    from jcalib.acquisition.netns import in_private_namespace, run_in_private_namespace
+
     args = [str(out_dir), str(int(stations)), protocol, image_size, str(int(seed)), str(int(bool(kinematic_errors)))]
-    if _in_private_namespace():
+    if in_private_namespace():
         main(args)
         return
-    code = _reexec_in_namespace(args)
+    code = run_in_private_namespace([sys.executable, "-m", "jcalib.app.demo_cell", *args],
+                                    addresses=[a for a in ADDRESSES.values() if a != "127.0.0.1"],
+                                    what="the demo's second fake camera")  # fmt: skip
     if code != 0:
         raise DeviceError(f"the demo failed (exit status {code}); see the messages above")
 

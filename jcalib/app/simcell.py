@@ -8,7 +8,7 @@ over real GigE Vision) or :class:`~jcalib.acquisition.cameras.SimulatedCamera` (
 **Tools.** A cell's tool (``tools: {torch: {observed_by: [cam1]}}``) is simulated the way a backlit
 tool camera sees it: each base camera that observes the tool has a *tool zone*, a ball of radius
 ``zone_radius_m`` (default 0.05 m) centred ``zone_distance_m`` in front of it on its optical axis
-(default :data:`jcalib.acquisition.planner.TOOL_VIEW_DISTANCE_M`, where the ``tcp`` planner holds the
+(default :data:`jcalib.planning.stations.TOOL_VIEW_DISTANCE_M`, where the ``tcp`` planner holds the
 tip). While the tool tip (the true TCP) is inside the zone, the camera renders the tool's silhouette on
 a backlight (:func:`jcalib.sim.tool.render_tool_image`; the backlight hides the rest of the scene);
 otherwise it renders the targets as usual. The tool is a :class:`jcalib.sim.tool.SymmetricTool`
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.acquisition.cameras.base import FrameRequest, FrameSource
-from jcalib.acquisition.planner import TOOL_VIEW_DISTANCE_M
+from jcalib.planning.stations import TOOL_VIEW_DISTANCE_M
 from jcalib.geometry.se3 import check_pose, invert, make_pose
 from jcalib.errors import BadInputError
 
@@ -165,7 +165,7 @@ class CellScene:
     """A simulated robot cell: a :class:`jcalib.sim.scene.Scene` (cameras, targets) plus its tools.
 
     ``cameras``, ``targets`` and ``views`` are the scene's, so a ``CellScene`` serves wherever a
-    scene's cameras are listed (:func:`jcalib.app.commands.run_simulated_cell`).
+    scene's cameras are listed (:func:`jcalib.app.simulate.run_simulated_cell`).
 
     Attributes:
         scene: cameras and targets on "base" / "flange" (views unused).
@@ -230,20 +230,36 @@ class CellScene:
             options: :class:`jcalib.sim.render.RenderOptions` (None: defaults).
             rng: sensor-noise seed or generator.
         """
+        from jcalib.sim.render import RenderOptions, expose
+
+        options = options if options is not None else RenderOptions()
+        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        return expose(self.electrons(camera, T_base_flange, options), options, gen)
+
+    def electrons(self, camera: str, T_base_flange: np.ndarray, options: Any) -> np.ndarray:
+        """The noise-free part of :meth:`render`: mean photo-electrons per pixel, (H, W) float64."""
+        from jcalib.sim.render import exposure_electrons, render_reflectance
+
         T_base_flange = np.asarray(T_base_flange, dtype=np.float64)
         tool_name = self.tool_in_view(camera, T_base_flange)
         cam = self.scene.cameras[camera]
         if tool_name is not None:
-            from jcalib.sim.tool import render_tool_image
+            from jcalib.sim.tool import tool_radiance
 
             tool = self.tools[tool_name]
             T_cam_solid = invert(np.asarray(cam.pose, dtype=np.float64)) @ T_base_flange @ tool.T_flange_tool
             T_cam_solid = T_cam_solid @ tool.T_tool_solid
-            return render_tool_image(cam.model, T_cam_solid, tool.geometry, options, rng).image
-        from jcalib.sim.scene import View, render_view
+            radiance, cos_theta, lens_valid, _ = tool_radiance(cam.model, T_cam_solid, tool.geometry, options)
+            return exposure_electrons(radiance, cos_theta, lens_valid, options)
+        from jcalib.sim.scene import View
 
         live = dataclasses.replace(self.scene, views=[View(id="live", T_base_flange=T_base_flange)])
-        return render_view(live, 0, camera, options, rng)
+        pairs = []
+        for name, tgt in live.targets.items():
+            T = live.T_cam_target(0, camera, name)
+            if T is not None:
+                pairs.append((T, tgt.texture))
+        return exposure_electrons(*render_reflectance(cam.model, pairs, options), options)
 
 
 def scene_frame_source(
@@ -267,21 +283,29 @@ def scene_frame_source(
         reference_exposure_us: exposure at which ``options`` applies unchanged, us.
         seed: sensor-noise seed; frame ``k`` uses ``seed + k``.
 
-    A camera that observes a tool renders it once here (:meth:`CellScene.warm_up`).
+    A camera that observes a tool renders it once here (:meth:`CellScene.warm_up`). The noise-free exposure
+    of the last pose is kept: while the robot stands still (a live view), a frame costs only its sensor
+    noise (with ``options.fast_noise``, a few tens of ms at 1280x960).
     """
     if camera not in scene.cameras:
         raise BadInputError(f"camera: {camera!r} is not in the scene (has {', '.join(scene.cameras)})")
     cell = scene if isinstance(scene, CellScene) else CellScene(scene)
     cell.warm_up(camera)
+    last: dict[str, Any] = {}  # the noise-free exposure of the last pose (a robot standing still)
 
     def source(req: FrameRequest) -> np.ndarray:
-        from jcalib.sim.render import RenderOptions
+        from jcalib.sim.render import RenderOptions, expose
 
         opts = options if options is not None else RenderOptions()
         scale = float(req.exposure_us) / reference_exposure_us
         if scale != 1.0:
             opts = dataclasses.replace(opts, white_electrons=opts.white_electrons * scale)
-        return cell.render(camera, np.asarray(pose_of_flange(), dtype=np.float64), opts, rng=seed + req.index)
+        T = np.asarray(pose_of_flange(), dtype=np.float64)
+        key = (T.tobytes(), opts)
+        if last.get("key") != key:
+            last["electrons"] = cell.electrons(camera, T, opts)
+            last["key"] = key
+        return expose(last["electrons"], opts, np.random.default_rng(seed + req.index))
 
     return source
 
@@ -293,7 +317,7 @@ def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> Ce
     nominal TCP to the flange, shown by the base cameras of its ``observed_by`` (module docstring).
 
     Args:
-        layout: a :class:`jcalib.acquisition.layout.CellLayout`.
+        layout: a :class:`jcalib.planning.layout.CellLayout`.
         texture_px_per_square: resolution of the printed targets, texels per grid spacing.
 
     Returns:

@@ -1,5 +1,5 @@
 """Which kinematic parameters any motion can determine: the structural scan shared by the builder
-(:mod:`jcalib.problems.kinematics`) and the station planner (:mod:`jcalib.acquisition.kinematic_design`).
+(:mod:`jcalib.problems.kinematics`) and the station planner (:mod:`jcalib.planning.kinematic_design`).
 
 A robot's kinematic parameters (:mod:`jcalib.geometry.kinematic_models`) are never all separable from
 what else a cell estimates: whatever sits on the robot's base side (a fixed camera, board or sensor:

@@ -34,7 +34,7 @@ import numpy as np
 from jcalib.errors import BadInputError
 from jcalib.geometry.kinematics import DHRobot
 
-__all__ = ["PRESETS", "abb_irb4600_45_205", "kuka_kr10_r1100_sixx", "robot_preset"]
+__all__ = ["PRESETS", "abb_irb4600_45_205", "home_joints", "kuka_kr10_r1100_sixx", "robot_preset"]
 
 _HALF_PI = np.pi / 2.0
 
@@ -89,3 +89,16 @@ def robot_preset(name: str) -> DHRobot:
         raise BadInputError(
             f"robot: unknown preset {name!r}; expected one of {sorted(PRESETS)}"
         ) from None
+
+
+def home_joints(robot: DHRobot) -> np.ndarray:
+    """``(n,)`` the usual home posture of ``robot``, rad: zeros, with axis 5 at 30 deg on a six-axis arm and,
+    for a KUKA, A2 = -90 deg, A3 = +90 deg; clipped to the joint limits. The simulated controllers start
+    there and the planners seed their inverse kinematics there."""
+    lower, upper = np.asarray(robot.lower, dtype=np.float64), np.asarray(robot.upper, dtype=np.float64)
+    home = np.zeros(int(robot.num_joints))
+    if home.size == 6:
+        home[4] = np.radians(30.0)
+        if "KUKA" in robot.name.upper():
+            home[1], home[2] = np.radians(-90.0), np.radians(90.0)
+    return np.clip(home, lower, upper)

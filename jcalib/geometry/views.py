@@ -2,7 +2,7 @@
 
 Pure geometry on (4, 4) ``T_target_cam`` matrices in metres (camera +z is the optical axis): a frontal
 view at a distance, tilted and rolled variants, rotations of the camera about its own axes and
-re-centring on a point. The acquisition planner, the simulated studies and the tests build stations
+re-centring on a point. The station planners, the simulated studies and the tests build stations
 from them.
 """
 

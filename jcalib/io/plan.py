@@ -15,15 +15,19 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from jcalib.geometry.se3 import check_pose
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_json_atomic
+from jcalib.io.goals import Goal, parse_goals
 from jcalib.io.schema.plan import validate_plan_document
 from jcalib.io.schema.reading import read_document
 
@@ -149,3 +153,30 @@ def load_plan(path: str | Path) -> Plan:
 def save_plan(plan: Plan, path: str | Path) -> Path:
     """Write a plan as JSON, atomically."""
     return write_json_atomic(path, plan.to_json())
+
+
+def plan_goals(plan: str | Path | Mapping) -> tuple[tuple[Goal, ...], dict[str, float]]:
+    """``(goals, predicted σ per goal text)`` of a goal-driven plan (``jcalib plan --kind optimal``): its
+    ``planner.goals`` and ``planner.predicted``.
+
+    Raises:
+        BadInputError: unreadable plan, or a plan without goals (made by another planner kind).
+    """
+    where = "--plan"
+    if isinstance(plan, Mapping):
+        data: Any = plan
+    else:
+        where = f"--plan {plan}"
+        data = read_document(plan, "plan file", fmt="json")
+    planner = data.get("planner") if isinstance(data, Mapping) else None
+    texts = planner.get("goals") if isinstance(planner, Mapping) else None
+    if not isinstance(texts, list) or not texts:
+        kind = planner.get("kind") if isinstance(planner, Mapping) else None
+        raise BadInputError(f"{where}: the plan has no goals (planner kind {kind!r}); the goals table needs a plan "
+                            "made with `jcalib plan --kind optimal --goal ...`")
+    goals = parse_goals(texts, f"{where}: planner.goals")
+    predicted: dict[str, float] = {}
+    for text, value in (planner.get("predicted") or {}).items():
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            predicted[str(text)] = float(value)
+    return goals, predicted

@@ -34,6 +34,11 @@ from jcalib.errors import BadInputError, DetectionError
 AXIS_POINT_PX = 50.0
 
 
+def _cache_key(path: Path, what: str) -> tuple:
+    st = path.stat()
+    return str(path.resolve()), st.st_size, st.st_mtime_ns, what
+
+
 @dataclass(frozen=True)
 class SessionFailure:
     """Why a station, or one camera's image of it, gave no detection.
@@ -41,7 +46,8 @@ class SessionFailure:
     Attributes:
         station: station id.  camera: camera id (None: the whole station).
         target: target id, tool id (a tool-tip search), or None.
-        reason: short keyword ("skipped", "missing_image", "not_found", "partially_visible",
+        reason: short keyword ("skipped", "excluded" (the session's ``exclusions.json``, see
+            :mod:`jcalib.io.exclusions`), "missing_image", "not_found", "partially_visible",
             "too_blurred", "unreadable"; for a tool also "tip_outside_image", "ambiguous").
         message: the full explanation.
     """
@@ -66,6 +72,7 @@ def detect_session(
     tools: bool = True,
     progress: bool = True,
     notes: dict[str, str] | None = None,
+    cache: dict | None = None,
 ):
     """Detect the cell's targets (and tool tips) in every station image of a capture session.
 
@@ -80,6 +87,9 @@ def detect_session(
         progress: show a progress bar on stderr.
         notes: filled with ``{"<station> <camera> <target>": what the detector did}`` where its
             defaults did not suffice (:func:`jcalib.pipeline.images.retry_note`).
+        cache: a dict kept between calls (the operator app's): each image's detection results are stored
+            under its path, size and modification time, so a second call detects only new or changed
+            images. The caller empties it when the cell's targets or tools change.
 
     Returns:
         ``(observations, failures)``: an :class:`jcalib.io.observations.Observations` with one station
@@ -90,8 +100,10 @@ def detect_session(
         BadInputError: not a session, no cell spec, an unknown target or tool, a station image naming
             a camera the cell lacks, or images of one camera with different sizes.
     """
-    from jcalib.io.session import read_session
     from jcalib.io.cell import load_cell
+    from jcalib.io.exclusions import FILENAME as EXCLUSIONS_FILE
+    from jcalib.io.exclusions import load_exclusions
+    from jcalib.io.session import read_session
     from jcalib.io.observations import Detection, Observations, Station
     from jcalib.pipeline.images import retry_note
     from jcalib.vision import detect_many
@@ -117,13 +129,20 @@ def detect_session(
 
     failures: list[SessionFailure] = []
     jobs: list[tuple[str, str, Path]] = []  # (station, camera, image path)
+    excluded = load_exclusions(d)
     for rec in records:
         sid = str(rec["id"])
         status = str(rec.get("status", "ok"))
         if status != "ok":
             failures.append(SessionFailure(sid, None, None, "skipped", status))
             continue
+        if excluded.excludes(sid):
+            failures.append(SessionFailure(sid, None, None, "excluded", f"left out by {d / EXCLUSIONS_FILE}"))
+            continue
         for cam, rel in (rec.get("images") or {}).items():
+            if excluded.excludes(sid, cam):
+                failures.append(SessionFailure(sid, cam, None, "excluded", f"left out by {d / EXCLUSIONS_FILE}"))
+                continue
             if cam not in spec.cameras:
                 raise BadInputError(
                     f"session {d}: station {sid} has an image of camera {cam!r}, which the cell spec "
@@ -146,8 +165,20 @@ def detect_session(
                 f"are {sizes[cam][0]}x{sizes[cam][1]}; one camera must keep one image size"
             )
 
+    def cached(key_of: str, paths: list[Path], detect):
+        """``detect(paths)``, each image's result kept in ``cache`` under its path, size and time stamp."""
+        if cache is None:
+            return detect(paths)
+        keys = [_cache_key(p, key_of) for p in paths]
+        todo = [i for i, k in enumerate(keys) if k not in cache]
+        if todo:
+            for i, res in zip(todo, detect([paths[i] for i in todo]), strict=True):
+                cache[keys[i]] = res
+        return [cache[k] for k in keys]
+
     for tname, geom in geometries.items():
-        results = detect_many([p for _, _, p in jobs], geom, progress=progress)
+        results = cached(f"target {tname}", [p for _, _, p in jobs],
+                         lambda paths, geom=geom: detect_many(paths, geom, progress=progress))
         for (sid, cam, path), res in zip(jobs, results, strict=True):
             if isinstance(res, DetectionError):
                 image_failures.setdefault((sid, cam), []).append(SessionFailure(sid, cam, tname, res.reason, str(res)))
@@ -168,7 +199,7 @@ def detect_session(
         if message:
             fails.append(SessionFailure(sid, cam, None, "ambiguous", message))
             continue
-        res = _detect_tip(path, spec.cameras[cam])
+        res = cached(f"tip {cam}", [path], lambda paths, cam=cam: [_detect_tip(p, spec.cameras[cam]) for p in paths])[0]
         if isinstance(res, DetectionError):
             fails.append(SessionFailure(sid, cam, tname, res.reason, str(res)))
             continue
@@ -273,6 +304,7 @@ def detect_session_to_file(
     *,
     target: str | None = None,
     progress: bool = True,
+    cache: dict | None = None,
 ):
     """``jcalib detect --session``: detect, write ``observations.json`` (default: in the session), report failures.
 
@@ -288,12 +320,13 @@ def detect_session_to_file(
     from jcalib.io.observations import save_observations
 
     notes: dict[str, str] = {}
-    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes)
+    obs, failures = detect_session(session_dir, cell, target=target, progress=progress, notes=notes, cache=cache)
     console = Console(stderr=True, soft_wrap=True)
     for what, note in notes.items():
         console.print(f"retried {what}: {note}", highlight=False, markup=False)
     for f in failures:
-        console.print(f"[yellow]skipped[/] {escape(str(f))}", highlight=False)
+        word = "[cyan]excluded[/]" if f.reason == "excluded" else "[yellow]skipped[/]"
+        console.print(f"{word} {escape(str(f))}", highlight=False)
     if not obs.stations:
         raise BadInputError(
             f"session {session_dir}: the target was found in no image ({len(failures)} failures); check the "

@@ -14,7 +14,7 @@ far as its fixed start.
    observability, and adding stations one by one against the measured σ takes over. They are acquired in that order; a failed acquisition (``acquire`` returns None: unreachable,
    target not found) excludes its candidate and the rest of the initial set is chosen again.
 2. **Calibrate** all captured stations; each goal's achieved σ comes from the result's covariances
-   (:func:`jcalib.report.goals.achieved_sigmas`). Every goal met: stop.
+   (:func:`jcalib.problems.goals.achieved_sigmas`). Every goal met: stop.
 3. **Rescale and add one station.** ``r_g = achieved_g / predicted_g``, the predicted σ being that of the
    captured stations (the measured poses and every camera / target or tool pair each station showed):
    how much the real noise, outliers and geometry differ from the prediction. The next station is the
@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from jcalib.acquisition.candidates import Candidates, check_count
-from jcalib.acquisition.layout import CellLayout
+from jcalib.planning.candidates import Candidates, check_count
+from jcalib.planning.layout import CellLayout
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.io.goals import Goal, parse_goals
 from jcalib.io.observations import Observations, Station
@@ -189,7 +189,7 @@ def _ratios(achieved: np.ndarray, predicted: np.ndarray) -> np.ndarray:
 
 def _achieved(calibrate: Calibrate, stations: list[Station], goals: tuple[Goal, ...]) -> tuple[Any, np.ndarray, str]:
     """``(result, achieved σ (G,), note)``: inf and the reason when the data cannot determine the unknowns yet."""
-    from jcalib.report.goals import achieved_sigmas
+    from jcalib.problems.goals import achieved_sigmas
 
     try:
         result = calibrate(list(stations))
@@ -240,7 +240,7 @@ def run_adaptive(layout: CellLayout, goals: Sequence[Goal | str], *, acquire: Ac
     """Capture stations until every goal is achieved or ``max_stations`` are captured (module docstring).
 
     Args:
-        layout: the nominal cell (:func:`jcalib.acquisition.layout.cell_layout`).
+        layout: the nominal cell (:func:`jcalib.planning.layout.cell_layout`).
         goals: :class:`~jcalib.io.goals.Goal` s or their texts.
         acquire: moves the robot to a candidate and returns the detected station, or None when the
             station is unusable (unreachable, nothing detected); see :data:`Acquire`.

@@ -1,6 +1,6 @@
 """Stations chosen for the accuracy the user needs (``jcalib plan --kind optimal --goal ...``).
 
-1. **Candidates** (:mod:`jcalib.acquisition.candidates`): flange poses within reach and joint limits that
+1. **Candidates** (:mod:`jcalib.planning.candidates`): flange poses within reach and joint limits that
    show each camera / target pair the robot moves, and each tool tip to a base camera observing it.
 2. **Prediction** (:class:`jcalib.planning.predict.Predictor`): each candidate's information ``I_m`` over
    the cell's free unknowns, from the one problem builder at the nominal values. The covariance of a set
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jcalib.acquisition import candidates as cands
-from jcalib.acquisition.layout import CellLayout
-from jcalib.acquisition.planner import PlannedStations, visit_order
+from jcalib.planning import candidates as cands
+from jcalib.planning.layout import CellLayout
+from jcalib.planning.stations import PlannedStations, visit_order
 from jcalib.errors import BadInputError
 from jcalib.geometry.se3 import exp_so3, make_pose
 from jcalib.io.goals import Goal
@@ -143,7 +143,7 @@ def _neighbours(layout: CellLayout, c: cands.Candidates, chosen: list[int], step
     """Candidates near the chosen ones: each turned about the point it views (target centre, tool tip) by
     ``step_deg`` about 6 axes, and moved along the line of sight by ``± step_d`` of the distance; checked for
     reach and (views) for view like every candidate."""
-    from jcalib.acquisition.planner import camera_frames, view_problem
+    from jcalib.planning.stations import camera_frames, view_problem
 
     poses, pairs = [], []
     for k in chosen:

@@ -19,8 +19,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from jcalib.acquisition.candidates import Candidates
-from jcalib.acquisition.layout import CellLayout
+from jcalib.planning.candidates import Candidates
+from jcalib.planning.layout import CellLayout
 from jcalib.errors import BadInputError, JcalibError
 from jcalib.geometry.se3 import shaft_points
 from jcalib.io.goals import Goal, projection_grid, sigma_from_covariance
@@ -28,7 +28,7 @@ from jcalib.io.observations import Detection, Observations, Station
 from jcalib.io.result import CameraResult, ResultFile, TransformResult
 from jcalib.problems.calibrate import prepare
 from jcalib.problems.options import CalibrationOptions
-from jcalib.report.taskspace import camera_model, project, projection_jacobian, unproject
+from jcalib.problems.taskspace import camera_model, project, projection_jacobian, unproject
 from jcalib.solve import information
 
 __all__ = ["GoalMap", "Predictor", "RIDGE"]
@@ -65,7 +65,7 @@ class Predictor:
     """Predicted information of stations of a cell at its nominal (or estimated) values.
 
     Args:
-        layout: the nominal cell (:func:`jcalib.acquisition.layout.cell_layout`).
+        layout: the nominal cell (:func:`jcalib.planning.layout.cell_layout`).
         goals: what must be accurate.
         options: calibration options (σ of corners, tips, ...); default :class:`CalibrationOptions` with
             stated noise.

@@ -17,7 +17,7 @@ from jcalib.io.result import ResultFile
 from jcalib.report.candidates import candidates, station_information, what_would_help
 from jcalib.report.diagnostics import ResidualDiagnostics
 from jcalib.report.model import TANGENT, LinearModel, correlations, transform_unknown
-from jcalib.report.taskspace import image_grid, pixel_effect, projection_sigma_at, transform_sigma
+from jcalib.problems.taskspace import image_grid, pixel_effect, projection_sigma_at, transform_sigma
 
 __all__ = ["DEFAULT_TOLERANCES", "Warning", "WeakDirection", "analysis_warnings", "projection_warning",
            "unknown_tolerances", "weak_directions"]

@@ -9,7 +9,7 @@ ordered warnings. The report shows them; each lives in its own module:
   :func:`jcalib.solve.information` (:func:`what_would_help`);
 - :mod:`jcalib.report.advice`: tolerances, weakest directions, warnings;
 - :mod:`jcalib.report.diagnostics`: the solve's residuals per camera and factor group;
-- :mod:`jcalib.report.taskspace`: projection σ maps, transform σ, projection differences;
+- :mod:`jcalib.problems.taskspace`: projection σ maps, transform σ, projection differences;
 - :mod:`jcalib.report.crossval`: calibrations of the two halves of the stations.
 """
 
@@ -42,7 +42,7 @@ from jcalib.report.model import (
     model_from_file,
     result_file,
 )
-from jcalib.report.taskspace import pixel_effect, projection_difference, projection_sigma_map, transform_sigma
+from jcalib.problems.taskspace import pixel_effect, projection_difference, projection_sigma_map, transform_sigma
 
 __all__ = [
     "DEFAULT_TOLERANCES",

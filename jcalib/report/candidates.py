@@ -29,7 +29,7 @@ from jcalib.geometry.se3 import shaft_points
 from jcalib.io.observations import Contact, Detection, Station
 from jcalib.io.result import CameraResult, ResultFile, TransformResult
 from jcalib.report.model import LinearModel
-from jcalib.report.taskspace import image_grid, project, projection_sigma_at, unproject
+from jcalib.problems.taskspace import image_grid, project, projection_sigma_at, unproject
 
 __all__ = ["STATION_KINDS", "Candidate", "Suggestion", "candidates", "station_information", "what_would_help"]
 

@@ -10,7 +10,7 @@ import numpy as np
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.io.result import ResultFile
 from jcalib.report.markup import esc, figure, fmt, note, table
-from jcalib.report.taskspace import image_grid, projection_sigma_at
+from jcalib.problems.taskspace import image_grid, projection_sigma_at
 
 __all__ = ["MISSING_SOLVE", "correlation_section", "cross_validation_section", "help_section", "residual_section",
            "weak_section"]

@@ -81,7 +81,7 @@ def render_report(
         options: the calibration options (``CalibrationOptions`` or a dict; default: the file's provenance).
         cross_validation: calibrate the two halves of the stations again and compare (two more solves);
             default: when ``cell`` and ``observations`` are given.
-        goals: rows of :func:`jcalib.report.goals.goal_rows` (a goal-driven plan's goals against this
+        goals: rows of :func:`jcalib.problems.goals.goal_rows` (a goal-driven plan's goals against this
             result): a "Goals" table in the summary.
 
     Returns:

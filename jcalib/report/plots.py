@@ -1,7 +1,7 @@
 """Figures of the HTML report, each returned as PNG bytes (matplotlib, Agg backend, no display).
 
 The numbers come from :mod:`jcalib.report.analysis` (e.g. :func:`projection_sigma_map` of
-:mod:`jcalib.report.taskspace`, re-exported here); this module only draws.
+:mod:`jcalib.problems.taskspace`, re-exported here); this module only draws.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from jcalib.io.result import CameraResult
-from jcalib.report.taskspace import projection_sigma_map
+from jcalib.problems.taskspace import projection_sigma_map
 
 __all__ = [
     "correlation_png",

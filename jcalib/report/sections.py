@@ -173,7 +173,7 @@ def provenance(file: ResultFile, source: str | None) -> str:
 
 def task_space(file: ResultFile) -> str:
     """σ of every transform per axis and in total."""
-    from jcalib.report.taskspace import transform_sigma
+    from jcalib.problems.taskspace import transform_sigma
     from jcalib.report.tcp import is_tcp
 
     rows = []

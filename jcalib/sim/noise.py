@@ -73,6 +73,7 @@ def sensor_response(
     gain_dn_per_e: float | None = None,
     black_level_dn: float = 0.0,
     shot_noise: bool = True,
+    approximate: bool = False,
 ) -> np.ndarray:
     """Turn mean collected electrons into a noisy integer image.
 
@@ -85,16 +86,29 @@ def sensor_response(
         gain_dn_per_e: system gain, DN per electron; None maps a full well to ``2**bit_depth - 1``.
         black_level_dn: offset added to every pixel before rounding, DN.
         shot_noise: draw Poisson photo-electrons (True; normal approximation from 1000 e-) or use the mean (False).
+        approximate: draw shot and read noise in one float32 normal draw, N(mean, mean + read²), clipped to
+            [0, full well] (fast; for live simulated cameras). False: the exact model above.
 
     Returns:
         (H, W) ``uint8`` (8-bit) or ``uint16`` image of digital numbers.
     """
     check_sensor_settings(bit_depth, full_well_e, read_noise_e, gain_dn_per_e, black_level_dn)
+    gain = default_gain_dn_per_e(bit_depth, full_well_e) if gain_dn_per_e is None else float(gain_dn_per_e)
+    if approximate:
+        mean32 = np.clip(np.asarray(electrons, dtype=np.float32), 0.0, None)
+        var = (mean32 if shot_noise else np.zeros_like(mean32)) + np.float32(read_noise_e) ** 2
+        sig = np.sqrt(var, out=var)
+        sig *= rng.standard_normal(mean32.shape, dtype=np.float32)
+        sig += mean32
+        np.clip(sig, 0.0, np.float32(full_well_e), out=sig)
+        sig *= np.float32(gain)
+        sig += np.float32(black_level_dn)
+        np.rint(sig, out=sig)
+        return np.clip(sig, 0, max_dn(bit_depth), out=sig).astype(output_dtype(bit_depth))
     mean = np.clip(np.asarray(electrons, dtype=np.float64), 0.0, None)
     signal = _shot_noise(mean, rng) if shot_noise else mean
     signal = np.minimum(signal, float(full_well_e))
     if read_noise_e > 0:
         signal = signal + rng.normal(0.0, float(read_noise_e), size=signal.shape)
-    gain = default_gain_dn_per_e(bit_depth, full_well_e) if gain_dn_per_e is None else float(gain_dn_per_e)
     dn = np.rint(signal * gain + float(black_level_dn))
     return np.clip(dn, 0, max_dn(bit_depth)).astype(output_dtype(bit_depth))

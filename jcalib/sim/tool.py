@@ -365,8 +365,27 @@ def render_tool_image(
         raise BadInputError(f"edge_supersample: got {edge_supersample!r}, expected an int in 1..64")
     T = check_transform(T_cam_tcp, "T_cam_tcp")
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    coverage, cos_theta, lens_valid = _coverage(camera, T, tool, options.supersample, edge_supersample)
-    radiance = (backlight + (tool_reflectance - backlight) * coverage).astype(np.float32)
+    radiance, cos_theta, lens_valid, coverage = tool_radiance(camera, T, tool, options, backlight=backlight,
+                                                              tool_reflectance=tool_reflectance,
+                                                              edge_supersample=edge_supersample)  # fmt: skip
     image = form_image(radiance, cos_theta, lens_valid, options, gen)
     tip, direction, inside = _tip_ground_truth(camera, T)
     return ToolImage(image=image, tip_px=tip, axis_direction=direction, tip_in_image=inside, coverage=coverage)
+
+
+def tool_radiance(
+    camera: Any,
+    T_cam_tcp: np.ndarray,
+    tool: SymmetricTool,
+    options: RenderOptions,
+    *,
+    backlight: float = 0.9,
+    tool_reflectance: float = 0.03,
+    edge_supersample: int = 16,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The noise-free scene of :func:`render_tool_image` (checked arguments, same meaning):
+    ``(radiance, cos_theta, lens_valid, coverage)``, each (H, W), for
+    :func:`jcalib.sim.render.form_image`."""
+    coverage, cos_theta, lens_valid = _coverage(camera, T_cam_tcp, tool, options.supersample, edge_supersample)
+    radiance = (backlight + (tool_reflectance - backlight) * coverage).astype(np.float32)
+    return radiance, cos_theta, lens_valid, coverage

@@ -4,11 +4,21 @@ MODULE JcalibServer
   ! calibration stations and read its pose. Protocol: robot/abb/PROTOCOL.md (one line per message,
   ! at most 80 bytes with the LF). Needs the "Socket Messaging" option (PC Interface on RW6).
   ! Load it into a motion task, set jc_ip / jc_port, and run main in AUTO with motors on.
+  ! STOP requests arrive on a second port, served by JcalibStop.mod in a second (non-motion) task,
+  ! because this task is busy waiting for the robot while it moves; the two share jc_stop_seq and
+  ! jc_moving (PERS variables of the same name are shared between tasks).
   ! Untested on a physical controller: try it in manual reduced speed first.
   !=================================================================================================
-  CONST num JC_VERSION := 1;
+  CONST num JC_VERSION := 2;
   PERS string jc_ip := "192.168.125.1";     ! controller address the server listens on
   PERS num jc_port := 5515;
+  PERS num jc_stop_port := 5516;            ! JcalibStop listens there (announced by PING)
+
+  ! Shared with the JcalibStop task: it increments jc_stop_seq on every STOP and reads jc_moving.
+  PERS num jc_stop_seq := 0;
+  PERS bool jc_moving := FALSE;
+  VAR intnum jc_stop_int;
+  VAR num jc_seq0;                          ! jc_stop_seq when the move request arrived
 
   ! Tools / work objects selectable with TOOL n / WOBJ n (0 = tool0 / wobj0). Edit to your cell.
   PERS tooldata jc_tools{4} := [
@@ -42,6 +52,10 @@ MODULE JcalibServer
     ConfJ \Off;
     ConfL \Off;
     SingArea \Wrist;
+    jc_moving := FALSE;
+    IDelete jc_stop_int;
+    CONNECT jc_stop_int WITH JcStopTrap;
+    IPers jc_stop_seq, jc_stop_int;          ! interrupt on every change of jc_stop_seq
     SocketClose srv;
     SocketCreate srv;
     SocketBind srv, jc_ip, jc_port;
@@ -144,7 +158,7 @@ MODULE JcalibServer
     cmd := NextTok(rest);
     TEST cmd
     CASE "PING":
-      Reply "OK JCALIB " + NumToStr(JC_VERSION, 0);
+      Reply "OK JCALIB " + NumToStr(JC_VERSION, 0) + " " + NumToStr(jc_stop_port, 0);
     CASE "BYE":
       Reply "OK";
       connected := FALSE;
@@ -210,11 +224,23 @@ MODULE JcalibServer
     Reply "OK";
   ENDPROC
 
+  ! Interrupt on jc_stop_seq (a STOP from JcalibStop): brake on the path, stand, drop the rest of the
+  ! path. DoMove sees the changed jc_stop_seq once WaitRob returns and answers ERR 6 STOPPED.
+  TRAP JcStopTrap
+    IF jc_moving THEN
+      StopMove;                 ! ramp down on the path (not an emergency stop)
+      WaitRob \ZeroSpeed;
+      ClearPath;                ! the interrupted MoveJ / MoveL does not resume
+      StartMove;
+    ENDIF
+  ENDTRAP
+
   ! Move the active tool to v = [x y z (mm) q1 q2 q3 q4] in the active work object.
   PROC DoMove(bool linear, num v{*})
     VAR robtarget cur;
     VAR robtarget tgt;
     VAR jointtarget jt;
+    jc_seq0 := jc_stop_seq;
     cur := CRobT(\Tool:=jc_tool \WObj:=jc_wobj);
     tgt := cur;
     tgt.trans := [v{1}, v{2}, v{3}];
@@ -226,12 +252,26 @@ MODULE JcalibServer
       Reply "ERR 2 UNREACHABLE";
       RETURN;
     ENDIF
+    jc_moving := TRUE;
+    ! \Conc: the program goes on while the robot moves, so that a stop can clear the path and
+    ! WaitRob below returns at the fine point or wherever the robot stopped.
     IF linear THEN
-      MoveL tgt, jc_speed, fine, jc_tool \WObj:=jc_wobj;
+      MoveL \Conc, tgt, jc_speed, fine, jc_tool \WObj:=jc_wobj;
     ELSE
-      MoveJ tgt, jc_speed, fine, jc_tool \WObj:=jc_wobj;
+      MoveJ \Conc, tgt, jc_speed, fine, jc_tool \WObj:=jc_wobj;
+    ENDIF
+    IF jc_stop_seq <> jc_seq0 THEN   ! a STOP arrived before the motion was on the path
+      StopMove;
+      WaitRob \ZeroSpeed;
+      ClearPath;
+      StartMove;
     ENDIF
     WaitRob \InPos;
+    jc_moving := FALSE;
+    IF jc_stop_seq <> jc_seq0 THEN
+      Reply "ERR 6 STOPPED";
+      RETURN;
+    ENDIF
     IF NOT motion_ok THEN
       Reply "ERR 4 MOTION";
       RETURN;

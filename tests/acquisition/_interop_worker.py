@@ -98,7 +98,7 @@ def flood(ports: list[tuple[str, str, int]], seed: int) -> dict:
 
 
 def our_clients_work(robot_url: str) -> dict:
-    from jcalib.app.commands import open_camera, open_robot
+    from jcalib.workflow.devices import open_camera, open_robot
 
     res: dict = {}
     robot = open_robot(robot_url, timeout_s=5.0)

@@ -10,7 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from jcalib.app.commands import run_capture, run_plan, run_simulate
+from jcalib.app.simulate import run_simulate
+from jcalib.workflow.capture import run_capture
+from jcalib.workflow.plan import run_plan
 from jcalib.io.session import read_session
 
 CELL = """schema: jcalib.cell/1
@@ -29,7 +31,7 @@ tools:
 
 
 def test_capture_kind_tcp_servoes_the_tip_onto_the_image_centre(aravis, tmp_path):
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.vision.tooltip import detect_tool_tip
 
     import cv2

@@ -12,7 +12,9 @@ import pytest
 
 from jcalib.io.plan import make_plan, save_plan
 from jcalib.io.session import read_session
-from jcalib.app.commands import open_camera, open_robot, run_capture, run_simulated_cell
+from jcalib.app.simulate import run_simulated_cell
+from jcalib.workflow.capture import run_capture
+from jcalib.workflow.devices import open_camera, open_robot
 from jcalib.acquisition.robots import SixAxisArm
 from jcalib.geometry.se3 import make_pose
 from jcalib.errors import BadInputError

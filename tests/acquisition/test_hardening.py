@@ -17,7 +17,7 @@ from jcalib.acquisition.cameras import SimulatedCamera
 from jcalib.acquisition.robots import AbbRobot, AbbSimServer, KukaRobot, KukaSimServer, SimulatedController, SimulatedRobot
 from jcalib.acquisition.robots.kuka import KukaVarProxyClient, encode_request
 from jcalib.acquisition.robots.lock import RobotLock
-from jcalib.app.commands import capture_settings, parse_settings
+from jcalib.workflow.devices import capture_settings, parse_settings
 from jcalib.errors import BadInputError, DeviceError
 from jcalib.io.cell import parse_cell
 from jcalib.io.plan import make_plan

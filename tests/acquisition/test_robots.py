@@ -176,7 +176,7 @@ def test_abb_messages_fit_in_80_bytes_and_round_trip(p_mm, q):
 
 def test_abb_sim_answers_protocol_errors():
     srv = AbbSimServer(SimulatedController(time_scale=0.0))
-    assert srv.handle("PING")[0] == "OK JCALIB 1"
+    assert srv.handle("PING")[0] == f"OK JCALIB 2 {srv.stop_port}"
     assert srv.handle("MOVJ 1 2 3")[0] == "ERR 1 SYNTAX"
     assert srv.handle("MOVJ 1 2 3 a 0 0 0")[0] == "ERR 1 SYNTAX"
     assert srv.handle("TOOL 9")[0] == "ERR 3 RANGE"

@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.planner import plan_cell
+from jcalib.planning.layout import cell_layout
+from jcalib.planning.stations import plan_cell
 from jcalib.geometry.se3 import invert
 from jcalib.io.session import SessionWriter, utc_now
 from jcalib.app.simcell import scene_from_layout

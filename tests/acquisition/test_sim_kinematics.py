@@ -91,7 +91,7 @@ def test_simulate_truth_holds_the_true_kinematics(aravis, tmp_path):
     """``jcalib simulate --kinematic-errors SEED --truth FILE`` on loopback: the truth names the true
     parameters; they differ from the nominal ones on the identifiable subset only (the one the
     calibration keeps), by realistic amounts; the same seed gives the same arm."""
-    from jcalib.app.commands import run_simulate
+    from jcalib.app.simulate import run_simulate
     from jcalib.app.simcell import simulated_kinematics
     from jcalib.problems.kinematics import generic_joints, select_parameters
 
@@ -131,8 +131,8 @@ def test_session_observations_carry_the_joints_and_show_the_true_arm(arm, tmp_pa
 
     from jcalib.acquisition.cameras import SimulatedCamera
     from jcalib.acquisition.capture import capture
-    from jcalib.acquisition.layout import cell_layout
-    from jcalib.acquisition.planner import plan_cell
+    from jcalib.planning.layout import cell_layout
+    from jcalib.planning.stations import plan_cell
     from jcalib.app.simcell import scene_frame_source, scene_from_layout
     from jcalib.io.session import read_session
     from jcalib.pipeline.session import detect_session

@@ -84,7 +84,7 @@ def test_scene_frame_source_matches_render_view():
 def _tool_cell(size=(320, 240)):
     """A controller at home, a board beside the work area, a 0.15 m tool along the flange z axis, and a
     base camera ``cam1`` looking at the tip side-on (along base +y) from the tool-zone distance."""
-    from jcalib.acquisition.planner import TOOL_VIEW_DISTANCE_M
+    from jcalib.planning.stations import TOOL_VIEW_DISTANCE_M
     from jcalib.app.simcell import CellScene, SceneTool
     from jcalib.sim.scene import Scene, SceneCamera
     from jcalib.sim.scene import SceneTarget as SimTarget
@@ -156,7 +156,7 @@ def test_a_base_camera_shows_the_tool_tip_in_its_zone_and_the_scene_elsewhere():
 
 
 def test_scene_tools_from_a_layout_and_bad_tools():
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
     from jcalib.app.simcell import CellScene, SceneTool, scene_from_layout
     from jcalib.errors import BadInputError
 

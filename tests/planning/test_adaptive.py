@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jcalib.acquisition.layout import cell_layout
+from jcalib.planning.layout import cell_layout
 from jcalib.errors import BadInputError
 from jcalib.io.goals import parse_goals
 from jcalib.planning.adaptive import calibrate_stations, run_adaptive

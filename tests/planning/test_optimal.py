@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import jcalib
-from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.planner import plan_cell
+from jcalib.planning.layout import cell_layout
+from jcalib.planning.stations import plan_cell
 from jcalib.errors import BadInputError
 from jcalib.geometry.kinematics import forward_kinematics
 from jcalib.io.goals import parse_goal, parse_goals, sigma_from_covariance
@@ -75,7 +75,7 @@ def test_optimal_beats_the_fixed_handeye_plan_at_equal_count(layout, planned):
     d, c, pred = planned
     fixed = plan_cell(layout, "handeye", num_stations=len(d.chosen))
     stations = [s.T_base_flange for s in fixed.plan.stations]
-    from jcalib.acquisition.candidates import Candidates
+    from jcalib.planning.candidates import Candidates
 
     other = Candidates(np.stack(stations), np.zeros((len(stations), 6)), [("cam0", "board")] * len(stations))
     infos = pred.informations(other)
@@ -152,7 +152,7 @@ def test_tool_tip_plan_and_projection_goal():
     stations = tuple(pred.station(c.T_base_flange[k], c.pair[k], f"s{i}") for i, k in enumerate(d.chosen))
     result = jcalib.calibrate(layout.cell, Observations(dict(pred.sizes), {}, stations),
                               CalibrationOptions(noise="stated"))
-    from jcalib.report.taskspace import projection_jacobian, unproject
+    from jcalib.problems.taskspace import projection_jacobian, unproject
     from jcalib.io.goals import projection_grid
 
     rays, ok = unproject(pred.cameras["cam1"], projection_grid(pred.sizes["cam1"]))

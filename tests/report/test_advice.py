@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 import jcalib
 from jcalib.geometry import camera_from_opencv
 from jcalib.io.result import CameraResult, TransformResult
-from jcalib.report import advice, diagnostics, render_report, taskspace
+from jcalib.problems import taskspace
+from jcalib.report import advice, diagnostics, render_report
 from jcalib.report.candidates import candidates, station_information
 from jcalib.report.crossval import cross_validate
 from jcalib.report.model import LinearModel, correlations, linear_model, options_of, transform_unknown

@@ -1,4 +1,4 @@
-"""Accuracy goals against a result file (jcalib.report.goals): each goal's σ checked against an independent
+"""Accuracy goals against a result file (jcalib.problems.goals): each goal's σ checked against an independent
 computation from the JSON (numpy eigenvalues of the covariance blocks; a projection Jacobian by central
 differences of OpenCV's projectPoints at rays from OpenCV's undistortPointsIter), the Goals table in the HTML
 report and ``jcalib report --plan``."""
@@ -14,7 +14,9 @@ import pytest
 from jcalib.errors import BadInputError
 from jcalib.io.goals import parse_goals
 from jcalib.io.result import CameraResult, PointResult, ResultFile, TransformResult
-from jcalib.report.goals import achieved_sigmas, goal_rows, goals_html, plan_goals
+from jcalib.io.plan import plan_goals
+from jcalib.problems.goals import achieved_sigmas, goal_rows
+from jcalib.report.goals import goals_html
 
 K = np.array([[400.0, 0.0, 159.5], [0.0, 405.0, 119.5], [0.0, 0.0, 1.0]])
 DIST = np.array([-0.12, 0.05, 1e-3, -8e-4, 0.01])

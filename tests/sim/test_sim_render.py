@@ -280,3 +280,22 @@ def test_bad_texture_and_camera_raise(cam5):
         render_target_image(cam5, T, TargetTexture(np.ones((8, 8)), 0.0, np.zeros(2)))
     with pytest.raises(BadInputError, match="image_size"):
         render_target_image(object(), T, TargetTexture(np.ones((8, 8)), 0.001, np.zeros(2)))
+
+
+def test_fast_noise_has_the_exact_models_mean_and_variance():
+    """The normal approximation of the live cameras (``fast_noise``) against the exact Poisson + read model,
+    on flat fields from dark to bright: mean and variance in DN agree within their sampling errors."""
+    from jcalib.sim.noise import sensor_response
+
+    rng = np.random.default_rng(0)
+    for mean_e in (20.0, 120.0, 3000.0):
+        field = np.full((400, 500), mean_e)
+        kw = dict(read_noise_e=6.0, gain_dn_per_e=150.0 / mean_e, black_level_dn=2.0)  # ~150 DN: no clipping
+        exact = sensor_response(field, rng, **kw).astype(np.float64)
+        fast = sensor_response(field, rng, approximate=True, **kw).astype(np.float64)
+        n = field.size
+        for a, b in ((exact, fast),):
+            se_mean = np.sqrt(a.var() / n + b.var() / n)
+            assert abs(a.mean() - b.mean()) < 5 * se_mean + 0.01, mean_e
+            assert abs(a.var() / b.var() - 1.0) < 5 * np.sqrt(4.0 / n) + 0.01, mean_e
+    assert sensor_response(np.zeros((4, 4)), rng, approximate=True).min() >= 0

@@ -2,7 +2,7 @@
 
 from jcalib.acquisition.robots.abb import AbbRobot
 from jcalib.acquisition.robots.abb_sim import AbbSimServer
-from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
 from jcalib.acquisition.robots.kuka import KukaRobot, KukaVarProxyClient
 from jcalib.acquisition.robots.kuka_sim import KukaSimServer
 from jcalib.acquisition.robots.model import (
@@ -26,6 +26,7 @@ __all__ = [
     "KukaSimServer",
     "KukaVarProxyClient",
     "MotionRefusedError",
+    "MotionStoppedError",
     "Robot",
     "RobotState",
     "SimulatedController",

@@ -8,7 +8,7 @@ ABB quaternion ``q1..q4`` = ``wxyz`` (6 decimals), joints in degrees.
 =============================  =====================================================================
 request                        reply
 =============================  =====================================================================
-``PING``                       ``OK JCALIB 1`` (protocol version)
+``PING``                       ``OK JCALIB 2 <stop port>`` (protocol version, port of the stop task)
 ``GETP``                       ``POSE x y z q1 q2 q3 q4`` active tool in the active work object
 ``GETJ``                       ``JNT j1 j2 j3 j4 j5 j6``
 ``MOVJ x y z q1 q2 q3 q4``     ``OK`` once stopped at the fine point and ``SETTLE`` seconds later
@@ -21,30 +21,42 @@ request                        reply
 
 Errors: ``ERR <code> <WORD>``: 1 SYNTAX, 2 UNREACHABLE (checked with ``CalcJointT`` before moving:
 the robot did not move), 3 RANGE (argument out of range), 4 MOTION (failed while moving),
-5 UNKNOWN (command).
+5 UNKNOWN (command), 6 STOPPED (a ``STOP`` ended the move: the robot stands where it braked).
+
+``STOP`` goes to the stop port (``jc_stop_port``, 5516 by default), served by a second RAPID task
+(``JcalibStop.mod``) while the motion task waits for a move: one request per connection, answered ``OK
+STOPPED`` (a move was in progress) or ``OK IDLE``, then the task closes it. :meth:`AbbRobot.stop` sends it
+and, while its own move has no reply yet and the answer was ``OK IDLE`` (the request overtook the move on
+its way to the controller), sends it again every 10 ms. A version-1 server (no stop task) still moves the
+robot; :meth:`AbbRobot.stop` then refuses with the update to make.
 """
 
 from __future__ import annotations
 
 import socket
 import threading
+import time
 
 import numpy as np
 
-from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
 from jcalib.geometry.se3 import pose_from_mm_quat, pose_to_mm_quat
 from jcalib.errors import DeviceError
 
 DEFAULT_PORT = 5515
 MAX_LINE = 80  # bytes per message including the terminating LF
-PROTOCOL_VERSION = 1
-ERRORS = {1: "SYNTAX", 2: "UNREACHABLE", 3: "RANGE", 4: "MOTION", 5: "UNKNOWN"}
+PROTOCOL_VERSION = 2
+ERRORS = {1: "SYNTAX", 2: "UNREACHABLE", 3: "RANGE", 4: "MOTION", 5: "UNKNOWN", 6: "STOPPED"}
+#: How long :meth:`AbbRobot.stop` keeps repeating ``STOP`` while its move is in flight and the stop task
+#: answers ``OK IDLE``, s.
+STOP_RETRY_S = 1.0
 _ERROR_TEXT = {
     1: "malformed request",
     2: "target unreachable (outside reach or joint limits); the robot did not move",
     3: "argument out of range",
     4: "motion failed while moving",
     5: "unknown command",
+    6: "stopped by a STOP request; the robot stands where it braked",
 }
 
 
@@ -114,8 +126,11 @@ class AbbRobot(Robot):
         speed_mm_s: float | None = None,
         settle_s: float | None = None,
     ):
+        super().__init__()
         self.host, self.port = host, int(port)
         self.address = f"abb://{host}:{self.port}"
+        self.stop_port: int | None = None  # announced by PING (protocol 2); None: the server cannot stop
+        self._in_motion = False
         self.timeout_s, self.motion_timeout_s = float(timeout_s), float(motion_timeout_s)
         self._lock = threading.Lock()
         try:
@@ -135,26 +150,40 @@ class AbbRobot(Robot):
                 "be connected to it; it is freed when that client disconnects or stays idle past the "
                 "server's timeout"
             ) from e
-        if reply[:2] != ["OK", "JCALIB"] or len(reply) < 3 or reply[2] != str(PROTOCOL_VERSION):
+        version = reply[2] if reply[:2] == ["OK", "JCALIB"] and len(reply) >= 3 else None
+        if version == "2" and len(reply) == 4 and reply[3].isdigit() and 0 < int(reply[3]) < 65536:
+            self.stop_port = int(reply[3])
+        elif version == "1":
+            self.can_stop = False
+        else:
             self.close()
             raise DeviceError(
                 f"{self.address} answered PING with {' '.join(reply)!r}, expected 'OK JCALIB "
-                f"{PROTOCOL_VERSION}': not a jcalib server of this protocol version"
+                f"{PROTOCOL_VERSION} <stop port>' (or 'OK JCALIB 1'): not a jcalib server of these protocol versions"
             )
         if speed_mm_s is not None:
             self._request(f"SPEED {float(speed_mm_s):.1f}")
         if settle_s is not None:
             self._request(f"SETTLE {float(settle_s):.3f}")
 
-    def _request(self, line: str, timeout_s: float | None = None) -> list[str]:
+    def _request(self, line: str, timeout_s: float | None = None, *, motion: str | None = None) -> list[str]:
+        """Send ``line``, return the reply's tokens. ``motion`` (a move): sent inside :meth:`_starting`."""
         with self._lock:
             if self._sock is None:
                 raise DeviceError(f"connection to {self.address} is closed")
             cmd = line.split(" ", 1)[0]
             try:
                 self._sock.settimeout(timeout_s or self.timeout_s)
-                self._sock.sendall(encode_line(line))
-                reply = self._lines.readline()
+                if motion is None:
+                    self._sock.sendall(encode_line(line))
+                else:
+                    with self._starting(motion):
+                        self._sock.sendall(encode_line(line))
+                        self._in_motion = True
+                try:
+                    reply = self._lines.readline()
+                finally:
+                    self._in_motion = False
             except socket.timeout as e:
                 self._close_locked()
                 raise DeviceError(
@@ -167,6 +196,9 @@ class AbbRobot(Robot):
         tokens = reply.split()
         if tokens and tokens[0] == "ERR":
             code = int(tokens[1]) if len(tokens) > 1 and tokens[1].isdigit() else 0
+            if code == 6:
+                raise MotionStoppedError(f"robot at {self.address}: {cmd} stopped by a STOP request; the robot "
+                                         "stands where it braked")
             raise (MotionRefusedError if code in (2, 4) else DeviceError)(
                 f"robot at {self.address} refused {line!r}: {_ERROR_TEXT.get(code, 'error')} "
                 f"(reply {reply!r})"
@@ -191,7 +223,38 @@ class AbbRobot(Robot):
 
     def _move(self, T_base_flange: np.ndarray, kind: str) -> None:
         cmd = "MOVJ" if kind == "joint" else "MOVL"
-        self._request(f"{cmd} {format_pose_args(T_base_flange)}", timeout_s=self.motion_timeout_s)
+        self._request(f"{cmd} {format_pose_args(T_base_flange)}", timeout_s=self.motion_timeout_s, motion=cmd)
+
+    def _stop(self) -> None:
+        if not self.can_stop:
+            raise DeviceError(
+                f"robot at {self.address}: its RAPID server speaks protocol 1 (no stop task), so jcalib cannot stop "
+                "the robot: stop it at the FlexPendant, then install robot/abb/JcalibServer.mod and JcalibStop.mod "
+                "of this jcalib version"
+            )
+        deadline = time.monotonic() + STOP_RETRY_S
+        while True:
+            answer = self._stop_request()
+            if answer != "OK IDLE" or not self._in_motion or time.monotonic() > deadline:
+                return
+            time.sleep(0.01)
+
+    def _stop_request(self) -> str:
+        """One ``STOP`` on the stop port; the reply line."""
+        where = f"{self.host}:{self.stop_port}"
+        try:
+            with socket.create_connection((self.host, self.stop_port), timeout=self.timeout_s) as s:
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                s.sendall(encode_line("STOP"))
+                reply = LineSocket(s).readline()
+        except (OSError, ConnectionError, ValueError) as e:
+            raise DeviceError(
+                f"robot at {self.address}: the STOP request to the stop task at {where} failed ({e}): stop the robot "
+                "at the FlexPendant; check that the JcalibStop task runs"
+            ) from e
+        if reply not in ("OK STOPPED", "OK IDLE"):
+            raise DeviceError(f"robot at {self.address}: the stop task at {where} answered STOP with {reply!r}")
+        return reply
 
     def select_tool(self, index: int) -> None:
         self._request(f"TOOL {int(index)}")

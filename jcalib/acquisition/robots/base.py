@@ -4,12 +4,22 @@ Poses are ``T_base_flange``: the flange (tool 0) in the robot base (base 0), a (
 as everywhere in jcalib. Where the controller has tool / base (work object) selection,
 :meth:`Robot.select_tool` / :meth:`Robot.select_base` switch it and poses then refer to that tool in that
 base; capture always runs with tool 0 and base 0.
+
+Stopping: :meth:`Robot.stop` may be called from any thread while :meth:`Robot.move` blocks in another; the
+controller ramps the robot down on its path (a controlled stop, not an emergency stop) and the blocked
+move raises :class:`MotionStoppedError`. A stop and a move that starts at the same moment must not miss
+each other: a caller that decides to move reads :attr:`Robot.num_stops` first and moves inside
+:meth:`Robot.stop_guard`, so a stop that came in between refuses the move instead of arriving at an idle
+controller just before the motion starts (:func:`jcalib.acquisition.capture.capture` does that).
 """
 
 from __future__ import annotations
 
 import abc
+import contextlib
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +33,14 @@ class MotionRefusedError(DeviceError):
 
     The connection is fine and the robot did not complete the move; a capture records the station as
     skipped and goes on.
+    """
+
+
+class MotionStoppedError(DeviceError):
+    """A motion ended by a stop request (:meth:`Robot.stop`): the robot stands where it stopped, on its way.
+
+    The connection is fine and the next :meth:`Robot.move` is accepted normally. A capture that sees it
+    ends without recording the station in flight; the session can be resumed.
     """
 
 
@@ -43,8 +61,9 @@ class RobotState:
 class Robot(abc.ABC):
     """A robot controller reached over the network (or simulated).
 
-    Subclasses implement :meth:`state`, :meth:`_move` (blocking until the controller reports the
-    motion finished) and :meth:`close`; tool / base selection when the controller has it.
+    Subclasses call ``super().__init__()``, implement :meth:`state`, :meth:`_move` (blocking until the
+    controller reports the motion finished; the command is sent inside :meth:`_starting`), :meth:`_stop`
+    and :meth:`close`; tool / base selection when the controller has it.
     Every failure to reach or command the controller raises :class:`jcalib.errors.DeviceError`.
     """
 
@@ -53,6 +72,16 @@ class Robot(abc.ABC):
     settle_tol_m: float = 2e-6
     settle_tol_rad: float = 5e-6
     settle_poll_s: float = 0.02
+    #: False when the program on the controller predates jcalib's stop (:meth:`stop` then refuses): a user
+    #: interface should say so before it starts a motion.
+    can_stop: bool = True
+
+    def __init__(self) -> None:
+        #: How many times :meth:`stop` was called on this driver.
+        self.num_stops = 0
+        self._stop_lock = threading.Lock()
+        self._guard: int | None = None
+        self._seen = 0
 
     @abc.abstractmethod
     def state(self) -> RobotState:
@@ -80,8 +109,51 @@ class Robot(abc.ABC):
         T = check_pose(T_base_flange, "T_base_flange")
         if kind not in ("joint", "linear"):
             raise BadInputError(f"kind: expected 'joint' or 'linear', got {kind!r}")
+        with self._stop_lock:
+            self._seen = self.num_stops if self._guard is None else self._guard
         self._move(T, kind)
         return self.wait_settled(timeout_s=settle_timeout_s) if settle else self.state()
+
+    def stop(self) -> None:
+        """Stop any motion now: the controller ramps the robot down on its path and holds it there.
+
+        Callable from any thread, also while :meth:`move` blocks in another one; that move then raises
+        :class:`MotionStoppedError`. Returns once the controller has the request (the robot may still be
+        braking; the simulators stand still within about 0.1 s at ``time_scale=1``). Idempotent; a no-op
+        when the robot stands. The next :meth:`move` is accepted normally.
+
+        Raises:
+            DeviceError: the request could not be delivered (lost connection, a controller program without
+                stop support): stop the robot at the teach pendant.
+        """
+        with self._stop_lock:
+            self.num_stops += 1
+        self._stop()
+
+    @contextlib.contextmanager
+    def stop_guard(self, num_stops_seen: int) -> Iterator[None]:
+        """Within the block, every :meth:`move` is refused once :meth:`stop` has been called after the caller
+        read ``num_stops_seen`` from :attr:`num_stops`: it raises :class:`MotionStoppedError` and the robot
+        does not move. Closes the gap between "no stop requested, so move" and the motion starting."""
+        self._guard = int(num_stops_seen)
+        try:
+            yield
+        finally:
+            self._guard = None
+
+    @contextlib.contextmanager
+    def _starting(self, what: str) -> Iterator[None]:
+        """Held by :meth:`_move` while it sends the motion command: refuses the move when a stop came since
+        :meth:`move` began (or since the :meth:`stop_guard` read), and makes a concurrent :meth:`stop` wait
+        until the command is out, so that its request reaches the controller after the command."""
+        with self._stop_lock:
+            if self.num_stops != self._seen:
+                raise MotionStoppedError(f"robot at {self.address}: {what} not started: a stop was requested")
+            yield
+
+    @abc.abstractmethod
+    def _stop(self) -> None:
+        """Ask the controller to stop the motion in progress (no-op when idle); see :meth:`stop`."""
 
     def wait_settled(self, *, timeout_s: float = 10.0) -> RobotState:
         """Poll the controller until two consecutive readings agree within the settle tolerances.

@@ -19,13 +19,23 @@ Motion uses the shared-variable ("flag / pos") method with the KRL program shipp
                            the program sets it back to 0 after the robot stopped (advance run stopped)
 ``JC_ERR``  (INT)          result of the last command: 0 ok, 1 target unreachable (``INVERSE`` failed,
                            the robot did not move), 2 motion failed on the path, 3 bad tool/base index,
-                           4 unknown JC_FLAG value
+                           4 unknown JC_FLAG value, 5 stopped by the client (``JC_STOP``: the robot
+                           braked on its path and stands there)
+``JC_STOP`` (BOOL)         client writes TRUE to stop the motion in progress: an ``INTERRUPT`` on it
+                           brakes (``BRAKE``, a ramp-down stop on the path), abandons the motion
+                           (``RESUME``) and sets JC_STOP back to FALSE, JC_ERR = 5, JC_FLAG = 0. TRUE
+                           when a motion command starts: the robot does not move (JC_ERR = 5)
 ``JC_TOOL``, ``JC_BASE``   tool / base index (0 = ``$NULLFRAME``, i.e. the flange / world frame)
 ``JC_VEL`` (INT)           speed in percent (1..100) of ``$VEL_AXIS`` (PTP) and of 0.5 m/s (LIN)
 ========================  ============================================================================
 
 The pose is read from ``$POS_ACT`` and the joints from ``$AXIS_ACT``. PTP moves keep the current
 posture (``S``/``T`` of ``$POS_ACT``), so the arm never flips configuration between stations.
+
+:meth:`KukaRobot.stop` writes ``JC_STOP = TRUE`` through the same connection (the client's lock is held
+per transaction, so the write slips in between the polls of a blocked move); a move that starts clears a
+``JC_STOP`` left TRUE by an earlier stop before it writes ``JC_FLAG``. A KRL program older than
+``JC_STOP`` still moves the robot, but :meth:`KukaRobot.stop` then refuses with the update to make.
 """
 
 from __future__ import annotations
@@ -38,7 +48,7 @@ import time
 
 import numpy as np
 
-from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
 from jcalib.geometry.se3 import pose_from_kuka, pose_to_kuka
 from jcalib.errors import DeviceError
 
@@ -50,7 +60,10 @@ JC_ERRORS = {
     2: "motion failed on the way (path leaves the workspace or crosses a singularity)",
     3: "tool or base index out of range",
     4: "unknown JC_FLAG command",
+    5: "stopped by the client (JC_STOP): the robot braked and stands where it stopped",
 }
+#: JC_ERR of a motion ended by JC_STOP.
+JC_STOPPED = 5
 
 _FIELD = re.compile(r"([A-Za-z][A-Za-z0-9_]*)\s+([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
 
@@ -133,6 +146,11 @@ class KukaVarProxyClient:
     def address(self) -> str:
         return f"{self.host}:{self.port}"
 
+    @property
+    def connected(self) -> bool:
+        """False once the connection was closed (by :meth:`close`, or after a timeout or a lost link)."""
+        return self._sock is not None
+
     def _transact(self, name: str, value: str | None) -> str:
         with self._lock:
             if self._sock is None:
@@ -203,6 +221,9 @@ class KukaRobot(Robot):
         motion_timeout_s: longest a single motion may take before a DeviceError, s.
         poll_s: JC_FLAG polling period while moving, s.
         velocity_percent: written to ``JC_VEL`` at connection (None leaves it).
+
+    Raises:
+        DeviceError: cannot connect, or the first reads fail.
     """
 
     def __init__(
@@ -215,10 +236,18 @@ class KukaRobot(Robot):
         poll_s: float = 0.02,
         velocity_percent: int | None = None,
     ):
+        super().__init__()
         self.client = KukaVarProxyClient(host, port, timeout_s=timeout_s)
         self.address = f"kuka://{host}:{port}"
         self.motion_timeout_s = float(motion_timeout_s)
         self.poll_s = float(poll_s)
+        try:  # JCALIB_MOVE older than JC_STOP: moves work, stop() refuses
+            self._stop_set = self.client.read("JC_STOP").strip().upper() != "FALSE"
+            self.can_stop = True
+        except DeviceError:
+            if not self.client.connected:  # the connection itself failed, not the read
+                raise
+            self._stop_set, self.can_stop = False, False
         if velocity_percent is not None:
             self.client.write("JC_VEL", str(int(np.clip(velocity_percent, 1, 100))))
 
@@ -247,8 +276,10 @@ class KukaRobot(Robot):
                 )
             time.sleep(self.poll_s)
 
-    def _command(self, flag: int, what: str) -> None:
-        self.client.write("JC_FLAG", str(flag))
+    def _command(self, flag: int | None, what: str) -> None:
+        """Write ``JC_FLAG = flag`` (None: already written), wait until the program clears it, map JC_ERR."""
+        if flag is not None:
+            self.client.write("JC_FLAG", str(flag))
         deadline = time.monotonic() + self.motion_timeout_s
         while True:
             if self.client.read("JC_FLAG").strip() == "0":
@@ -260,6 +291,9 @@ class KukaRobot(Robot):
                 )
             time.sleep(self.poll_s)
         err = int(float(self.client.read("JC_ERR")))
+        if err == JC_STOPPED:
+            raise MotionStoppedError(f"robot at {self.address}: the {what} was stopped (JC_STOP); the robot stands "
+                                     "where it braked")
         if err:
             raise (MotionRefusedError if err in (1, 2) else DeviceError)(
                 f"robot at {self.address} refused the {what}: "
@@ -267,9 +301,25 @@ class KukaRobot(Robot):
             )
 
     def _move(self, T_base_flange: np.ndarray, kind: str) -> None:
-        self._wait_idle("PTP" if kind == "joint" else "LIN")
-        self.client.write("JC_POS", format_frame(pose_to_kuka(T_base_flange)))
-        self._command(1 if kind == "joint" else 2, "PTP" if kind == "joint" else "LIN")
+        what = "PTP" if kind == "joint" else "LIN"
+        self._wait_idle(what)
+        with self._starting(what):
+            if self._stop_set:  # left TRUE by an earlier stop: this move would not start
+                self.client.write("JC_STOP", "FALSE")
+                self._stop_set = False
+            self.client.write("JC_POS", format_frame(pose_to_kuka(T_base_flange)))
+            self.client.write("JC_FLAG", str(1 if kind == "joint" else 2))
+        self._command(None, what)
+
+    def _stop(self) -> None:
+        if not self.can_stop:
+            raise DeviceError(
+                f"robot at {self.address}: the KRL program JCALIB_MOVE on the controller has no JC_STOP variable "
+                "(an older version), so jcalib cannot stop the robot: stop it at the teach pendant, then install "
+                "krl/JCALIB_MOVE.src and .dat of this jcalib version"
+            )
+        self._stop_set = True
+        self.client.write("JC_STOP", "TRUE")
 
     def select_tool(self, index: int) -> None:
         self._wait_idle(f"selection of tool {index}")

@@ -5,11 +5,17 @@ its own thread and acts on ``JC_FLAG`` like the KRL program in ``krl/JCALIB_MOVE
 ``INVERSE``-style rejection of unreachable targets with ``JC_ERR = 1``). Unknown variables and writes to
 system variables fail the way KUKAVARPROXY reports failures (last trailer byte 0).
 
+``JC_STOP`` behaves like the program's ``INTERRUPT ... WHEN JC_STOP == TRUE``: the interrupt is on only while
+a motion command runs, and fires on the FALSE -> TRUE edge; it halts the controller (``BRAKE``), abandons
+the motion (``RESUME``) and ends the command with ``JC_STOP = FALSE``, ``JC_ERR = 5``. A motion command that
+starts while ``JC_STOP`` is TRUE does not move (``JC_ERR = 5``).
+
 Values are checked the way the KRL types check them: the INT variables take integer literals in the
-32-bit range, ``JC_POS`` a FRAME whose six components are finite REALs; anything else (``"nan"``,
-``1e999``) is a failed write and leaves the variable as it was. The program loop survives whatever
-a command leads to (it reports ``JC_ERR = 4`` and clears ``JC_FLAG``). A request that is not
-KUKAVARPROXY framing closes that client's connection; idle clients time out (``idle_timeout_s``).
+32-bit range, ``JC_STOP`` the BOOL literals ``TRUE`` / ``FALSE``, ``JC_POS`` a FRAME whose six components
+are finite REALs; anything else (``"nan"``, ``1e999``) is a failed write and leaves the variable as it was.
+The program loop survives whatever a command leads to (it reports ``JC_ERR = 4`` and clears ``JC_FLAG``).
+A request that is not KUKAVARPROXY framing closes that client's connection; idle clients time out
+(``idle_timeout_s``).
 
 Start it in-process with ``KukaSimServer(...).start()`` or as a subprocess with
 ``python -m jcalib.acquisition.robots.serve --protocol kuka``.
@@ -26,6 +32,7 @@ import threading
 import numpy as np
 
 from jcalib.acquisition.robots._server import ThreadedTcpServer
+from jcalib.acquisition.robots.base import MotionStoppedError
 from jcalib.acquisition.robots.kuka import HEADER, encode_reply, parse_krl_struct, recv_exact
 from jcalib.geometry.se3 import pose_from_kuka, pose_to_kuka
 from jcalib.acquisition.robots.simulated import SimulatedController, UnreachableError
@@ -44,6 +51,8 @@ def valid_value(name: str, value: str) -> bool:
     text = value.strip()
     if name in _INT_VARS:
         return bool(_INT.match(text)) and -(2**31) <= int(text) < 2**31
+    if name == "JC_STOP":
+        return text.upper() in ("TRUE", "FALSE")
     if name == "JC_POS":
         try:
             v = parse_krl_struct(text)
@@ -57,6 +66,7 @@ _USER_VARS = {
     "JC_POS": "{FRAME: X 0.0, Y 0.0, Z 0.0, A 0.0, B 0.0, C 0.0}",
     "JC_FLAG": "0",
     "JC_ERR": "0",
+    "JC_STOP": "FALSE",
     "JC_TOOL": "0",
     "JC_BASE": "0",
     "JC_VEL": "20",
@@ -91,6 +101,8 @@ class KukaSimServer(ThreadedTcpServer):
         self.program_errors: list[str] = []
         self.vars = dict(_USER_VARS)
         self._cond = threading.Condition()
+        self._interrupt_on = False  # INTERRUPT 20 (JC_STOP) is on while a motion command runs
+        self._interrupted = False  # ... and fired during the current one
         self.num_requests = 0
         self._program = threading.Thread(target=self._program_loop, name="kuka-sim-krl", daemon=True)
 
@@ -127,7 +139,11 @@ class KukaSimServer(ThreadedTcpServer):
         with self._cond:
             if name not in self.vars or not valid_value(name, value):
                 return "", False
-            self.vars[name] = value.strip()
+            old = self.vars[name]
+            self.vars[name] = value.strip().upper() if name == "JC_STOP" else value.strip()
+            if name == "JC_STOP" and self._interrupt_on and old == "FALSE" and self.vars[name] == "TRUE":
+                self._interrupted = True  # the interrupt routine: BRAKE (the rest happens in _execute)
+                self.controller.halt()
             self._cond.notify_all()
             return self.vars[name], True
 
@@ -190,12 +206,32 @@ class KukaSimServer(ThreadedTcpServer):
         pos = parse_krl_struct(v["JC_POS"])
         try:
             T = pose_from_kuka(np.array([pos[k] for k in "XYZABC"]))
-            self.controller.move(T, "joint" if cmd == 1 else "linear")
-        except UnreachableError as e:
-            return 2 if e.on_path else 1
         except BadInputError:  # not a pose (components far outside any workspace): INVERSE fails
             return 1
-        return 0
+        with self._cond:  # JC_MOTION: INTERRUPT ON 20; IF JC_STOP == TRUE THEN (do not move)
+            self._interrupt_on, self._interrupted = True, self.vars.get("JC_STOP") == "TRUE"
+        try:
+            if self._interrupted:
+                return 5
+            try:
+                self.controller.start_move(T, "joint" if cmd == 1 else "linear")
+            except UnreachableError as e:
+                return 2 if e.on_path else 1
+            except BadInputError:
+                return 1
+            with self._cond:  # the interrupt fired between the check and the motion start: RESUME skips it
+                if self._interrupted:
+                    self.controller.halt()
+            try:
+                self.controller.wait_motion()
+            except MotionStoppedError:
+                return 5
+            return 5 if self._interrupted else 0
+        finally:
+            with self._cond:  # INTERRUPT OFF 20; a stop acknowledges JC_STOP
+                self._interrupt_on = False
+                if self._interrupted and "JC_STOP" in self.vars:
+                    self.vars["JC_STOP"] = "FALSE"
 
 
 def parse_request(body: bytes) -> tuple[int, str, str] | None:

@@ -219,8 +219,8 @@ class DHRobotModel:
 
     Args:
         robot: the arm.
-        home_rad: joints at start-up (default: zeros with axis 5 at 30 deg, and for a KUKA
-            A2 = -90 deg, A3 = +90 deg: the usual "home" postures).
+        home_rad: joints at start-up (default :func:`jcalib.geometry.robots.home_joints`: zeros with axis 5
+            at 30 deg, and for a KUKA A2 = -90 deg, A3 = +90 deg: the usual "home" postures).
         joint_speed_rad_s: maximum joint speeds (default 2.6 rad/s = 150 deg/s each).
     """
 
@@ -233,12 +233,9 @@ class DHRobotModel:
         self.num_joints = int(robot.num_joints)
         self.joint_limits_rad = np.stack([np.asarray(robot.lower), np.asarray(robot.upper)], axis=1)
         if home_rad is None:
-            home = np.zeros(self.num_joints)
-            if self.num_joints == 6:
-                home[4] = np.radians(30.0)
-                if "KUKA" in robot.name.upper():
-                    home[1], home[2] = np.radians(-90.0), np.radians(90.0)
-            home_rad = np.clip(home, self.joint_limits_rad[:, 0], self.joint_limits_rad[:, 1])
+            from jcalib.geometry.robots import home_joints
+
+            home_rad = home_joints(robot)
         self.home_rad = np.asarray(home_rad, dtype=np.float64)
         self.joint_speed_rad_s = (
             np.full(self.num_joints, np.radians(150.0))

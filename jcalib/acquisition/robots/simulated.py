@@ -10,7 +10,11 @@ limits; for a linear move, every point of the straight path), then the joints tr
 ``max_j |dq_j| / v_j`` (joint move) or ``max(length / speed, angle / rot_speed)`` (linear move), scaled
 by ``time_scale``. The joints reach the target's; after arrival they ring down (a decaying oscillation
 of ``settle_amplitude_rad`` over ``settle_time_s``), so a client that grabs before the robot settled
-sees a moving arm. Reported poses come from the joints (the encoders), as a real controller's do;
+sees a moving arm. :meth:`SimulatedController.halt` (a stop request) brakes the motion on its path: the
+path parameter decelerates linearly to zero over ``stop_time_s`` (clipped at the target), so a stopped
+linear move stands on its straight line; a halted robot does not ring down, and the waiting
+:meth:`SimulatedController.move` raises :class:`~jcalib.acquisition.robots.base.MotionStoppedError` once
+it stands. Reported poses come from the joints (the encoders), as a real controller's do;
 the flange itself is off that pose by a random error of the size of the robot's repeatability, drawn
 per move (backlash and elasticity the motor encoders do not see): the true pose, which a frame source
 renders, is the reported one times that error.
@@ -33,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jcalib.acquisition.robots.base import MotionRefusedError, Robot, RobotState
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
 from jcalib.acquisition.robots.model import ControllerModel, default_model
 from jcalib.geometry.se3 import (
     check_pose,
@@ -61,6 +65,7 @@ class _Trajectory:
     t0: float
     duration: float
     path: np.ndarray  # (k, n) joint waypoints, evenly spaced in time
+    ring: bool = True  # rings down after arrival (not after a braking stop)
 
 
 class SimulatedController:
@@ -77,7 +82,9 @@ class SimulatedController:
         speed_fraction: fraction of the maximum joint speeds used by joint moves.
         settle_time_s: duration of the ring-down after arrival, s (before ``time_scale``).
         settle_amplitude_rad: initial joint oscillation amplitude, rad.
-        time_scale: multiplies every motion and settle time (0 = instantaneous, for tests).
+        stop_time_s: braking time of a stop from full path speed, s (before ``time_scale``); see
+            :meth:`halt`.
+        time_scale: multiplies every motion, settle and braking time (0 = instantaneous, for tests).
         tools: tool index -> ``T_flange_tool`` (4, 4) m; index 0 is the flange itself.
         bases: base index -> ``T_robroot_base`` (4, 4) m; index 0 is the robot base.
         seed: random seed of the repeatability noise.
@@ -97,6 +104,7 @@ class SimulatedController:
         speed_fraction: float = 0.5,
         settle_time_s: float = 0.15,
         settle_amplitude_rad: float = 2e-4,
+        stop_time_s: float = 0.08,
         time_scale: float = 1.0,
         tools: dict[int, np.ndarray] | None = None,
         bases: dict[int, np.ndarray] | None = None,
@@ -114,6 +122,9 @@ class SimulatedController:
         self.speed_fraction = float(speed_fraction)
         self.settle_time_s = float(settle_time_s)
         self.settle_amplitude_rad = float(settle_amplitude_rad)
+        if not 0.0 <= stop_time_s <= 10.0:
+            raise BadInputError(f"stop_time_s: expected a braking time in [0, 10] s, got {stop_time_s!r}")
+        self.stop_time_s = float(stop_time_s)
         self.time_scale = float(time_scale)
         self.tools = {0: np.eye(4), **{int(k): check_pose(v, f"tools[{k}]") for k, v in (tools or {}).items()}}
         self.bases = {0: np.eye(4), **{int(k): check_pose(v, f"bases[{k}]") for k, v in (bases or {}).items()}}
@@ -121,11 +132,13 @@ class SimulatedController:
         self.base = 0
         self._rng = np.random.default_rng(seed)
         self._lock = threading.RLock()
+        self._changed = threading.Condition(self._lock)  # notified when a halt replaces the trajectory
         q = np.asarray(self.model.home_rad, dtype=np.float64)
         self._traj = _Trajectory(time.monotonic() - 1e9, 0.0, q[None, :])
         self._ring_dir = np.zeros_like(q)
         self._T_error = np.eye(4)  # reported flange -> true flange, drawn per move
         self.num_moves = 0
+        self._halted = 0  # the num_moves of the last motion a halt ended
 
     # --- state ---------------------------------------------------------------------------------
     def _joints_at(self, t: float) -> tuple[np.ndarray, bool]:
@@ -139,7 +152,7 @@ class SimulatedController:
         q = tr.path[-1]
         dt = t - tr.t0 - tr.duration
         settle = self.settle_time_s * self.time_scale
-        if settle > 0 and dt < settle:
+        if tr.ring and settle > 0 and dt < settle:
             decay = np.exp(-5.0 * dt / settle) * np.cos(2 * np.pi * 4.0 * dt / settle)
             return q + self.settle_amplitude_rad * decay * self._ring_dir, True
         return q, False
@@ -148,6 +161,12 @@ class SimulatedController:
         """(n,) current joints, rad (moving or ringing down included)."""
         with self._lock:
             return self._joints_at(time.monotonic())[0].copy()
+
+    @property
+    def motion_time_s(self) -> float:
+        """Duration of the current (or last) trajectory, s: the motion's, or the braking's after :meth:`halt`."""
+        with self._lock:
+            return self._traj.duration
 
     def is_moving(self) -> bool:
         """True while travelling or ringing down."""
@@ -244,17 +263,69 @@ class SimulatedController:
             return duration
 
     def wait_motion(self, timeout_s: float = 60.0) -> None:
-        """Block until the motion (not the ring-down) is over."""
-        with self._lock:
+        """Block until the motion (not the ring-down) is over.
+
+        Raises:
+            MotionStoppedError: :meth:`halt` ended the motion (raised once the robot stands).
+            DeviceError: the motion needs more than ``timeout_s``.
+        """
+        with self._changed:
+            move = self.num_moves
             end = self._traj.t0 + self._traj.duration
-        remaining = end - time.monotonic()
-        if remaining > timeout_s:
-            raise DeviceError(f"simulated motion needs {remaining:.1f} s, more than {timeout_s} s")
-        if remaining > 0:
-            time.sleep(remaining)
+            if end - time.monotonic() > timeout_s:
+                raise DeviceError(f"simulated motion needs {end - time.monotonic():.1f} s, more than {timeout_s} s")
+            while (remaining := self._traj.t0 + self._traj.duration - time.monotonic()) > 0:
+                self._changed.wait(remaining)
+            if self._halted == move and move > 0:
+                raise MotionStoppedError("simulated controller: the motion was stopped (halt); the robot stands "
+                                         "where it braked")
+
+    def halt(self) -> bool:
+        """Stop the motion in progress: brake on the path and stand (a controlled stop, no ring-down).
+
+        The path parameter, moving at ``1 / duration`` per second, decelerates linearly to zero over
+        ``stop_time_s * time_scale`` (the braking distance is half the distance that speed would cover;
+        a target closer than that is where the robot stops). A waiting :meth:`move` / :meth:`wait_motion`
+        raises :class:`MotionStoppedError` once the robot stands. Thread-safe.
+
+        Returns:
+            True when a motion was stopped; False when the robot was not travelling (idle or ringing
+            down after arrival: nothing to stop).
+        """
+        with self._changed:
+            now = time.monotonic()
+            tr = self._traj
+            s0 = (now - tr.t0) / tr.duration if tr.duration > 0 else 1.0
+            if s0 >= 1.0:
+                return False
+            if not tr.ring:  # already braking
+                return True
+            s0 = max(s0, 0.0)
+            brake = self.stop_time_s * self.time_scale
+            rate = 1.0 / tr.duration  # path parameter per second
+            # s(t) = s0 + rate t - rate t^2 / (2 brake) for t in [0, brake], or until it reaches the target (s = 1)
+            if s0 + rate * brake / 2.0 <= 1.0:
+                t_end = brake
+            else:
+                t_end = brake * (1.0 - np.sqrt(max(0.0, 1.0 - 2.0 * (1.0 - s0) / (rate * brake))))
+            ts = np.linspace(0.0, t_end, 9) if t_end > 0 else np.zeros(2)
+            s = np.minimum(s0 + rate * ts - (rate * ts**2 / (2.0 * brake) if brake > 0 else 0.0), 1.0)
+            k = tr.path.shape[0] - 1
+            x = s * k
+            i = np.minimum(x.astype(int), k - 1)
+            path = tr.path[i] + (x - i)[:, None] * (tr.path[i + 1] - tr.path[i])
+            self._traj = _Trajectory(now, float(t_end), path, ring=False)
+            self._halted = self.num_moves
+            self._changed.notify_all()
+            return True
 
     def move(self, T_base_tool: np.ndarray, kind: str = "joint") -> None:
-        """Start a move and block until the robot arrives (fine point; the ring-down continues)."""
+        """Start a move and block until the robot arrives (fine point; the ring-down continues).
+
+        Raises:
+            UnreachableError: the target or the path is refused (the robot does not move).
+            MotionStoppedError: :meth:`halt` stopped it on the way.
+        """
         self.start_move(T_base_tool, kind)
         self.wait_motion()
 
@@ -293,6 +364,7 @@ class SimulatedRobot(Robot):
     """A :class:`Robot` driving a :class:`SimulatedController` in-process (no network)."""
 
     def __init__(self, controller: SimulatedController | None = None, *, settle_poll_s: float = 0.01):
+        super().__init__()
         self.controller = controller if controller is not None else SimulatedController()
         self.address = "sim://in-process"
         self.settle_poll_s = settle_poll_s
@@ -305,7 +377,12 @@ class SimulatedRobot(Robot):
         return RobotState(T, np.degrees(q))
 
     def _move(self, T_base_flange: np.ndarray, kind: str) -> None:
-        self.controller.move(T_base_flange, kind)
+        with self._starting("PTP" if kind == "joint" else "LIN"):
+            self.controller.start_move(T_base_flange, kind)
+        self.controller.wait_motion()
+
+    def _stop(self) -> None:
+        self.controller.halt()
 
     def select_tool(self, index: int) -> None:
         self.controller.select_tool(index)

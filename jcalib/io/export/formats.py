@@ -17,7 +17,8 @@ from jcalib.io.export.opencv_yaml import opencv_yaml
 from jcalib.io.export.ros import ros_camera_info
 from jcalib.io.result import ResultFile, load_result
 
-__all__ = ["EXPORT_FORMATS", "export_result", "export_text"]
+__all__ = ["DEFAULT_FILE_NAMES", "EXPORT_FORMATS", "FORMAT_DESCRIPTIONS", "export_options", "export_result", "export_text",
+           "format_option_names"]
 
 #: Format name -> ``(result, **options) -> str``. Options per format:
 #: ``opencv``: ``cameras`` (one id or a pair); ``ros``: ``camera``, ``camera_name``;
@@ -31,6 +32,59 @@ EXPORT_FORMATS: dict[str, Callable[..., str]] = {
     "kinematics": kinematics_yaml,
     "urdf": kinematics_urdf,
 }
+
+
+#: One line per format, for menus.
+FORMAT_DESCRIPTIONS = {
+    "opencv": "OpenCV YAML (K, dist; a stereo pair with --camera A,B)",
+    "ros": "ROS camera_info YAML",
+    "rapid": "ABB RAPID module (tooldata, wobjdata)",
+    "krl": "KUKA KRL TOOL_DATA / BASE_DATA lines",
+    "kinematics": "calibrated robot kinematics (cell-spec YAML with σ and controller offsets)",
+    "urdf": "calibrated robot kinematics as a URDF",
+}
+#: The file name a download of each format gets.
+DEFAULT_FILE_NAMES = {"opencv": "camera_opencv.yaml", "ros": "camera_info.yaml", "rapid": "jcalib_cell.mod",
+                      "krl": "jcalib_cell.dat", "kinematics": "kinematics.yaml", "urdf": "robot.urdf"}
+#: ``jcalib export`` option -> the formats that take it.
+_OPTION_FORMATS = {"camera": ("opencv", "ros"), "module": ("rapid",), "robot": ("kinematics", "urdf"),
+                   "tool_orientation": ("rapid", "krl")}
+
+
+def format_option_names(fmt: str) -> list[str]:
+    """The ``jcalib export`` options (``camera``, ``module``, ``robot``, ``tool_orientation``) ``fmt`` takes."""
+    return [name for name, formats in _OPTION_FORMATS.items() if fmt in formats]
+
+
+def export_options(fmt: str, *, camera: str | None = None, module: str | None = None, robot: str | None = None,
+                   tool_orientation: list[str] | None = None) -> dict[str, Any]:
+    """The exporter options of ``jcalib export --format FMT [--camera ...] [--module ...] [--robot ...]
+    [--tool-orientation TOOL=...]`` (the app's export page gives the same), refusing an option the format
+    does not take, naming it.
+
+    Raises:
+        BadInputError: an unknown format, an option the format does not use, a malformed tool orientation.
+    """
+    from jcalib.io.export._common import parse_tool_orientation
+
+    if not isinstance(fmt, str) or fmt not in EXPORT_FORMATS:
+        raise BadInputError(f"format: expected one of {', '.join(EXPORT_FORMATS)}, got {fmt!r}")
+    given = {"camera": camera, "module": module, "robot": robot, "tool_orientation": tool_orientation or None}
+    for name, value in given.items():
+        if value is not None and fmt not in _OPTION_FORMATS[name]:
+            flag = "--" + name.replace("_", "-")
+            raise BadInputError(f"{flag} applies to the {' and '.join(_OPTION_FORMATS[name])} format"
+                                f"{'s' if len(_OPTION_FORMATS[name]) > 1 else ''}, not {fmt!r}")
+        if value is not None and name != "tool_orientation" and not isinstance(value, str):
+            raise BadInputError(f"--{name}: expected text, got {value!r}")
+    if tool_orientation is not None and (isinstance(tool_orientation, str) or
+                                         not all(isinstance(t, str) for t in tool_orientation)):
+        raise BadInputError("--tool-orientation: expected a list of TOOL=flange or TOOL=X,Y,Z")
+    orientations = dict(parse_tool_orientation(t) for t in tool_orientation or [])
+    return {"opencv": {"cameras": camera}, "ros": {"camera": camera},
+            "rapid": {"module": module, "orientations": orientations or None},
+            "krl": {"orientations": orientations or None}, "kinematics": {"robots": robot},
+            "urdf": {"robot": robot}}[fmt]  # fmt: skip
 
 
 def export_text(result: ResultFile | str | os.PathLike, fmt: str, **names: Any) -> str:

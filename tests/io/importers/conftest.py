@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.planner import plan_cell
+from jcalib.planning.layout import cell_layout
+from jcalib.planning.stations import plan_cell
 from jcalib.app.simcell import scene_from_layout
 
 sys.path.insert(0, os.path.dirname(__file__))  # importer_roundtrip: the shared round-trip steps

@@ -1,22 +1,22 @@
 """Candidate stations for goal-driven planning: flange poses the robot reaches that show something useful.
 
 Every candidate is a flange pose of the cell's robot that inverse kinematics reaches within the joint
-limits (:func:`jcalib.acquisition.planner.reachable`, seeded at home) and that
+limits (:func:`jcalib.planning.stations.reachable`, seeded at home) and that
 
 - **views** (a camera / grid target pair, one on the flange and the other on the base): looks at the
   target from its printed side within ``amplitude_deg`` of its normal (uniform over the spherical cap),
   at 0.55..1.3 ``D`` (``D``: the distance at which the target spans half the smaller image side), rolled
   by any angle about the optical axis, aimed with a normal jitter of 0.12 rad per axis (so the target
   lands anywhere in the image, its corners included), and passes
-  :func:`jcalib.acquisition.planner.view_problem`: the whole target in the image with a margin, within
+  :func:`jcalib.planning.stations.view_problem`: the whole target in the image with a margin, within
   60 deg of its normal (never edge-on), 0.5..2 ``D`` away;
 - **tool tips** (a tool on the flange, a camera on the base that observes it): holds the tool tip at a
   point in the camera's view 0.35 m in front of it (spread over the middle 60 % of the image), the tool
   axis tilted up to ``amplitude_deg`` from the side-on direction
-  (:func:`jcalib.acquisition.planner.side_on_direction`) and turned by any angle about itself, its tip
+  (:func:`jcalib.planning.stations.side_on_direction`) and turned by any angle about itself, its tip
   in the image, the shaft at least 30 deg away from the optical axis (seen along its length, not end-on).
 
-Nothing here knows what a station is worth: :mod:`jcalib.planning` predicts that with the problem builder.
+Nothing here knows what a station is worth: :mod:`jcalib.planning.predict` does, with the problem builder.
 Lengths in metres, angles in radians unless a name says otherwise.
 """
 
@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jcalib.acquisition.layout import CellLayout, presentation_pose
-from jcalib.acquisition.planner import (TOOL_VIEW_DISTANCE_M, camera_frames, random_views, side_on_direction,
-                                        turn_onto, view_problem)
+from jcalib.planning.layout import CellLayout, presentation_pose
+from jcalib.planning.stations import (TOOL_VIEW_DISTANCE_M, camera_frames, random_views, side_on_direction,
+                                     turn_onto, view_problem)
 from jcalib.errors import BadInputError
 from jcalib.geometry.se3 import exp_so3, invert, make_pose
 

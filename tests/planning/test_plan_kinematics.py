@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from jcalib.acquisition import kinematic_design as kd
-from jcalib.acquisition.planner import (
+from jcalib.planning import kinematic_design as kd
+from jcalib.planning.stations import (
     MAX_VIEW_ANGLE_DEG,
     MIN_JOINT_SPAN,
     kinematic_candidates,
@@ -84,7 +84,7 @@ def test_the_builder_keeps_the_same_parameters_and_accepts_the_stations(planned)
 
 def test_every_station_sees_the_whole_board_at_a_usable_angle(planned):
     cell, p = planned
-    from jcalib.acquisition.layout import cell_layout
+    from jcalib.planning.layout import cell_layout
 
     layout = cell_layout(cell, robot=cell["robot"]["kinematics"])
     T_flange_cam, T_base_board = layout.cameras["cam0"].pose, layout.targets["board"].pose

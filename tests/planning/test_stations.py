@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.planner import plan_cell, reachable
+from jcalib.planning.layout import cell_layout
+from jcalib.planning.stations import plan_cell, reachable
 from jcalib.geometry.se3 import invert, rotation_angle
 from jcalib.errors import BadInputError
 

@@ -7,8 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from jcalib.acquisition.layout import cell_layout
-from jcalib.acquisition.robocalib import handeye_stations, viewset_stations
+from jcalib.planning.layout import cell_layout
+from jcalib.planning.robocalib import handeye_stations, viewset_stations
 from jcalib.errors import BadInputError
 from jcalib.geometry.kinematics import forward_kinematics
 from jcalib.geometry.robots import robot_preset

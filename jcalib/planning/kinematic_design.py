@@ -22,9 +22,9 @@ parameters of interest with the two poses as nuisance unknowns: the kinematics' 
 ellipsoid, whatever the hand-eye and target poses' precision; :func:`d_optimal`: greedy selection from
 a candidate set, then Fedorov exchanges). It is invariant to the parameters' units.
 
-This module is geometry only (acquisition may not import :mod:`jcalib.problems`): the structural scan
-of :func:`identifiable` repeats the builder's (same generic configurations, whitening and tolerance;
-the tests hold the two to the same answer).
+The structural scan of :func:`identifiable` repeats the builder's (:mod:`jcalib.problems.kinematics`:
+same generic configurations, whitening and tolerance; the tests hold the two to the same answer). It was
+written when the planners lived in acquisition, which may not import the builder; planning may.
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ know roughly *where* things are. :func:`cell_layout` fills in what the spec leav
 defaults, so ``jcalib plan`` and ``jcalib simulate`` agree on one geometry for the same cell file:
 
 - **robot**: ``robot: {model: PRESET}`` in the cell (a preset of :mod:`jcalib.geometry.robots`), else
-  ``kuka_kr10_r1100_sixx``. Home posture as :class:`~jcalib.acquisition.robots.model.DHRobotModel`'s.
+  ``kuka_kr10_r1100_sixx``. Home posture: :func:`jcalib.geometry.robots.home_joints` (where the simulated
+  controllers start).
   The *tool axis* (the flange axis the tool points along: x for KUKA's ``$FLANGE``, z for ABB's
   ``tool0``) is derived from the kinematics (joint-6 axis, pointing away from the wrist).
 - **intrinsics**: the camera's ``intrinsics`` when given (image size ``2 (cx, cy) + 1``), else a
@@ -204,17 +205,16 @@ def cell_layout(
     Raises:
         BadInputError: invalid cell, unknown preset, or a ``free`` camera / target (no robot to plan for).
     """
-    from jcalib.acquisition.robots.model import preset_model
     from jcalib.geometry.kinematics import forward_kinematics
+    from jcalib.geometry.robots import home_joints, robot_preset
     from jcalib.io.cell import parse_cell
 
     data, source = load_cell_dict(cell)
     spec = parse_cell(data, source)
     robot_name = robot or ((data.get("robot") or {}).get("model") if isinstance(data.get("robot"), dict) else None)
     robot_name = robot_name or DEFAULT_ROBOT
-    model = preset_model(str(robot_name))  # BadInputError for an unknown preset
-    dh = model.robot
-    home = np.asarray(model.home_rad, dtype=np.float64)
+    dh = robot_preset(str(robot_name))  # BadInputError for an unknown preset
+    home = home_joints(dh)
     T_home = np.asarray(forward_kinematics(dh, home), dtype=np.float64)
     a = _tool_axis(dh, home)
     work = T_home[:3, 3] + np.array([0.0, 0.0, -0.7])

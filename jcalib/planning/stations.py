@@ -1,6 +1,6 @@
 """Station planners: flange poses for camera (view sets), hand-eye, TCP and kinematic calibration.
 
-Every planner works on the nominal :class:`~jcalib.acquisition.layout.CellLayout` (``jcalib plan``
+Every planner works on the nominal :class:`~jcalib.planning.layout.CellLayout` (``jcalib plan``
 and ``jcalib simulate`` use the same one) and keeps only stations the robot reaches within its joint
 limits (:func:`jcalib.geometry.kinematics.inverse_kinematics` on the preset, one batched call) and, for
 camera views, where the whole target is in the image (nominal intrinsics). Relative poses are built
@@ -34,7 +34,7 @@ target's, looking at ``c``.
   A candidate is kept when it is within the joint limits (less 1 deg / 5 mm), away from singularities,
   and, where the view is known, shows the whole target, not edge-on (within 60 deg of its normal), at
   a usable distance (0.5..2 ``D``), with the arm's elbow and wrist on the target's printed side (not
-  through the table the target lies on). From these, :func:`jcalib.acquisition.kinematic_design.d_optimal`
+  through the table the target lies on). From these, :func:`jcalib.planning.kinematic_design.d_optimal`
   picks the stations that maximise the log determinant of the information of the identifiable
   parameters, with the two unknown poses on either side of the robot eliminated (their Schur
   complement in the information of all: Ds-optimal); the plan records each station's
@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from jcalib.acquisition.layout import TOOL_VIEW_DISTANCE_M, CellLayout, cell_layout, load_cell_dict, presentation_pose
+from jcalib.planning.layout import TOOL_VIEW_DISTANCE_M, CellLayout, cell_layout, load_cell_dict, presentation_pose
 from jcalib.io.plan import Plan, make_plan
 from jcalib.geometry.se3 import exp_so3, invert, make_pose, rot_z
 from jcalib.errors import BadInputError
@@ -254,7 +254,7 @@ def plan_cell(
     module docstring; ``kinematics``: :func:`plan_kinematics`, which takes the other arguments).
 
     Args:
-        layout: the nominal cell (:func:`jcalib.acquisition.layout.cell_layout`).
+        layout: the nominal cell (:func:`jcalib.planning.layout.cell_layout`).
         kind: planner.
         num_stations: candidates to generate (default :data:`DEFAULT_STATIONS`); unreachable ones
             are dropped, so the plan may hold fewer.
@@ -459,7 +459,7 @@ class KinematicCandidates:
     Attributes:
         model: the robot's nominal :class:`~jcalib.geometry.kinematic_models.Kinematics`.
         q: ``(M, n)`` joints (rad, m).  T_base_flange: ``(M, 4, 4)`` nominal flange poses, m.
-        design: the whitened Jacobian rows (:class:`~jcalib.acquisition.kinematic_design.DesignRows`).
+        design: the whitened Jacobian rows (:class:`~jcalib.planning.kinematic_design.DesignRows`).
         total: candidates generated.  dropped: why -> how many of them were left out.
         held: requested parameters not separable from others (kept at their nominal value).
         camera, target: the view pair (None: no view planned).  layout: the nominal layout, if built.
@@ -500,7 +500,7 @@ def kinematic_candidates(
     """
     import jax
 
-    from jcalib.acquisition import kinematic_design as kd
+    from jcalib.planning import kinematic_design as kd
     from jcalib.geometry.kinematics import inverse_kinematics
     from jcalib.io.cell import parse_cell
 
@@ -612,7 +612,7 @@ def plan_kinematics(
     Args:
         cell: path of ``cell.yaml`` or the loaded mapping; its one robot must have ``kinematics:`` and
             ``calibrate_kinematics:``.
-        layout: the nominal layout (default: :func:`~jcalib.acquisition.layout.cell_layout` of the cell,
+        layout: the nominal layout (default: :func:`~jcalib.planning.layout.cell_layout` of the cell,
             built where a camera view is planned), with ``robot`` (a preset of
             :mod:`jcalib.geometry.robots`; default the cell's ``robot.model``, else the arm preset the
             kinematics names) and ``image_size`` as there.
@@ -631,7 +631,7 @@ def plan_kinematics(
         BadInputError: no kinematics to calibrate, bad options, too few usable candidates, or no plan
             that determines every identifiable parameter (naming them and the joints that did not move).
     """
-    from jcalib.acquisition import kinematic_design as kd
+    from jcalib.planning import kinematic_design as kd
     from jcalib.geometry import kinematic_models
 
     n = int(num_stations if num_stations is not None else DEFAULT_STATIONS["kinematics"])
