@@ -336,7 +336,7 @@ def scene_from_layout(layout: Any, *, texture_px_per_square: float = 24.0) -> Ce
     targets = {}
     for name, t in layout.targets.items():
         pts = np.asarray(t.geometry.points, dtype=np.float64)
-        d = np.linalg.norm(pts[1:] - pts[:-1], axis=1)
+        d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)  # the finest spacing (an AprilGrid's gap)
         spacing = float(np.min(d[d > 1e-9])) if np.any(d > 1e-9) else 0.01
         tex = target_texture(t.geometry, spacing / texture_px_per_square)
         targets[name] = SimTarget(t.geometry, tex, t.mount, t.pose)

@@ -22,6 +22,7 @@ _LAZY = {
     "ROBOT_PRESETS": "robots",
     "robot_preset": "robots",
     **dict.fromkeys(("Charuco", "Checkerboard", "CircleGrid", "target_from_spec"), "targets"),
+    **dict.fromkeys(("AprilGrid", "AprilTag"), "apriltags"),
 }
 
 
@@ -41,6 +42,8 @@ __all__ = [
     "CAMERA_MODELS",
     "ROBOT_PRESETS",
     "AbstractCameraModel",
+    "AprilGrid",
+    "AprilTag",
     "Charuco",
     "Checkerboard",
     "CircleGrid",

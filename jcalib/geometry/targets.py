@@ -1,4 +1,5 @@
-"""Calibration-target geometry: chessboards, ChArUco boards and circle grids (OpenCV semantics).
+"""Calibration-target geometry: chessboards, ChArUco boards and circle grids (OpenCV semantics), and the
+AprilTag targets of :mod:`jcalib.geometry.apriltags` (Kalibr's AprilGrid, a single AprilTag).
 
 A target is a frozen, hashable description of a printed planar board. Its ``points`` are the
 observable features (inner chessboard corners, circle centres) in the **target frame**: metres,
@@ -29,9 +30,12 @@ from typing import Any, Union
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.geometry.apriltags import AprilGrid, AprilTag
 
 __all__ = [
     "ARUCO_DICTIONARIES",
+    "AprilGrid",
+    "AprilTag",
     "Charuco",
     "Checkerboard",
     "CircleGrid",
@@ -370,12 +374,15 @@ class CircleGrid:
         return spec
 
 
-Target = Union[Checkerboard, Charuco, CircleGrid]
+Target = Union[Checkerboard, Charuco, CircleGrid, AprilGrid, AprilTag]
 
 _SPEC_FIELDS: dict[str, tuple[type, tuple[str, ...], tuple[str, ...]]] = {
     "checkerboard": (Checkerboard, ("cols", "rows", "square"), ()),
     "charuco": (Charuco, ("squares_x", "squares_y", "square", "marker"), ("dictionary", "legacy")),
     "circles": (CircleGrid, ("cols", "rows", "spacing"), ("asymmetric", "diameter", "origin_dot")),
+    # AprilTag targets: jcalib.geometry.apriltags
+    "aprilgrid": (AprilGrid, ("cols", "rows", "tag_size", "tag_spacing"), ("family",)),
+    "apriltag": (AprilTag, ("id", "size"), ("family", "border_bits")),
 }
 # Keys a cell-spec target entry may carry that are not geometry (used by the cell, not here).
 _NON_GEOMETRY_KEYS = {"type", "mount", "pose"}
@@ -385,7 +392,8 @@ def target_from_spec(spec: dict) -> Target:
     """Build a target from a cell-spec entry (see DESIGN.md), e.g. ``{type: checkerboard, ...}``.
 
     Args:
-        spec: mapping with ``type`` (``checkerboard``, ``charuco`` or ``circles``) and the fields of
+        spec: mapping with ``type`` (``checkerboard``, ``charuco``, ``circles``, ``aprilgrid`` or
+            ``apriltag``) and the fields of
             that target (lengths in metres). ``mount`` and ``pose`` are allowed and ignored.
 
     Raises:

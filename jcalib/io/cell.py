@@ -30,6 +30,7 @@ from jcalib.errors import BadInputError
 from jcalib.io.goals import Goal, parse_goals
 from jcalib.io.schema.cell import validate_cell_document
 from jcalib.io.schema.reading import read_document
+from jcalib.io.target_files import expand_target_files
 
 SCHEMA = "jcalib.cell/1"
 CAMERA_MODELS = ("pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined")
@@ -37,7 +38,7 @@ CAMERA_MOUNTS = ("flange", "base", "world", "free")
 TARGET_MOUNTS = ("flange", "base", "world", "free")
 #: Names a robot cannot take (frame names).
 RESERVED_ROBOT_NAMES = ("world", "base", "flange", "free")
-TARGET_TYPES = ("checkerboard", "charuco", "circles", "points")
+TARGET_TYPES = ("checkerboard", "charuco", "circles", "aprilgrid", "apriltag", "points")
 
 
 @dataclass(frozen=True)
@@ -426,14 +427,19 @@ def _check_robot_refs(cameras: dict, targets: dict, tools: dict, points: dict, r
     return cameras, targets, tools
 
 
-def parse_cell(data: Any, source: str = "<dict>") -> CellSpec:
+def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | None = None) -> CellSpec:
     """Validate a cell spec given as a dict (e.g. loaded YAML).
+
+    Args:
+        base_dir: the folder that target files (``targets.<id>.file``, :mod:`jcalib.io.target_files`)
+            are relative to (None: the working folder).
 
     Raises:
         BadInputError: naming ``source`` and the offending key.
     """
     if not isinstance(data, dict):
         raise _fail(source, "a cell spec must be a mapping with 'schema: jcalib.cell/1'")
+    data = expand_target_files(data, base_dir, source)
     data = validate_cell_document(data, source)  # types, keys, units, names (jcalib.io.schema.cell)
     schema = data.get("schema")
     if schema != SCHEMA:
@@ -516,7 +522,7 @@ def load_cell(cell: str | os.PathLike | dict | CellSpec) -> CellSpec:
     if not path.exists():
         raise BadInputError(f"cell spec '{path}' does not exist (expected a jcalib.cell/1 YAML file)")
     data = read_document(path, "cell spec", fmt="yaml")  # size, UTF-8, depth and alias limits
-    return parse_cell(data, source=str(path))
+    return parse_cell(data, source=str(path), base_dir=path.parent)
 
 
 def cell_to_dict(cell: CellSpec) -> dict:

@@ -33,6 +33,17 @@ FREE = "~free"
 #: Fewest target points per view: a homography has 8 degrees of freedom (4 points), and fewer
 #: than 6 points leave a view pose with almost no redundancy.
 MIN_POINTS_PER_VIEW = 6
+#: ... but 4 points (planar PnP's minimum) make a view where nothing more can be had or asked: a
+#: target of fewer than 6 points (a single AprilTag), or a camera whose intrinsics are given and held
+#: (``fx, fy, cx, cy`` in ``fix``), whose views only have to place the target.
+MIN_POINTS_PER_POSE = 4
+
+
+def min_points_per_view(cam, num_target_points: int) -> int:
+    """Fewest points a view of a target with ``num_target_points`` points by camera ``cam`` (a
+    :class:`jcalib.io.cell.CameraSpec`) needs (:data:`MIN_POINTS_PER_VIEW`, :data:`MIN_POINTS_PER_POSE`)."""
+    held = cam.K is not None and {"fx", "fy", "cx", "cy"} <= set(cam.fix)
+    return MIN_POINTS_PER_POSE if num_target_points < MIN_POINTS_PER_VIEW or held else MIN_POINTS_PER_VIEW
 
 
 @dataclass
@@ -288,12 +299,15 @@ class Graph:
                     used = True
                 elif det.target in cell.targets:
                     n = det.point_index.size
-                    if n < MIN_POINTS_PER_VIEW:
-                        raise BadInputError(
-                            f"{src}: station '{station.id}', camera '{det.camera}': only {n} points of target "
-                            f"'{det.target}'; a view needs at least {MIN_POINTS_PER_VIEW}. Drop the view or re-detect it")
                     if det.target not in obs.targets:
                         raise BadInputError(f"{src}: the observations have no points for target '{det.target}'")
+                    fewest = min_points_per_view(cam, len(obs.targets[det.target]))
+                    if n < fewest:
+                        held = "" if fewest < MIN_POINTS_PER_VIEW else (
+                            f" ({MIN_POINTS_PER_POSE} with the camera's intrinsics given and held)")
+                        raise BadInputError(
+                            f"{src}: station '{station.id}', camera '{det.camera}': only {n} points of target "
+                            f"'{det.target}'; a view needs at least {fewest}{held}. Drop the view or re-detect it")
                     p = self.pairs.setdefault((det.camera, det.target), Pair(det.camera, det.target))
                     if p.views and p.views[-1] == k:
                         continue  # one view per camera, target and station

@@ -120,7 +120,8 @@ class ObservationNoise:
             (a robot not listed records its poses exactly).
         pose_rotation_deg, pose_translation_m: 6-DOF pose measurements.
         dropout_rate: probability that a detection (a camera's view of a target, or a tool tip) is lost.
-        min_points: fewest corners of a view that count as a detection (the builder needs 6).
+        min_points: fewest corners of a view that count as a detection (the builder needs 6; a target of
+            fewer points, a single AprilTag, is detected when all its points are seen).
     """
 
     pixel_sigma_px: float = 0.0
@@ -285,7 +286,7 @@ def simulate_observations(
                 if tgt.type != "points":  # a printed board is seen from its printed (-z) side only
                     ok &= float((invert(T_ct)[:3, 3])[2]) < 0.0
                 idx = np.flatnonzero(ok)
-                if idx.size < noise.min_points:
+                if idx.size < min(noise.min_points, len(P)):  # a single AprilTag has 4 points in all
                     continue
                 px = u[idx] + noise.pixel_sigma_px * pix_noise[idx]
                 dets.append({"camera": cam.name, "target": tgt.name, "point_index": idx.tolist(), "pixels": px.tolist()})

@@ -36,12 +36,14 @@ def target_texture(target, metres_per_pixel: float, margin_m: float | None = Non
     the closed-form area of a disc inside a rectangle.
 
     Args:
-        target: a :mod:`jcalib.geometry.targets` target (``Checkerboard``, ``Charuco`` or ``CircleGrid``).
-            The chessboard's outer square next to point 0 is black; a ChArUco board is drawn as
-            ``cv2.aruco.CharucoBoard.generateImage`` draws it (markers with a 1-bit black border).
+        target: a :mod:`jcalib.geometry.targets` target (``Checkerboard``, ``Charuco``, ``CircleGrid``,
+            ``AprilGrid`` or ``AprilTag``). The chessboard's outer square next to point 0 is black; a
+            ChArUco board is drawn as ``cv2.aruco.CharucoBoard.generateImage`` draws it (markers with a
+            1-bit black border); AprilTags as their official images (Kalibr's print for a grid: 2-bit
+            borders and black squares at the gap crossings; :mod:`jcalib.geometry.apriltags`).
         metres_per_pixel: texture resolution, m per pixel (> 0).
-        margin_m: white border around the pattern, m (>= 0). Default: one square (chessboards) or one
-            spacing (circle grids), the quiet zone detectors want.
+        margin_m: white border around the pattern, m (>= 0). Default: one square (chessboards), one
+            spacing (circle grids), one gap (AprilGrid) or two bits (AprilTag), the quiet zone detectors want.
 
     Returns:
         :class:`TargetTexture` whose pixel ``(u, v)`` centre is target point
@@ -53,15 +55,20 @@ def target_texture(target, metres_per_pixel: float, margin_m: float | None = Non
             object that is not a target.
     """
     from jcalib.errors import BadInputError
-    from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid
+    from jcalib.geometry.targets import AprilGrid, AprilTag, Charuco, Checkerboard, CircleGrid
 
-    if not isinstance(target, (Checkerboard, Charuco, CircleGrid)):
+    if not isinstance(target, (Checkerboard, Charuco, CircleGrid, AprilGrid, AprilTag)):
         raise BadInputError(f"target_texture: argument 'target' got {type(target).__name__}, expected a target")
     mpp = float(metres_per_pixel)
     if not (np.isfinite(mpp) and mpp > 0.0):
         raise BadInputError(f"target_texture: 'metres_per_pixel' got {metres_per_pixel!r}, expected > 0")
     if margin_m is None:
-        margin_m = target.spacing if isinstance(target, CircleGrid) else target.square
+        if isinstance(target, AprilGrid):
+            margin_m = target.gap
+        elif isinstance(target, AprilTag):
+            margin_m = 2.0 * target.size / (APRILTAG_BITS[target.family] + 2 * target.border_bits)
+        else:
+            margin_m = target.spacing if isinstance(target, CircleGrid) else target.square
     margin = float(margin_m)
     if not (np.isfinite(margin) and margin >= 0.0):
         raise BadInputError(f"target_texture: 'margin_m' got {margin_m!r}, expected >= 0")
@@ -87,7 +94,8 @@ def target_texture(target, metres_per_pixel: float, margin_m: float | None = Non
         for k, (cx, cy) in enumerate(zip(*to_px(target.points[:, 0], target.points[:, 1]))):
             _add_disc(ink, cx, cy, r if k != target.origin_index else 0.5 * target.origin_diameter / mpp)
     else:
-        for rx0, ry0, rx1, ry1 in _black_rectangles(target):
+        rects = _tag_rectangles(target) if isinstance(target, (AprilGrid, AprilTag)) else _black_rectangles(target)
+        for rx0, ry0, rx1, ry1 in rects:
             (a0, b0), (a1, b1) = to_px(rx0, ry0), to_px(rx1, ry1)
             _add_rectangle(ink, a0, b0, a1, b1)
     image = np.clip(1.0 - ink, 0.0, 1.0)
@@ -128,6 +136,55 @@ def _black_rectangles(target) -> list[tuple[float, float, float, float]]:
                     j = k
                 else:
                     j += 1
+    return rects
+
+
+#: Data bits per side of each AprilTag family.
+APRILTAG_BITS = {"tag16h5": 4, "tag25h9": 5, "tag36h11": 6}
+
+
+def apriltag_image(family: str, tag_id: int, border_bits: int) -> np.ndarray:
+    """``(n, n)`` bool, True where the official image of AprilTag ``tag_id`` is black, one cell per bit
+    (``n = bits + 2 * border_bits``, rows from the top of the printed tag): OpenCV 4.x's marker image of
+    ``DICT_APRILTAG_<family>`` turned by 180° (:mod:`jcalib.geometry.apriltags`)."""
+    import cv2
+
+    from jcalib.geometry.apriltags import APRILTAG_FAMILIES
+
+    d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, APRILTAG_FAMILIES[family][0]))
+    n = d.markerSize + 2 * border_bits
+    return np.rot90(d.generateImageMarker(int(tag_id), n, borderBits=border_bits) < 128, 2)
+
+
+def _tag_rectangles(target) -> list[tuple[float, float, float, float]]:
+    """Disjoint black rectangles (x0, y0, x1, y1), m, of an AprilGrid or AprilTag: each tag's cells
+    (runs of black cells per row merged), and a grid's squares at the gap crossings."""
+    from jcalib.geometry.targets import AprilGrid
+
+    border = target.border_bits
+    rects = []
+    for tag_id, corners in zip(target.tag_ids, target.tag_corners):
+        cells = apriltag_image(target.family, int(tag_id), border)
+        n = cells.shape[0]
+        cell = target.tag_size / n
+        x0, y0 = corners[:, 0].min(), corners[:, 1].min()  # top-left corner of the printed tag
+        for i in range(n):
+            j = 0
+            while j < n:
+                if cells[i, j]:
+                    k = j
+                    while k < n and cells[i, k]:
+                        k += 1
+                    rects.append((x0 + j * cell, y0 + i * cell, x0 + k * cell, y0 + (i + 1) * cell))
+                    j = k
+                else:
+                    j += 1
+    if isinstance(target, AprilGrid):
+        g, p = target.gap, target.pitch
+        for r in range(target.rows + 1):  # crossing squares: below row r's tags (r = rows: above the top row)
+            for c in range(target.cols + 1):
+                x, y = c * p - g, -r * p + g  # the square's bottom-left corner (Kalibr's print)
+                rects.append((x, y - g, x + g, y))
     return rects
 
 

@@ -1,5 +1,5 @@
-"""Vision: images -> observations with OpenCV (chessboards, ChArUco boards, circle grids, tool tips), and
-tracking a target through a live stream."""
+"""Vision: images -> observations with OpenCV (chessboards, ChArUco boards, circle grids, AprilGrids and
+AprilTags, tool tips), and tracking a target through a live stream."""
 
 from jcalib.vision.detect import DETECTION_FAILURE_REASONS, TargetDetection, default_jobs, detect_many, detect_target
 from jcalib.vision.image import load_image

@@ -9,7 +9,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
-from jcalib.geometry.targets import Charuco, Checkerboard, CircleGrid
+from jcalib.geometry.targets import AprilGrid, AprilTag, Charuco, Checkerboard, CircleGrid
 from jcalib.vision.image import image_stats, load_image, to_gray
 
 __all__ = ["DETECTION_FAILURE_REASONS", "TargetDetection", "default_jobs", "detect_many", "detect_target"]
@@ -97,7 +97,9 @@ def detect_target(
     rejected, not numbered 180° off). ChArUco: ArUco markers, then ``cv2.aruco.CharucoDetector``'s
     corners, partial views allowed (at least ``min_points`` corners, each id checked against the markers
     around it). Circle grids: ``cv2.findCirclesGrid`` after a quick look for a lattice of blobs; the whole
-    grid must be visible. Point indices of chessboards and circle grids follow
+    grid must be visible. AprilGrids and AprilTags: :mod:`jcalib.vision.apriltag` (the corners of the tags
+    wholly in view, at least ``min_points`` of a grid, all 4 of a single tag). Point indices of chessboards
+    and circle grids follow
     :mod:`jcalib.vision.orientation` (180°-symmetric boards get the warning ``"orientation_ambiguous"``,
     a circle grid with an ``origin_dot`` is labelled from its larger dot).
 
@@ -112,9 +114,9 @@ def detect_target(
 
     Args:
         image: a path, or an (H, W[, 3|4]) uint8 / uint16 array (colour in BGR order).
-        target: ``Checkerboard``, ``Charuco`` or ``CircleGrid``.
+        target: ``Checkerboard``, ``Charuco``, ``CircleGrid``, ``AprilGrid`` or ``AprilTag``.
         name: how messages refer to the image (default: the path, or ``"<array>"``).
-        min_points: fewest ChArUco corners accepted (>= 4).
+        min_points: fewest ChArUco or AprilGrid corners accepted (>= 4).
         max_edge_width_px: a failed image whose edges are wider than this is ``"too_blurred"``; a
             found one gets the warning ``"blurred"``.
         min_contrast: a failed image with less grey-level spread (0..1) is ``"not_found"``.
@@ -156,6 +158,9 @@ def detect_target(
                 "too_blurred",
             )
         return DetectionError(f"{name}: {what} not found", "not_found")
+
+    if isinstance(target, (AprilGrid, AprilTag)):
+        return _detect_apriltags(gray, target, min_points, retry, blurred, fail, common)
 
     if isinstance(target, Charuco):
         from jcalib.vision.charuco import find_charuco
@@ -244,6 +249,39 @@ def detect_target(
     )
 
 
+def _detect_apriltags(gray, target, min_points, retry, blurred, fail, common) -> TargetDetection:
+    """AprilGrid / AprilTag corners (:mod:`jcalib.vision.apriltag`); partial grids allowed (at least
+    ``min_points`` corners, all 4 of a single tag)."""
+    from jcalib.vision.apriltag import find_apriltags
+
+    found = find_apriltags(gray, target, retry=retry)
+    need = min(min_points, target.num_points)
+    dropped = found.dropped_tags + found.dropped_corners
+    if len(found.point_index) < need:
+        detail = None
+        if len(found.tags) or dropped:
+            detail = f"{len(found.tags)} tags and {len(found.point_index)} corners found, at least {need} corners needed"
+            if found.dropped_tags:
+                detail += (f"; {found.dropped_tags} tags left out (inconsistent with the board, a second copy of a tag, "
+                           "or not wholly in view)")
+            if found.dropped_corners:
+                detail += f"; {found.dropped_corners} corners that could not be refined or checked left out"
+            detail += _tried(found.attempts)
+        raise fail(detail)
+    corner = "cornerSubPix+saddle" if isinstance(target, AprilGrid) else "edge lines"
+    return TargetDetection(
+        point_index=found.point_index,
+        pixels=found.pixels,
+        fraction_found=len(found.point_index) / target.num_points,
+        method=f"ArucoDetector+AprilTag decoding+{corner}",
+        warnings=blurred + (("points_dropped",) if dropped else ()),
+        attempt="+".join(found.contributing) or "default",
+        attempts=found.attempts,
+        dropped=dropped,
+        **common,
+    )
+
+
 def _tried(attempts: tuple[str, ...]) -> str:
     return f" (attempts: {', '.join(attempts)})" if len(attempts) > 1 else ""
 
@@ -272,15 +310,20 @@ def _layout_hint(gray, target) -> str:
 
 
 def _check_arguments(target, min_points) -> None:
-    if not isinstance(target, (Checkerboard, Charuco, CircleGrid)):
+    if not isinstance(target, (Checkerboard, Charuco, CircleGrid, AprilGrid, AprilTag)):
         raise BadInputError(
-            f"detect_target: argument 'target' got {type(target).__name__}, expected Checkerboard, Charuco or CircleGrid"
+            f"detect_target: argument 'target' got {type(target).__name__}, expected Checkerboard, Charuco, "
+            "CircleGrid, AprilGrid or AprilTag"
         )
     if isinstance(min_points, bool) or not isinstance(min_points, (int, np.integer)) or min_points < 4:
         raise BadInputError(f"detect_target: option 'min_points' got {min_points!r}, expected an integer >= 4")
 
 
 def _describe(target) -> str:
+    if isinstance(target, AprilGrid):
+        return f"{target.cols}x{target.rows} tags ({target.family})"
+    if isinstance(target, AprilTag):
+        return f"id {target.id} ({target.family})"
     if isinstance(target, Charuco):
         return f"{target.squares_x}x{target.squares_y} squares ({target.dictionary})"
     kind = " asymmetric" if isinstance(target, CircleGrid) and target.asymmetric else ""

@@ -15,7 +15,8 @@ Read with the pure-Python ``rosbags`` library (optional extra ``jcalib[ros]``). 
 Conventions: ROS ``geometry_msgs/Transform`` (m; quaternion x, y, z, w; ``header.frame_id`` the parent
 = ``T_parent_child``); joint positions in rad (revolute; converted to degrees) or m (joints named in
 ``prismatic=...``; converted to mm). The target is not in a bag: ``target=FILE`` names a YAML file
-holding its cell-spec entry (e.g. ``{type: checkerboard, cols: 9, rows: 6, square: 0.025}``), and
+holding its cell-spec entry (e.g. ``{type: checkerboard, cols: 9, rows: 6, square: 0.025}``) or a
+Kalibr target YAML (``target_type: aprilgrid``, ...; :mod:`jcalib.io.target_files`), and
 ``--mount`` says where the camera is.
 
 Time synchronisation (stated, and checked for every image):
@@ -51,6 +52,7 @@ from jcalib.io.importers.common import (
     pose_from_xyz_quat,
     write_session,
 )
+from jcalib.io.target_files import read_target_file
 
 FORMAT = "rosbag"
 OPTIONS = {
@@ -60,7 +62,7 @@ OPTIONS = {
     "flange_frame": "flange / tool0 frame of /tf (poses=tf)",
     "joint_states_topic": "default /joint_states",
     "prismatic": "joint names (comma separated) whose positions are metres",
-    "target": "YAML file with the target's cell-spec entry (required)",
+    "target": "YAML file with the target's cell-spec entry or a Kalibr target YAML (required)",
     "target_id": "target id (default board)",
     "max_dt_ms": "synchronisation window, ms (default 20)",
     "still_mm": "robot at rest: translation tolerance, mm (default 0.5)",
@@ -186,7 +188,6 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
         BadInputError: ``rosbags`` missing, unreadable bag, missing topics, frames or options, or no image
             passing the synchronisation rules.
     """
-    import yaml
 
     check_options(FORMAT, options, OPTIONS)
     try:
@@ -200,13 +201,10 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
     if "target" not in options:
         raise BadInputError(f"import {FORMAT}: a bag holds no target description: give target=FILE, a YAML file "
                             "with the target's cell-spec entry, e.g. {type: checkerboard, cols: 9, rows: 6, square: 0.025}")
-    tpath = Path(str(options["target"]))
-    try:
-        target = yaml.safe_load(tpath.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as e:
-        raise BadInputError(f"import {FORMAT}: target: cannot read {tpath} ({e})") from None
-    if not isinstance(target, dict) or "type" not in target:
-        raise BadInputError(f"import {FORMAT}: target: {tpath} must hold a mapping with a 'type'")
+    try:  # a jcalib target entry or a Kalibr target YAML (ROS users' aprilgrid.yaml)
+        target = read_target_file(Path(str(options["target"])))
+    except BadInputError as e:
+        raise BadInputError(f"import {FORMAT}: target: {e}") from None
     mode = str(options.get("poses", "tf"))
     if mode not in ("tf", "joint_states"):
         raise BadInputError(f"import {FORMAT}: poses: expected tf or joint_states, got {mode!r}")

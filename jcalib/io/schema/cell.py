@@ -7,7 +7,9 @@ match nothing, ``observed_by`` cameras, unique names, and units (poses beyond th
 metres: millimetres written as metres).
 
 Extensions accepted here (their meaning is the calibration code's): targets ``type: points`` (points
-come with the observations; no grid fields) and ``warp: true``; tools ``orientation: [[3x3]]`` or
+come with the observations; no grid fields), ``type: aprilgrid`` / ``type: apriltag``
+(:mod:`jcalib.geometry.apriltags`; a ``file:`` entry is expanded before this check,
+:mod:`jcalib.io.target_files`) and ``warp: true``; tools ``orientation: [[3x3]]`` or
 ``axis: [x, y, z]``; cameras ``settings: {GenICamName: number | text | bool}``; robots
 ``kinematics:`` (a preset name or a table mapping) and ``calibrate_kinematics: [names]``.
 """
@@ -46,6 +48,8 @@ TARGET_FIELDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "checkerboard": (("cols", "rows", "square"), ()),
     "charuco": (("squares_x", "squares_y", "square", "marker"), ("dictionary", "legacy")),
     "circles": (("cols", "rows", "spacing"), ("asymmetric", "diameter", "origin_dot")),
+    "aprilgrid": (("cols", "rows", "tag_size", "tag_spacing"), ("family",)),
+    "apriltag": (("id", "size"), ("family", "border_bits")),
     "points": ((), ()),
 }
 _GRID_FIELDS = sorted({f for req, opt in TARGET_FIELDS.values() for f in req + opt})
@@ -126,7 +130,7 @@ class Camera(Closed):
 
 
 class Target(Closed):
-    type: Literal["checkerboard", "charuco", "circles", "points"]
+    type: Literal["checkerboard", "charuco", "circles", "aprilgrid", "apriltag", "points"]
     mount: Mount = "free"
     pose: YMat4 | None = None
     robot: Name | None = None
@@ -143,6 +147,12 @@ class Target(Closed):
     asymmetric: bool | None = None
     diameter: Positive | None = None
     origin_dot: Literal["top_left", "top_right", "bottom_left", "bottom_right"] | None = None
+    family: Literal["tag16h5", "tag25h9", "tag36h11"] | None = None
+    tag_size: Positive | None = None
+    tag_spacing: Annotated[YNum, Field(gt=0, le=1)] | None = None
+    id: Annotated[Int, Field(ge=0)] | None = None
+    size: Positive | None = None
+    border_bits: Literal[1, 2] | None = None
 
     @model_validator(mode="after")
     def _fields_of_type(self) -> "Target":
@@ -242,7 +252,7 @@ def _check_camera(name: str, cam: dict, problems: list) -> None:
 
 def _check_target(name: str, tgt: dict, problems: list) -> None:
     where = f"targets.{name}"
-    for f in ("square", "spacing", "marker", "diameter"):
+    for f in ("square", "spacing", "marker", "diameter", "tag_size", "size"):
         v = tgt.get(f)
         if v is not None and float(v) > MAX_TARGET_PITCH_M:
             problems.append((f"{where}.{f}", f"{float(v):g} m is larger than any calibration target's "

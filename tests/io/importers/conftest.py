@@ -50,6 +50,13 @@ def chessboard_set() -> Rendered:
 
 
 @pytest.fixture(scope="session")
+def aprilgrid_set() -> Rendered:
+    # a Kalibr AprilGrid (tag36h11, 2-bit borders, crossing squares), as kalibr_create_target_pdf prints it
+    return render({"type": "aprilgrid", "family": "tag36h11", "cols": 5, "rows": 4, "tag_size": 0.03,
+                   "tag_spacing": 0.3})
+
+
+@pytest.fixture(scope="session")
 def charuco_set() -> Rendered:
     # industrial_calibration's example board layout (rows 7, cols 5), DICT_6X6_250 (OpenCV id 10)
     return render({"type": "charuco", "squares_x": 5, "squares_y": 7, "square": 0.03, "marker": 0.022,

@@ -150,3 +150,17 @@ def test_ros1_bag_poses_images_and_sync_window(chessboard_set, tmp_path):
         import_session("rosbag", bag, tmp_path / "s3", **{**opts, "flange_frame": "gripper"})
     with pytest.raises(BadInputError, match="target"):
         import_session("rosbag", bag, tmp_path / "s4", **{k: v for k, v in opts.items() if k != "target"})
+
+
+def test_ros2_bag_with_a_kalibr_aprilgrid_yaml(aprilgrid_set, tmp_path):
+    """A Kalibr user's inputs: a bag and the aprilgrid.yaml of the printed grid (target=FILE)."""
+    bag = write_bag(tmp_path / "bag2", aprilgrid_set, Stores.ROS2_HUMBLE, ros2=True)
+    kalibr = tmp_path / "april_5x4.yaml"
+    kalibr.write_text("target_type: 'aprilgrid' #gridtype\ntagCols: 5\ntagRows: 4\ntagSize: 0.03\ntagSpacing: 0.3\n")
+    import_session("rosbag", bag, tmp_path / "sess", mount="flange", target=str(kalibr), base_frame="base_link",
+                   flange_frame="tool0", camera_model="pinhole")
+    meta, _ = read_session(tmp_path / "sess")
+    assert meta["cell"]["targets"]["board"] == {**aprilgrid_set.target, "mount": "base"}
+    res = detect_and_calibrate(tmp_path / "sess", tmp_path)
+    t = res["transforms"]["T_flange_cam0"]
+    assert_pose_near(t["matrix"], t["covariance"], aprilgrid_set.T_flange_cam)
