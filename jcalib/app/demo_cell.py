@@ -74,12 +74,17 @@ TOOL_CANDIDATES = 320
 #: projects at least this far outside the image, px.
 TOOL_ZONE_MARGIN = 0.9
 SHAFT_OUT_PX = 20.0
-#: The detection noise the plan assumes, px: the simulated cameras' ("realistic" sensor noise at 640x480),
-#: measured as the a-posteriori σ of the demo's calibrations: corners 0.12, tool tips 0.5-0.6. The tool's
-#: silhouette gives one point of its axis, about 50 px from the tip, where the prediction places four, 1-4 cm
-#: from it (:data:`jcalib.geometry.se3.SHAFT_POINTS_M`, 20-80 px here): the stated 0.5 px on that one point
-#: tells as much about the axis as 1.1 px on the four (the sums of squared distances from the tip differ 5x).
-PLAN_NOISE = {"sigma_px": 0.12, "tip_sigma_px": 0.6, "axis_sigma_px": 1.1}
+#: The simulated cameras' detection noise ("realistic" sensor noise at 640x480), px, measured as the
+#: a-posteriori σ of the demo's calibrations: corners 0.12, tool tips 0.5-0.6. The demo states it to its
+#: calibration, as an integrator states a detector's noise: a kind of measurement with too little redundancy
+#: for its own variance component (a tip at each of a few tool stations) keeps its stated σ, and the default
+#: (0.25 px) would make the TCP's σ half its error.
+SIM_NOISE = {"sigma_px": 0.12, "tip_sigma_px": 0.55}
+#: The noise the plan assumes, px. The tool's silhouette gives one point of its axis, about 50 px from the
+#: tip, where the prediction places four, 1-4 cm from it (:data:`jcalib.geometry.se3.SHAFT_POINTS_M`, 20-80
+#: px here): the stated 0.5 px on that one point tells as much about the axis as 1.1 px on the four (the sums
+#: of squared distances from the tip differ 5x).
+PLAN_NOISE = {**SIM_NOISE, "axis_sigma_px": 1.1}
 
 
 def run_cell_demo(
@@ -170,16 +175,19 @@ def run_cell_demo(
     num_tips = sum(d.tool is not None for st in obs.stations for d in st.detections)
     console.print(f"tool tip found in {num_tips} of {num_tool} tool stations", highlight=False)
 
+    from jcalib.problems.options import CalibrationOptions
+
+    options = CalibrationOptions(**SIM_NOISE)  # the stated noise; a-posteriori where the data tell
     t0 = time.perf_counter()
     with console.status("calibrating the whole cell (closed forms, then one joint least-squares problem)"):
-        result = calibrate(calib_cell, out_dir / "observations.json")
+        result = calibrate(calib_cell, out_dir / "observations.json", options)
     timings["calibrate"] = time.perf_counter() - t0
     result.to_json(out_dir / "result.json")
     nominal = None
     if kinematic_errors:
         t0 = time.perf_counter()
         with console.status("calibrating the same observations with the nominal kinematics, for comparison"):
-            nominal = calibrate(cell_path, out_dir / "observations.json")
+            nominal = calibrate(cell_path, out_dir / "observations.json", options)
         timings["calibrate (nominal kinematics)"] = time.perf_counter() - t0
         nominal.to_json(out_dir / "result_nominal.json")
 
@@ -250,8 +258,6 @@ def goal_verdicts(rows, planned: DemoPlan, stats: dict, lost: list[str]) -> list
     """What the goals table means: every goal met, or for each one not met by how much and why (the plan
     could not meet it within its stations, stations lost, noisier images than the plan assumed, or the
     scatter of one capture about the prediction)."""
-    from jcalib.problems.options import CalibrationOptions
-
     met = [r for r in rows if r.met]
     out = []
     if len(met) == len(rows):
@@ -260,7 +266,7 @@ def goal_verdicts(rows, planned: DemoPlan, stats: dict, lost: list[str]) -> list
                    "predicted at the simulated cameras' noise)")
         return out
     corner = float(stats.get("sigma_px", float("nan")))
-    tip = CalibrationOptions().tip_sigma_px * float((stats.get("variance_components") or {}).get("tip", 1.0)) ** 0.5
+    tip = SIM_NOISE["tip_sigma_px"] * float((stats.get("variance_components") or {}).get("tip", 1.0)) ** 0.5
     out.append(f"{len(met)} of {len(rows)} goals met; not met:")
     for r in rows:
         if r.met:

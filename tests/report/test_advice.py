@@ -264,3 +264,22 @@ def test_goals_are_the_tolerances_of_what_they_name():
     assert len(tight) == 3 and all("(goal 0.01 mm)" in w.message for w in tight)
     assert advice.goal_tolerances(parse_goals(["divot:position_mm<=0.2", "cam0:projection_px<=0.3"])) == {
         "point divot.translation_mm": 0.2, "cam0.projection_px": 0.3}
+
+
+def test_added_station_with_a_conventional_direction_closed_form():
+    """A tool's rotation (rx, ry free, rz held by convention in the solve's frame) seen in another frame Q: the
+    information is singular along Q's third axis. One more station's information A = Q diag(p, q, r) Qᵀ gives
+    Q diag(1 / (1/a + p), 1 / (1/b + q), 0) Qᵀ, with r = 0 (as a board view adds nothing to a tool) or not (the
+    held direction stays held): not the garbage of inverting a singular information."""
+    a, b, p, q = 4e-6, 9e-6, 2e5, 5e4
+    from jcalib.geometry.se3 import exp_so3
+
+    Q = exp_so3(np.array([0.3, -0.5, 0.8]))
+    unknowns = tuple(transform_unknown("T_flange_torch", c) for c in ("rx", "ry", "rz"))
+    m = LinearModel("hand-made", "cell", unknowns, Q @ np.diag([1 / a, 1 / b, 0.0]) @ Q.T,
+                    Q @ np.diag([a, b, 0.0]) @ Q.T)
+    want = Q @ np.diag([1 / (1 / a + p), 1 / (1 / b + q), 0.0]) @ Q.T
+    for r in (0.0, 3e5):
+        got = m.covariance(Q @ np.diag([p, q, r]) @ Q.T)
+        np.testing.assert_allclose(got, want, atol=1e-9 * a)  # float64 identity, relative to the largest variance
+    assert np.all(np.isfinite(m.sigma(np.zeros((3, 3))))) and np.allclose(m.sigma(np.zeros((3, 3))), m.sigma())
