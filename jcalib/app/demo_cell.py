@@ -421,7 +421,7 @@ def _tool_shown(layout, camera: str, tool: str, T_base_flange: np.ndarray) -> np
     tip = T_cam_flange[:, :3, :3] @ layout.tools[tool][:3, 3] + T_cam_flange[:, :3, 3]
     in_zone = np.linalg.norm(tip - np.array([0.0, 0.0, TOOL_VIEW_DISTANCE_M]), axis=1) <= (
         TOOL_ZONE_MARGIN * DEFAULT_TOOL_ZONE_RADIUS_M)
-    end = T_cam_flange[:, :3, 3]
+    end = T_cam_flange[:, :3, 3]  # the flange origin, projected by the pinhole part of the camera
     z = np.where(end[:, 2] > 1e-6, end[:, 2], 1e-6)
     u = (end[:, :2] / z[:, None]) @ cam.K[:2, :2].T + cam.K[:2, 2]
     w, h = cam.image_size
@@ -446,11 +446,13 @@ def plan_demo(
 
     The views and tool stations are chosen as ``jcalib plan --kind optimal`` chooses them
     (:mod:`jcalib.planning.optimal`: candidates within reach, the predicted information of each from the one
-    problem builder, greedy selection and exchanges), for the simulated cell: tool candidates keep the tip in
-    the fixed camera's tool zone (where the simulator shows the tool), every view also gives the fixed
-    camera its view of the board (it sees the board whenever no tool is in its zone), and the prediction
-    assumes the simulated cameras' detection noise (:data:`PLAN_NOISE`). Selection stops when every goal is
-    predicted at :data:`PLAN_MARGIN` of its limit, or at ``max_stations``.
+    problem builder, greedy selection and exchanges), for the simulated cell: tool candidates only where the
+    simulated fixed camera shows the tool as its tip detector needs (:func:`_tool_shown`), every view also
+    gives the fixed camera its view of the board (it sees the board whenever no tool is in its zone), and the
+    prediction assumes the simulated cameras' detection noise (:data:`PLAN_NOISE`). Selection stops when
+    every goal is predicted at :data:`PLAN_MARGIN` of its limit, or at ``max_stations``. (``jcalib plan
+    --kind optimal`` itself refuses this cell: its prediction has no view of the board by the fixed camera,
+    whose pose the calibration then cannot start from.)
 
     Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key: kind ``optimal``, goals, predicted σ, ...; read
     by ``jcalib report --plan``). Returns the :class:`DemoPlan`.
