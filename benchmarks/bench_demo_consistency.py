@@ -1,7 +1,7 @@
 """Are the demo's σ honest? Many runs of the demo cell, errors against the simulator's truth in units of σ.
 
 Each run is the whole-cell demo of ``jcalib demo`` (:mod:`jcalib.app.demo_cell`): the same cell spec,
-the same plan (16 hand-eye + 7 tool stations), the same simulated KUKA robot (repeatability noise) and
+the same plan (toward the demo cell's goals: 14 board views + 8 tool stations), the same simulated KUKA robot (repeatability noise) and
 cameras rendering the scene at the robot's true pose with the ``"realistic"`` image noise
 (:meth:`jcalib.sim.render.RenderOptions.preset`), captured, detected and calibrated; only the seed
 differs. It runs in process: a :class:`~jcalib.acquisition.robots.simulated.SimulatedRobot` and
@@ -53,7 +53,7 @@ from jcalib.acquisition.capture import capture
 from jcalib.planning.layout import cell_layout
 from jcalib.acquisition.robots.model import preset_model
 from jcalib.acquisition.robots.simulated import SimulatedController, SimulatedRobot
-from jcalib.app.demo_cell import DEMO_CELL, TOOL_STATIONS, plan_demo
+from jcalib.app.demo_cell import DEMO_CELL, MAX_STATIONS, plan_demo
 from jcalib.app.simcell import layout_truth, scene_frame_source, scene_from_layout
 from jcalib.geometry.conversions import matrix_to_rvec
 from jcalib.io.plan import load_plan
@@ -65,13 +65,12 @@ ROBOT = "kuka_kr10_r1100_sixx"
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
-def run_once(out: Path, seed: int, *, noise: str, stations: int, tool_stations: int, size: tuple[int, int]) -> dict:
+def run_once(out: Path, seed: int, *, noise: str, stations: int, size: tuple[int, int]) -> dict:
     """One demo run in ``out``; returns its errors, covariances and statistics (JSON-ready)."""
     out.mkdir(parents=True, exist_ok=True)
     cell_path = out / "cell.yaml"
     cell_path.write_text(DEMO_CELL)
-    plan_demo(cell_path, out / "plan.json", robot=ROBOT, stations=stations, tool_stations=tool_stations,
-              image_size=size)  # fmt: skip
+    plan_demo(cell_path, out / "plan.json", robot=ROBOT, max_stations=stations, image_size=size)
     layout = cell_layout(cell_path, robot=ROBOT, image_size=size)
     scene = scene_from_layout(layout)
     truth = layout_truth(layout, seed=seed)
@@ -205,8 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--noise", default="realistic", help="RenderOptions preset: realistic or clean")
-    ap.add_argument("--stations", type=int, default=16, help="hand-eye stations (the demo's default)")
-    ap.add_argument("--tool-stations", type=int, default=TOOL_STATIONS)
+    ap.add_argument("--stations", type=int, default=MAX_STATIONS, help="the most stations the plan may take (the "
+                    "demo's default)")
     ap.add_argument("--image-size", default="640x480")
     ap.add_argument("--work", type=Path, default=None, help="keep run folders here (default: a temporary folder)")
     args = ap.parse_args(argv)
@@ -216,13 +215,13 @@ def main(argv: list[str] | None = None) -> int:
     w, h = (int(x) for x in args.image_size.lower().split("x"))
     work = args.work or Path(tempfile.mkdtemp(prefix="jcalib-demo-consistency-"))
     work.mkdir(parents=True, exist_ok=True)
-    log = work / f"runs-{args.noise}-{args.stations}-{args.tool_stations}-{w}x{h}.jsonl"
+    log = work / f"runs-{args.noise}-goals{args.stations}-{w}x{h}.jsonl"
     done = {}
     if log.exists():
         for line in log.read_text().splitlines():
             rec = json.loads(line)
             done[rec["seed"]] = rec
-    print(f"demo consistency: {args.runs} runs, noise {args.noise!r}, {args.stations}+{args.tool_stations} stations, "
+    print(f"demo consistency: {args.runs} runs, noise {args.noise!r}, at most {args.stations} stations toward the goals, "
           f"{w}x{h}; work folder {work}", flush=True)  # fmt: skip
     runs = []
     t_all = time.perf_counter()
@@ -232,8 +231,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         t0 = time.perf_counter()
         try:
-            rec = run_once(work / f"seed{seed:03d}", seed, noise=args.noise, stations=args.stations,
-                           tool_stations=args.tool_stations, size=(w, h))  # fmt: skip
+            rec = run_once(work / f"seed{seed:03d}", seed, noise=args.noise, stations=args.stations, size=(w, h))
         except Exception as e:  # noqa: BLE001  (a failed run is reported, not fatal)
             rec = {"seed": seed, "error": f"{type(e).__name__}: {e}"}
             traceback.print_exc(limit=2)

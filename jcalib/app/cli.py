@@ -54,7 +54,8 @@ def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the session, results, report and exports.")] = Path(
         "demo-output"
     ),
-    stations: Annotated[int, typer.Option(help="Robot stations to plan and capture.")] = 16,
+    stations: Annotated[int, typer.Option(help="The most robot stations (board views and tool stations) the plan "
+                                          "may take; it stops when the cell's goals are predicted met.")] = 30,
     protocol: Annotated[str, typer.Option(help="Simulated robot controller: kuka (KUKAVARPROXY) or abb.")] = "kuka",
     image_size: Annotated[str, typer.Option(help="Simulated camera resolution WIDTHxHEIGHT.")] = "640x480",
     seed: Annotated[int, typer.Option(help="Random seed of the simulated cell.")] = 0,

@@ -2,9 +2,11 @@
 
 The chain is the one a cell integrator runs on hardware, with simulators standing in for it:
 
-1. plan stations for the cell (:func:`jcalib.planning.stations.plan_cell`): hand-eye stations
-   (``cam_hand`` over the board), then tool stations (``tcp``: the tip of the tool ``torch`` held in
-   front of ``cam_fixed``, the tool turned about two axes), appended to one plan (ids ``s…``, ``t…``);
+1. plan stations toward the cell's goals (``goals:`` of :data:`DEMO_CELL`: hand-eye, fixed camera, TCP
+   position and axis, the flange camera's projection over the whole image; :func:`plan_demo`, the
+   goal-driven selection of ``jcalib plan --kind optimal``): views of the board by ``cam_hand`` (ids
+   ``s…``), then tool stations (ids ``t…``: the tip of the tool ``torch`` held in front of ``cam_fixed``,
+   the tool tilted and turned), as few as meet every goal by prediction;
 2. serve a simulated robot controller (KUKAVARPROXY or ABB line protocol) and two fake GigE Vision
    cameras — ``cam_hand`` on the flange, ``cam_fixed`` on the base — rendering the scene at the
    robot's *true* pose (repeatability noise included); ``cam_fixed`` shows the tool's silhouette on a
@@ -13,8 +15,10 @@ The chain is the one a cell integrator runs on hardware, with simulators standin
 4. detect the board in every image, and the tool tip in ``cam_fixed`` images without a board
    (:mod:`jcalib.pipeline.session`); 5. calibrate the cell jointly (:func:`jcalib.calibrate`): both
    cameras, both poses, the board and the TCP ``T_flange_torch`` in one least-squares problem;
-6. write ``result.json``, the HTML report and the RAPID / KRL / OpenCV exports, and print every
-   estimate next to the simulator's ground truth and its σ.
+6. write ``result.json``, the HTML report (from the in-memory result: every section, the goals table
+   included) and the RAPID / KRL / OpenCV exports, print every estimate next to the simulator's ground
+   truth and its σ, and each goal's achieved σ against its limit and the plan's prediction (met, or by how
+   much not and why).
 
 With ``kinematic_errors`` (``jcalib demo --kinematic-errors``) the simulated arm hides seeded realistic
 kinematic errors (joint zeros, link lengths, twists; ``jcalib simulate --kinematic-errors``): its
@@ -40,6 +44,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -55,15 +60,37 @@ from jcalib.workflow.simulate import DEMO_CELL, start_simulator
 KINEMATIC_GROUPS = ("joint_offsets", "link_lengths", "twists")
 #: Stations planned for the arm's kinematics (``kinematics`` planner) with ``--kinematic-errors``.
 KINEMATIC_STATIONS = 20
-#: Tool stations appended to the hand-eye plan (``tcp`` planner).
-TOOL_STATIONS = 7
+#: The most views and tool stations the goal-driven plan may take (``jcalib demo --stations``).
+MAX_STATIONS = 30
+#: The plan aims at this fraction of each goal's limit, so that the noise of one capture (the achieved σ
+#: scatter about the predicted ones) does not tip over a goal that the plan would meet only just.
+PLAN_MARGIN = 0.8
+#: Candidate stations the plan chooses from: views of the board by the flange camera, and tool stations
+#: generated (those the simulated fixed camera would not show as its tip detector needs are dropped: about 9 in
+#: 10, :func:`_tool_shown`).
+VIEW_CANDIDATES = 120
+TOOL_CANDIDATES = 320
+#: A tool candidate's tip lies within this fraction of the simulated tool zone's radius, and its flange end
+#: projects at least this far outside the image, px.
+TOOL_ZONE_MARGIN = 0.9
+SHAFT_OUT_PX = 20.0
+#: The simulated cameras' detection noise ("realistic" sensor noise at 640x480), px, measured as the
+#: a-posteriori σ of the demo's calibrations: corners 0.12, tool tips 0.5-0.6. The demo states it to its
+#: calibration, as an integrator states a detector's noise: a kind of measurement with too little redundancy
+#: for its own variance component (a tip at each of a few tool stations) keeps its stated σ, and the default
+#: (0.25 px) would make the TCP's σ half its error.
+SIM_NOISE = {"sigma_px": 0.12, "tip_sigma_px": 0.55}
+#: The noise the plan assumes, px. The tool's silhouette gives one point of its axis, about 50 px from the
+#: tip, where the prediction places four, 1-4 cm from it (:data:`jcalib.geometry.se3.SHAFT_POINTS_M`, 20-80
+#: px here): the stated 0.5 px on that one point tells as much about the axis as 1.1 px on the four (the sums
+#: of squared distances from the tip differ 5x).
+PLAN_NOISE = {**SIM_NOISE, "axis_sigma_px": 1.1}
 
 
 def run_cell_demo(
     out_dir: Path,
     *,
-    stations: int = 16,
-    tool_stations: int = TOOL_STATIONS,
+    stations: int = MAX_STATIONS,
     protocol: str = "kuka",
     image_size: str = "640x480",
     seed: int = 0,
@@ -74,8 +101,8 @@ def run_cell_demo(
 
     Args:
         out_dir: folder for the plan, session, observations, result, report and exports.
-        stations: hand-eye stations to plan (unreachable ones are dropped).
-        tool_stations: tool (``tcp``) stations appended to them.
+        stations: the most views and tool stations the goal-driven plan may take (:func:`plan_demo`; it stops
+            when the cell's goals are predicted met).
         protocol: simulated controller, "kuka" or "abb".  image_size: "WIDTHxHEIGHT", px.
         seed: noise seed of the simulated cell (and of its kinematic errors).
         kinematic_errors: the arm hides kinematic errors, which the calibration estimates (module
@@ -108,12 +135,17 @@ def run_cell_demo(
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    num_handeye, num_tool, num_kin = plan_demo(
-        calib_cell, out_dir / "plan.json", robot=robot, stations=stations, tool_stations=tool_stations,
-        image_size=size, kinematic_stations=KINEMATIC_STATIONS if kinematic_errors else 0)  # fmt: skip
+    with console.status("planning stations toward the cell's goals (candidates, predicted σ, selection)"):
+        planned = plan_demo(calib_cell, out_dir / "plan.json", robot=robot, max_stations=stations, image_size=size,
+                            kinematic_stations=KINEMATIC_STATIONS if kinematic_errors else 0)
     timings["plan"] = time.perf_counter() - t0
-    kin_text = f" + {num_kin} kinematic" if kinematic_errors else ""
-    console.print(f"planned {num_handeye} hand-eye{kin_text} + {num_tool} tool stations for {robot}", highlight=False)
+    num_tool = planned.num_tool
+    kin_text = f" + {planned.num_kinematic} kinematic" if kinematic_errors else ""
+    console.print(f"planned {planned.num_views} board views{kin_text} + {num_tool} tool stations for {robot} toward "
+                  f"the cell's {len(planned.goals)} goals ({'met' if planned.met else 'NOT all met'} by prediction"
+                  f"{'' if planned.met else f' within {stations} stations'}):", highlight=False)
+    for line in planned.lines():
+        console.print(line, highlight=False, markup=False)
 
     # The simulator runs as its own process (`jcalib simulate`), like the real controller and cameras; its
     # sensor noise is a real camera's ("realistic"): a fair table of errors in σ.
@@ -131,26 +163,40 @@ def run_cell_demo(
     t0 = time.perf_counter()
     obs, failures = detect_session_to_file(out_dir / "session", cell_path, out_dir / "observations.json")
     timings["detect"] = time.perf_counter() - t0
-    if failures:
-        console.print(f"[yellow]{len(failures)} image(s) without a usable board or tool-tip view (skipped)[/]")
+    # at a tool station (ids t…) the flange camera looks away from the board: nothing to detect there
+    expected = [f for f in failures if f.station.startswith("t") and f.station in planned.pairs
+                and f.camera != planned.pairs[f.station][0]]
+    if expected:
+        console.print(f"{len(expected)} image(s) without a board, as planned (the flange camera at the tool stations)",
+                      highlight=False)
+    if len(failures) > len(expected):
+        console.print(f"[yellow]{len(failures) - len(expected)} image(s) without a usable board or tool-tip view "
+                      "(skipped)[/]")
     num_tips = sum(d.tool is not None for st in obs.stations for d in st.detections)
     console.print(f"tool tip found in {num_tips} of {num_tool} tool stations", highlight=False)
 
+    from jcalib.problems.options import CalibrationOptions
+
+    options = CalibrationOptions(**SIM_NOISE)  # the stated noise; a-posteriori where the data tell
     t0 = time.perf_counter()
     with console.status("calibrating the whole cell (closed forms, then one joint least-squares problem)"):
-        result = calibrate(calib_cell, out_dir / "observations.json")
+        result = calibrate(calib_cell, out_dir / "observations.json", options)
     timings["calibrate"] = time.perf_counter() - t0
     result.to_json(out_dir / "result.json")
     nominal = None
     if kinematic_errors:
         t0 = time.perf_counter()
         with console.status("calibrating the same observations with the nominal kinematics, for comparison"):
-            nominal = calibrate(cell_path, out_dir / "observations.json")
+            nominal = calibrate(cell_path, out_dir / "observations.json", options)
         timings["calibrate (nominal kinematics)"] = time.perf_counter() - t0
         nominal.to_json(out_dir / "result_nominal.json")
 
+    from jcalib.problems.goals import goal_rows
+
+    rows_goals = goal_rows(planned.goals, result, planned.predicted)
     t0 = time.perf_counter()
-    write_report(out_dir / "result.json", out_dir / "report.html", observations=out_dir / "observations.json")
+    with console.status("writing the report (with the solve: task-space σ, hints, residuals, cross-validation)"):
+        write_report(result, out_dir / "report.html", observations=obs, cell=calib_cell, goals=rows_goals)
     written = ["result.json", "report.html"]
     # one OpenCV file per camera: the flange camera moves relative to the fixed one (no stereo pair)
     exports = [("opencv", f"{cam}_opencv.yaml", {"cameras": cam}) for cam in result.file.cameras]
@@ -187,9 +233,59 @@ def run_cell_demo(
     )
     if nominal is not None:
         console.print(pose_error_table(result.file, nominal.file, truth))
+    from jcalib.report.goals import goals_table
+
+    console.print(goals_table(rows_goals))
+    for line in goal_verdicts(rows_goals, planned, result.file.stats, lost_stations(planned, obs)):
+        console.print(line, highlight=False, markup=False)
     console.print("timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()), highlight=False)
     console.print(escape(f"wrote {out_dir}/: " + ", ".join(written)), highlight=False)
     return rows
+
+
+def lost_stations(planned: DemoPlan, obs) -> list[str]:
+    """Planned views without a detected board and tool stations without a detected tool tip (ids)."""
+    seen = {st.id: st for st in obs.stations}
+    lost = []
+    for sid, (camera, thing) in planned.pairs.items():
+        st = seen.get(sid)
+        if st is None or not any(d.camera == camera and thing in (d.target, d.tool) for d in st.detections):
+            lost.append(sid)
+    return lost
+
+
+def goal_verdicts(rows, planned: DemoPlan, stats: dict, lost: list[str]) -> list[str]:
+    """What the goals table means: every goal met, or for each one not met by how much and why (the plan
+    could not meet it within its stations, stations lost, noisier images than the plan assumed, or the
+    scatter of one capture about the prediction)."""
+    met = [r for r in rows if r.met]
+    out = []
+    if len(met) == len(rows):
+        worst = max(r.achieved / r.goal.limit for r in rows)
+        out.append(f"every goal met: the largest σ is {worst:.0%} of its limit (planned for {PLAN_MARGIN:.0%}, "
+                   "predicted at the simulated cameras' noise)")
+        return out
+    corner = float(stats.get("sigma_px", float("nan")))
+    tip = SIM_NOISE["tip_sigma_px"] * float((stats.get("variance_components") or {}).get("tip", 1.0)) ** 0.5
+    out.append(f"{len(met)} of {len(rows)} goals met; not met:")
+    for r in rows:
+        if r.met:
+            continue
+        g, a, p = r.goal, r.achieved, r.predicted
+        head = f"  {g.text}: σ {a:.3g} {g.unit}, {a - g.limit:.3g} {g.unit} ({a / g.limit - 1:.0%}) over the limit"
+        if p is not None and p > g.limit:
+            why = (f"the plan predicted {p:.3g} {g.unit}: {planned.max_stations} stations cannot meet it "
+                   "(jcalib demo --stations N allows more)")
+        elif lost:
+            why = (f"predicted {p:.3g} {g.unit}, but {len(lost)} planned station(s) gave no detection "
+                   f"({', '.join(lost[:5])}{'…' if len(lost) > 5 else ''})")
+        else:
+            ratio = a / p if p else float("nan")
+            why = (f"predicted {p:.3g} {g.unit} (achieved / predicted {ratio:.2f}); the images gave {corner:.3g} px "
+                   f"corner and {tip:.3g} px tip noise, the plan assumed {PLAN_NOISE['sigma_px']:g} and "
+                   f"{PLAN_NOISE['tip_sigma_px']:g} px")
+        out.append(f"{head}: {why}")
+    return out
 
 
 def kinematic_cell(robot: str) -> str:
@@ -257,40 +353,189 @@ def pose_error_table(result, nominal, truth: dict) -> Table:
     return table
 
 
+class _WithMargin:
+    """A :class:`~jcalib.planning.predict.Predictor` as :func:`jcalib.planning.optimal.select` sees it, each
+    goal's limit times :data:`PLAN_MARGIN`."""
+
+    def __init__(self, pred):
+        self._pred, self.goals = pred, pred.goals
+
+    def goal_sigmas(self, cov: np.ndarray) -> np.ndarray:
+        return self._pred.goal_sigmas(cov)
+
+    def limits(self) -> np.ndarray:
+        return self._pred.limits() * PLAN_MARGIN
+
+
+@dataclass
+class DemoPlan:
+    """What :func:`plan_demo` planned.
+
+    Attributes:
+        num_views, num_tool, num_kinematic: stations of each part (ids ``s…``, ``t…``, ``k…``).
+        goals: the cell's goals.  predicted: goal text -> predicted σ of the views and tool stations (goal's
+            unit; kinematic parameters held at nominal).  met: every goal predicted met (at its limit).
+        max_stations: the most views and tool stations the plan could take.
+        pairs: station id -> what it shows: ``(camera, target)`` or ``(camera, tool)`` (views and tool stations).
+    """
+
+    num_views: int
+    num_tool: int
+    num_kinematic: int
+    goals: tuple
+    predicted: dict[str, float]
+    met: bool
+    max_stations: int
+    pairs: dict[str, tuple[str, str]]
+
+    def lines(self) -> list[str]:
+        """One line per goal: predicted σ against the limit."""
+        out = []
+        for g in self.goals:
+            p = self.predicted[g.text]
+            verdict = "met" if p <= g.limit else f"NOT met ({p / g.limit - 1:.0%} over)"
+            out.append(f"  {g.text}: predicted σ {p:.3g} {g.unit} ({verdict})")
+        return out
+
+
+def _goal_cell(data: dict) -> dict:
+    """The cell the goals are planned for: with its robot's kinematics nominal (not calibrated), so that the
+    prediction covers the cameras, board and tool; kinematic stations come from their own planner."""
+    robot = data.get("robot")
+    if not isinstance(robot, dict) or not robot.get("calibrate_kinematics"):
+        return data
+    return {**data, "robot": {k: v for k, v in robot.items() if k not in ("kinematics", "calibrate_kinematics")}}
+
+
+def _tool_shown(layout, camera: str, tool: str, T_base_flange: np.ndarray) -> np.ndarray:
+    """``(M,)`` whether the simulated ``camera`` shows ``tool`` as its tip detector needs, at flange poses
+    ``(M, 4, 4)``: the tip well inside the camera's tool zone (the ball where the simulated backlight shows
+    the tool, :mod:`jcalib.app.simcell`), and the shaft running out of the image (the simulated tool runs
+    straight from the tip to the flange: with both of its ends in view, the tip can be taken at the wrong
+    end)."""
+    from jcalib.app.simcell import DEFAULT_TOOL_ZONE_RADIUS_M
+    from jcalib.planning.stations import TOOL_VIEW_DISTANCE_M
+
+    cam = layout.cameras[camera]
+    T_cam_flange = np.linalg.inv(cam.pose)[None] @ np.asarray(T_base_flange)
+    tip = T_cam_flange[:, :3, :3] @ layout.tools[tool][:3, 3] + T_cam_flange[:, :3, 3]
+    in_zone = np.linalg.norm(tip - np.array([0.0, 0.0, TOOL_VIEW_DISTANCE_M]), axis=1) <= (
+        TOOL_ZONE_MARGIN * DEFAULT_TOOL_ZONE_RADIUS_M)
+    end = T_cam_flange[:, :3, 3]  # the flange origin, projected by the pinhole part of the camera
+    z = np.where(end[:, 2] > 1e-6, end[:, 2], 1e-6)
+    u = (end[:, :2] / z[:, None]) @ cam.K[:2, :2].T + cam.K[:2, 2]
+    w, h = cam.image_size
+    inside = (end[:, 2] > 1e-6) & np.all((u > -SHAFT_OUT_PX) & (u < np.array([w, h]) - 1 + SHAFT_OUT_PX), axis=1)
+    return in_zone & ~inside
+
+
 def plan_demo(
     cell_path: Path,
     out: Path,
     *,
     robot: str,
-    stations: int,
-    tool_stations: int,
+    max_stations: int = MAX_STATIONS,
     image_size: tuple[int, int] | None,
     kinematic_stations: int = 0,
-) -> tuple[int, int, int]:
-    """Plan the demo: ``handeye`` stations (ids ``s000…``), ``kinematics`` stations (ids ``k000…``, when
-    ``kinematic_stations`` > 0: joint configurations spread over the arm's range, D-optimal for its
-    kinematic parameters; the cell must name ``kinematics:`` and ``calibrate_kinematics:``), then ``tcp``
-    stations (ids ``t000…``), one plan.
+    seed: int = 0,
+) -> DemoPlan:
+    """Plan the demo toward the cell's goals: views of the board by the flange camera (ids ``s000…``),
+    ``kinematics`` stations (ids ``k000…``, when ``kinematic_stations`` > 0: joint configurations spread over
+    the arm's range, D-optimal for its kinematic parameters; the cell must name ``kinematics:`` and
+    ``calibrate_kinematics:``), then tool stations (ids ``t000…``), one plan.
 
-    Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key per part). Returns the number of
-    hand-eye, tool and kinematic stations kept (reachable, in view).
+    The views and tool stations are chosen as ``jcalib plan --kind optimal`` chooses them
+    (:mod:`jcalib.planning.optimal`: candidates within reach, the predicted information of each from the one
+    problem builder, greedy selection and exchanges), for the simulated cell: tool candidates only where the
+    simulated fixed camera shows the tool as its tip detector needs (:func:`_tool_shown`), every view also
+    gives the fixed camera its view of the board (it sees the board whenever no tool is in its zone), and the
+    prediction assumes the simulated cameras' detection noise (:data:`PLAN_NOISE`). Selection stops when
+    every goal is predicted at :data:`PLAN_MARGIN` of its limit, or at ``max_stations``. (``jcalib plan
+    --kind optimal`` itself refuses this cell: its prediction has no view of the board by the fixed camera,
+    whose pose the calibration then cannot start from.)
+
+    Writes ``out`` (``jcalib.plan/1`` with a ``planner`` key: kind ``optimal``, goals, predicted σ, ...; read
+    by ``jcalib report --plan``). Returns the :class:`DemoPlan`.
+
+    Raises:
+        BadInputError: a cell without goals, ``max_stations`` outside 2..200, or no usable candidates.
     """
-    from jcalib.planning.layout import cell_layout
-    from jcalib.io.plan import make_plan
-    from jcalib.planning.stations import plan_cell
     from jcalib.io.atomic import write_json_atomic
+    from jcalib.io.plan import make_plan
+    from jcalib.planning import candidates as cands
+    from jcalib.planning.layout import cell_layout, load_cell_dict
+    from jcalib.planning.optimal import select
+    from jcalib.planning.predict import Predictor
+    from jcalib.planning.stations import plan_cell, visit_order
+    from jcalib.problems.options import CalibrationOptions
 
-    layout = cell_layout(cell_path, robot=robot, image_size=image_size)
-    parts = [("s", plan_cell(layout, "handeye", num_stations=stations))]
+    if not 2 <= int(max_stations) <= 200:
+        raise BadInputError(f"--stations: expected 2..200 stations (the most the goal-driven plan may take), got "
+                            f"{max_stations}")
+    data, _ = load_cell_dict(cell_path)
+    layout = cell_layout(_goal_cell(data), robot=robot, image_size=image_size)
+    goals = layout.cell.goals
+    if not goals:
+        raise BadInputError(f"{cell_path}: the demo plans toward the cell's goals; the cell has none (goals:)")
+    rng = np.random.default_rng(seed)
+    views, tips = cands.cell_pairs(layout)
+    parts = [cands.view_candidates(layout, c, t, VIEW_CANDIDATES // max(1, len(views)), rng) for c, t in views]
+    for c, tool in tips:
+        found = cands.tool_candidates(layout, c, tool, TOOL_CANDIDATES // len(tips), rng)
+        parts.append(found.subset(np.flatnonzero(_tool_shown(layout, c, tool, found.T_base_flange))))
+    c = cands.merge(parts)
+    if not len(c):
+        raise BadInputError(f"plan: no candidate station of the demo cell is reachable by {robot} and in view")
+    # fixed cameras see fixed targets at every view station: the same view, fresh noise each time
+    fixed = [(cam, t) for cam, cl in layout.cameras.items() for t, tl in layout.targets.items()
+             if cl.mount == "base" and tl.mount == "base" and layout.cell.targets[t].type != "points"]
+    fixed_c = cands.Candidates(np.repeat(c.T_base_flange[:1], len(fixed), 0), np.repeat(c.joints_rad[:1], len(fixed), 0),
+                               fixed)
+    pred = Predictor(layout, goals, CalibrationOptions(**PLAN_NOISE))
+    pred.setup(cands.merge([c, fixed_c]))
+    infos = pred.informations(c)
+    is_view = np.array([thing in layout.targets for _, thing in c.pair])
+    if fixed:
+        infos[is_view] += pred.informations(fixed_c).sum(axis=0)
+    first = sorted({c.pair.index(p) for p in c.pair})  # one candidate of each pair: every unknown is in it
+    prior = pred.prior_information(c.subset(first))
+    d = select(_WithMargin(pred), infos, prior, int(max_stations))
+    sigma = pred.goal_sigmas(np.linalg.inv(d.information))
+    predicted = {g.text: float(s) for g, s in zip(goals, sigma)}
+
+    def ordered(keep: np.ndarray) -> list[int]:
+        chosen = [k for k in d.chosen if keep[k]]
+        return [chosen[i] for i in visit_order(c.joints_rad[chosen], layout.home_rad)] if chosen else []
+
+    view_k, tool_k = ordered(is_view), ordered(~is_view)
+    poses = [c.T_base_flange[k] for k in view_k]
+    ids = [f"s{k:03d}" for k in range(len(view_k))]
+    details: dict = {}
+    num_kin = 0
     if kinematic_stations > 0:
-        parts.append(("k", plan_cell(layout, "kinematics", num_stations=kinematic_stations)))
-    parts.append(("t", plan_cell(layout, "tcp", num_stations=tool_stations)))
-    poses = [s.T_base_flange for _, p in parts for s in p.plan.stations]
-    ids = [f"{prefix}{k:03d}" for prefix, p in parts for k in range(len(p.plan))]
-    plan = make_plan(poses, ids)
-    write_json_atomic(out, {**plan.to_json(), "planner": [p.to_json(layout)["planner"] for _, p in parts]})
-    counts = {prefix: len(p.plan) for prefix, p in parts}
-    return counts["s"], counts["t"], counts.get("k", 0)
+        kin = plan_cell(cell_layout(cell_path, robot=robot, image_size=image_size), "kinematics",
+                        num_stations=kinematic_stations)
+        poses += [s.T_base_flange for s in kin.plan.stations]
+        num_kin = len(kin.plan)
+        ids += [f"k{k:03d}" for k in range(num_kin)]
+        details["kinematics"] = kin.to_json()["planner"]
+    poses += [c.T_base_flange[k] for k in tool_k]
+    ids += [f"t{k:03d}" for k in range(len(tool_k))]
+    texts = [g.text for g in goals]
+    planner = {
+        "kind": "optimal", "robot": layout.robot, "goals": texts, "predicted": predicted,
+        "met": bool(np.all(sigma <= np.array([g.limit for g in goals]))), "margin": PLAN_MARGIN,
+        "after_each_station": [{t: float(s) for t, s in zip(texts, row)} for row in d.history],
+        "pairs": {"s": [list(c.pair[k]) for k in view_k], "t": [list(c.pair[k]) for k in tool_k]},
+        "candidates": len(c), "dropped": {k: int(v) for k, v in c.dropped.items()},
+        "assumes": (f"{PLAN_NOISE['sigma_px']:g} px corner noise, {PLAN_NOISE['tip_sigma_px']:g} px tip noise, "
+                    f"{PLAN_NOISE['axis_sigma_px']:g} px tool-axis noise (the simulated cameras'), the robot's pose "
+                    "noise, the nominal cell geometry (first order), nominal kinematics"),
+        **details,
+    }  # fmt: skip
+    write_json_atomic(out, {**make_plan(poses, ids).to_json(), "planner": planner})
+    pairs = {f"s{i:03d}": c.pair[k] for i, k in enumerate(view_k)} | {f"t{i:03d}": c.pair[k] for i, k in enumerate(tool_k)}
+    return DemoPlan(len(view_k), len(tool_k), num_kin, tuple(goals), predicted, planner["met"], int(max_stations), pairs)
 
 
 def _rotation_error_deg(R_true: np.ndarray, R_est: np.ndarray) -> np.ndarray:
@@ -359,7 +604,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def demo(out_dir: Path, *, stations: int = 16, protocol: str = "kuka", image_size: str = "640x480",
+def demo(out_dir: Path, *, stations: int = MAX_STATIONS, protocol: str = "kuka", image_size: str = "640x480",
          seed: int = 0, kinematic_errors: bool = False) -> None:
     """The ``jcalib demo`` command body: enter a private network namespace, then run the demo there."""
     from jcalib.acquisition.netns import in_private_namespace, run_in_private_namespace

@@ -58,10 +58,12 @@ def weak_section(model, tolerances, cameras=None) -> str:
     dirs = advice.weak_directions(model, 3, tolerances, cameras)
     rows = [[str(k + 1), fmt(d.ratio, 3), esc(d.describe())] for k, d in enumerate(dirs)]
     tol = {**advice.DEFAULT_TOLERANCES, **(tolerances or {})}
+    by_goal = any("." in k for k in tol)
     return (note("Eigen-directions of the covariance with every unknown divided by its tolerance (transforms and "
-                 f"points {tol['rotation_deg']:g}° and {tol['translation_mm']:g} mm; an intrinsic: the change that "
-                 f"moves some image point by {tol['edge_px']:g} px). The first is the combination the data determine "
-                 "worst; a ratio above 1 is worse than the tolerance.")
+                 f"points {tol['rotation_deg']:g}° and {tol['translation_mm']:g} mm"
+                 + (", or the limit of a goal that names them" if by_goal else "") + "; an intrinsic: the change "
+                 f"that moves some image point by {tol['edge_px']:g} px). The first is the combination the data "
+                 "determine worst; a ratio above 1 is worse than the tolerance.")
             + table(["#", "σ / tolerance", "direction (weights)"], rows, {1}))
 
 

@@ -18,9 +18,10 @@ def goals_table(rows: list[GoalRow]):
 
     table = Table(title="Goals (worst-direction σ)")
     for col in ("goal", "limit", "predicted σ", "achieved σ", "unit", "met"):
-        table.add_column(col, justify="right" if col in ("limit", "predicted σ", "achieved σ") else "left")
+        table.add_column(col, justify="right" if col in ("limit", "predicted σ", "achieved σ") else "left",
+                         overflow="fold" if col == "goal" else "ellipsis")  # wraps after the colon, else folds
     for r in rows:
-        table.add_row(r.goal.text, f"{r.goal.limit:g}", _num(r.predicted), _num(r.achieved), r.goal.unit,
+        table.add_row(r.goal.text.replace(":", ": ", 1), f"{r.goal.limit:g}", _num(r.predicted), _num(r.achieved), r.goal.unit,
                       "[green]yes[/]" if r.met else "[bold red]no[/]")
     return table
 

@@ -56,6 +56,26 @@ def _tool_references(cal) -> tuple[dict, dict]:
     return reference, robot_of
 
 
+def _cell_goal_rows(cal, cell, file) -> list:
+    """Rows of the cell spec's goals against the result (the calibration's cell, else ``cell``); a goal the
+    result cannot answer (its quantity not calibrated) is left out."""
+    from jcalib.errors import BadInputError
+    from jcalib.problems.goals import goal_rows
+
+    spec = getattr(getattr(cal, "graph", None), "cell", None)
+    if spec is None and cell is not None:
+        from jcalib.io.cell import load_cell
+
+        spec = load_cell(cell)
+    rows = []
+    for g in getattr(spec, "goals", ()) or ():
+        try:
+            rows += goal_rows([g], file)
+        except BadInputError:
+            continue
+    return rows
+
+
 def render_report(
     result: Any,
     observations: str | os.PathLike | Mapping | Any | None = None,
@@ -82,7 +102,9 @@ def render_report(
         cross_validation: calibrate the two halves of the stations again and compare (two more solves);
             default: when ``cell`` and ``observations`` are given.
         goals: rows of :func:`jcalib.problems.goals.goal_rows` (a goal-driven plan's goals against this
-            result): a "Goals" table in the summary.
+            result): a "Goals" table in the summary. Default: the cell spec's ``goals:`` (no prediction),
+            when the report has the cell. The goals are also the tolerances of the unknowns they name
+            (:func:`jcalib.report.advice.goal_tolerances`; ``tolerances`` still overrides the defaults).
 
     Returns:
         The HTML document (UTF-8 text, self-contained).
@@ -103,6 +125,10 @@ def render_report(
         obs = load_observations(observations)
     opts = _options(options, file)
     cal = calibration_of(result, obs, cell, opts)
+    if goals is None:
+        goals = _cell_goal_rows(cal, cell, file)
+    if goals:  # the goals are the tolerances of what they name
+        tolerances = {**advice.goal_tolerances([r.goal for r in goals]), **(tolerances or {})}
     model = linear_model(cal, opts) if cal is not None else model_from_file(file)
     diags = diagnostics.residual_diagnostics(cal) if cal is not None else {}
     groups = diagnostics.group_statistics(cal) if cal is not None else []

@@ -28,6 +28,7 @@ td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 .warn{background:#fff4e5;border:2px solid #e67e22;border-radius:6px;padding:8px 14px;margin:12px 0}
 .warn h2{border:none;margin:0.2em 0;color:#a04000}
 .warn li{margin:0.3em 0}
+.warn .hint{margin:0.4em 0 0.2em}
 .ok{background:#eafaf1;border:1px solid #58d68d;border-radius:6px;padding:6px 14px;margin:12px 0}
 .note{color:#4a5560;font-size:0.9em}
 figure{margin:0.6em 0 1.2em}

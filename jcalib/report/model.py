@@ -189,13 +189,20 @@ class LinearModel:
         return [u.label for u in self.unknowns]
 
     def covariance(self, added: np.ndarray | None = None) -> np.ndarray:
-        """``(n, n)`` covariance (internal units): the solve's, or after adding information ``added``."""
+        """``(n, n)`` covariance (internal units): the solve's, or after adding information ``added``.
+
+        The update starts from the solve's covariance ``C`` (push-through identity,
+        ``(H + A)⁻¹ = C − C A (I + C A)⁻¹ C``), not from inverting the information: a direction the solve
+        holds by convention (a tool's rotation about its own axis, seen in another frame) has no
+        information, so ``H + A`` may be singular while the update stays in what ``C`` spans.
+        """
         if added is None:
             return self.base_covariance
-        H = self.information + added
-        d = 1.0 / np.sqrt(np.maximum(np.diag(H), 1e-300))
-        Hs = H * d[:, None] * d[None, :]
-        return np.linalg.inv(0.5 * (Hs + Hs.T)) * d[:, None] * d[None, :]
+        C, A = self.base_covariance, 0.5 * (added + added.T)
+        d = np.sqrt(np.maximum(np.diag(C), 1e-300))  # unit σ: the update is well scaled whatever the units
+        Cs, As = C / d[:, None] / d[None, :], A * d[:, None] * d[None, :]
+        out = Cs - Cs @ As @ np.linalg.solve(np.eye(len(C)) + Cs @ As, Cs)
+        return 0.5 * (out + out.T) * d[:, None] * d[None, :]
 
     def sigma(self, added: np.ndarray | None = None) -> np.ndarray:
         """``(n,)`` 1σ of every unknown in display units."""

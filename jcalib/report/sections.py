@@ -27,12 +27,17 @@ INCLUDES = note(
 
 
 def warnings(items: list) -> str:
-    """Warnings, most severe first (:func:`jcalib.report.advice.analysis_warnings`)."""
+    """Warnings, most severe first (:func:`jcalib.report.advice.analysis_warnings`); advice that several of
+    them share is said once, after the list (:func:`jcalib.report.advice.stated_once`)."""
+    from jcalib.report.advice import stated_once
+
     if not items:
         return '<div class="ok">No warnings.</div>'
-    lis = "".join(f"<li>{esc(w.message)}</li>" for w in items)
+    lines, hints = stated_once(items)
+    lis = "".join(f"<li>{esc(line)}</li>" for line in lines)
+    after = "".join(f'<p class="hint">{esc(h)}</p>' for h in hints)
     return (f'<div class="warn" id="warnings"><h2>Warnings</h2><p class="note">Most severe first.</p>'
-            f"<ol>{lis}</ol></div>")
+            f"<ol>{lis}</ol>{after}</div>")
 
 
 def statistics(stats: Mapping[str, Any]) -> str:

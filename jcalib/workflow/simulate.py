@@ -18,7 +18,9 @@ from jcalib.errors import DeviceError
 __all__ = ["DEMO_CELL", "DEMO_ADDRESSES", "SimulatorProcess", "start_simulator"]
 
 #: The demo cell: an eye-in-hand camera, a fixed camera, a checkerboard on the table, a tool whose TCP
-#: the fixed camera measures (its tip held in front of it, seen in silhouette).
+#: the fixed camera measures (its tip held in front of it, seen in silhouette), and the accuracy an integrator
+#: needs of them (``goals:``, worst-direction σ, :mod:`jcalib.io.goals`), toward which ``jcalib demo`` plans
+#: its stations (:func:`jcalib.app.demo_cell.plan_demo`).
 DEMO_CELL = """schema: jcalib.cell/1
 robot:
   model: kuka_kr10_r1100_sixx
@@ -36,6 +38,14 @@ targets:
   board: {type: checkerboard, cols: 9, rows: 6, square: 0.025, mount: base}  # 9x6: no 180° ambiguity
 tools:
   torch: {observed_by: [cam_fixed]}
+goals:  # worst-direction σ; the demo plans its stations to meet them
+  - T_flange_cam_hand:translation_mm<=0.5  # hand-eye: where the flange camera measures, in the robot's frame
+  - T_flange_cam_hand:rotation_deg<=0.05   # 0.05 deg = 0.35 mm at 0.4 m
+  - T_base_cam_fixed:translation_mm<=0.5   # the fixed camera in the robot's base frame
+  - T_base_cam_fixed:rotation_deg<=0.05
+  - T_flange_torch:position_mm<=0.3        # TCP: where the torch tip is
+  - T_flange_torch:rotation_deg<=0.5       # and where its axis points (a torch's angle matters to degrees)
+  - cam_hand:projection_px<=1.0            # the flange camera's lens, anywhere in the image (corners included)
 """
 #: Loopback address of each demo camera's fake GigE device (GigE Vision's control port is fixed).
 DEMO_ADDRESSES = {"cam_hand": "127.0.0.1", "cam_fixed": "127.0.0.2"}

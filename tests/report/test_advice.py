@@ -1,6 +1,8 @@
 """What the report tells the user: each piece against an independent reference (OpenCV, closed forms, the
 solve's own propagation, an injected fault)."""
 
+import re
+
 import cv2
 import equinox as eqx
 import jax
@@ -215,3 +217,69 @@ def test_weak_handeye_first_warning_names_translation_and_a_tilting_station(hand
     assert max(after["rot_x"], after["rot_y"]) < 0.5 * after["rot_z"], after
     html = render_report(result, obs)
     assert html.index("<ol><li>T_flange_cam0 translation z is weakly determined") > 0
+
+
+def test_stated_once_says_a_shared_hint_once_and_a_lone_one_in_its_line():
+    """Two warnings share a hint, one has its own: the shared hint leaves their lines and comes back once
+    (with how many warnings it covers); the lone one ends its warning's line."""
+    ws = [advice.Warning(3.0, "a is weak", hint="do X"), advice.Warning(2.0, "b is weak.", hint="do X"),
+          advice.Warning(1.5, "c: 2 outliers", hint="check the detections"), advice.Warning(1.0, "d")]
+    lines, hints = advice.stated_once(ws)
+    assert lines == ["a is weak", "b is weak.", "c: 2 outliers: check the detections.", "d"]
+    assert hints == ["Do X (said once for the 2 warnings above that it applies to)."]
+
+
+def test_weak_cell_report_states_the_repeated_hint_once(handeye_case):
+    """The weak hand-eye cell: from its result file alone, several weak unknowns, the hint on what to give the
+    report said once; with the solve (in-memory result), each weak unknown names its own station instead."""
+    _, obs, result = handeye_case
+    alone = render_report(result.file, cross_validation=False)
+    box = alone[alone.index('id="warnings"'):alone.index("<h2>Summary</h2>")]
+    assert box.count("is weakly determined") >= 2
+    hint = advice.NO_SOLVE_HINT[1:60]  # the hint after the list starts with a capital
+    assert box.count(hint) == 1 and box.index(hint) > box.index("</ol>")
+    full = render_report(result, obs, cross_validation=False)
+    box = full[full.index('id="warnings"'):full.index("<h2>Summary</h2>")]
+    weak = [li for li in re.findall(r"<li>(.*?)</li>", box) if "is weakly determined" in li]
+    assert weak and all(". Add " in li for li in weak) and hint not in full
+
+
+def test_goals_are_the_tolerances_of_what_they_name():
+    """A transform σ of 0.3 deg / 3 mm per axis: over the default tolerances; a goal of 1 deg on its rotation
+    silences the rotation warnings (the translation ones stay), a goal of 0.01 mm names itself as the limit."""
+    from jcalib.io.goals import parse_goals
+    from jcalib.io.result import ResultFile
+
+    cov = np.diag([np.radians(0.3) ** 2] * 3 + [3e-3**2] * 3)
+    file = ResultFile(cameras={}, transforms={"T_flange_cam0": TransformResult(np.eye(4), cov)}, stats={})
+
+    def weak(goals):
+        tol = advice.goal_tolerances(parse_goals(goals)) if goals else None
+        return [w for w in advice.analysis_warnings(file, None, None, tol) if w.unknown]
+
+    assert len(weak([])) == 6 and all("(tolerance " in w.message for w in weak([]))
+    assert {w.unknown for w in weak(["T_flange_cam0:rotation_deg<=1"])} == {
+        f"T_flange_cam0 translation {a}" for a in "xyz"}
+    tight = weak(["T_flange_cam0:rotation_deg<=1", "T_flange_cam0:translation_mm<=0.01"])
+    assert len(tight) == 3 and all("(goal 0.01 mm)" in w.message for w in tight)
+    assert advice.goal_tolerances(parse_goals(["divot:position_mm<=0.2", "cam0:projection_px<=0.3"])) == {
+        "point divot.translation_mm": 0.2, "cam0.projection_px": 0.3}
+
+
+def test_added_station_with_a_conventional_direction_closed_form():
+    """A tool's rotation (rx, ry free, rz held by convention in the solve's frame) seen in another frame Q: the
+    information is singular along Q's third axis. One more station's information A = Q diag(p, q, r) Qᵀ gives
+    Q diag(1 / (1/a + p), 1 / (1/b + q), 0) Qᵀ, with r = 0 (as a board view adds nothing to a tool) or not (the
+    held direction stays held): not the garbage of inverting a singular information."""
+    a, b, p, q = 4e-6, 9e-6, 2e5, 5e4
+    from jcalib.geometry.se3 import exp_so3
+
+    Q = exp_so3(np.array([0.3, -0.5, 0.8]))
+    unknowns = tuple(transform_unknown("T_flange_torch", c) for c in ("rx", "ry", "rz"))
+    m = LinearModel("hand-made", "cell", unknowns, Q @ np.diag([1 / a, 1 / b, 0.0]) @ Q.T,
+                    Q @ np.diag([a, b, 0.0]) @ Q.T)
+    want = Q @ np.diag([1 / (1 / a + p), 1 / (1 / b + q), 0.0]) @ Q.T
+    for r in (0.0, 3e5):
+        got = m.covariance(Q @ np.diag([p, q, r]) @ Q.T)
+        np.testing.assert_allclose(got, want, atol=1e-9 * a)  # float64 identity, relative to the largest variance
+    assert np.all(np.isfinite(m.sigma(np.zeros((3, 3))))) and np.allclose(m.sigma(np.zeros((3, 3))), m.sigma())
