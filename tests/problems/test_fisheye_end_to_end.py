@@ -170,6 +170,7 @@ def test_ros_camera_info_is_equidistant_with_four_coefficients(result):
     assert (info["image_width"], info["image_height"]) == IMAGE_SIZE
 
 
+@pytest.mark.slow(reason="a Monte Carlo study (17 s): ./scripts/test -m slow, and benchmarks/bench_fisheye.py")
 def test_reported_covariance_is_consistent_by_monte_carlo(rendered):
     """The rendered views and detected corners, re-observed as their true projections plus Gaussian
     noise: Σ over the trials of d² = eᵀ Σ⁻¹ e (8 intrinsics, Σ as reported) must follow χ²(8 · trials)

@@ -24,7 +24,8 @@ J = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(J)
 
 
-@pytest.mark.parametrize(("mount", "trials"), [("flange", 40), ("base", 20)])
+@pytest.mark.parametrize(("mount", "trials"), [pytest.param("flange", 40, marks=pytest.mark.slow(
+    reason="40 trials (8 s): ./scripts/test -m slow; the base mount runs the same check")), ("base", 20)])
 def test_reported_covariance_matches_monte_carlo_spread(mount, trials):
     nees = []
     for trial in range(trials):

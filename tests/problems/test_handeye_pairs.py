@@ -147,6 +147,7 @@ def test_noisy_estimate_within_a_few_sigma(mode):
     assert res.station_residuals.shape == (N_STATIONS, 6) and res.station_chi2.shape == (N_STATIONS,)
 
 
+@pytest.mark.slow(reason="a Monte Carlo study (16 s): ./scripts/test -m slow, and benchmarks/bench_handeye_pairs.py")
 def test_monte_carlo_nees_is_chi2_6():
     """50 trials of fresh noise: NEES of X and Y (a-posteriori covariance) against chi2(6)."""
     rng = np.random.default_rng(2024)

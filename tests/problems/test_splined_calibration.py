@@ -43,6 +43,7 @@ def _check_tables(file):
     assert "416 values" in html and "su0_0" not in html
 
 
+@pytest.mark.slow(reason="a study (44 s): ./scripts/test -m slow, and benchmarks/bench_splined.py")
 def test_splined_model_recovers_a_lens_the_fisheye_cannot(data):
     """The splined model holds the lens to 0.05 px (median over the covered pixels, after the best
     camera-frame rotation); the truth's non-radial part is 1.3 px, which no radial fisheye can hold

@@ -115,7 +115,8 @@ def test_noise_free_axis_is_recovered_and_reported():
     assert C[2, 2] == 0.0 and np.all(np.diag(C)[[0, 1, 3, 4, 5]] > 0.0)  # rotation about the axis: held
 
 
-@pytest.mark.parametrize("yaws", [(0.0,), (0.0, 70.0)], ids=["one camera", "two cameras"])
+@pytest.mark.parametrize("yaws", [(0.0,), pytest.param((0.0, 70.0), marks=pytest.mark.slow(
+    reason="the same Monte Carlo with a second camera (25 s): ./scripts/test -m slow"))], ids=["one camera", "two cameras"])
 def test_monte_carlo_tilt_and_tip_errors_follow_chi2(yaws):
     """40 noisy data sets: Σ (whitened tilt + tip error)² ~ χ²(5·40); two-sided 99 % band."""
     trials = 40
