@@ -142,6 +142,30 @@ def test_stops_and_an_arm_that_cannot_move_are_device_errors_that_say_what_to_do
     assert pose_distance(robot.move(_offset(T, [0.01, 0, 0])).T_base_flange, _offset(T, [0.01, 0, 0]))[0] < 1e-4
 
 
+def test_capture_stops_at_a_protective_stop_with_exit_4_and_resumes_after_unlock(ur, tmp_path):
+    from jcalib.acquisition import CaptureInterrupted, capture
+    from jcalib.acquisition.cameras import SimulatedCamera
+    from jcalib.io.plan import make_plan
+    from jcalib.io.session import read_session
+
+    srv, robot, ctrl = ur
+    T0 = robot.state().T_base_flange
+    plan = make_plan([_offset(T0, [0.05 * i, -0.05 * i, 0.0]) for i in range(3)])
+    cam = {"cam0": SimulatedCamera(lambda r: np.full((r.height, r.width), 90, np.uint8), name="cam0", sensor_size=(32, 24))}
+
+    def listener(event, sid, detail):
+        if event == "start" and sid == "s001":
+            srv.protective_stop()  # the arm tripped before (or as) the move to s001 starts
+
+    with pytest.raises(CaptureInterrupted, match=r"(?s)protective stop.*Unlock.*resume") as info:
+        capture(plan, robot, cam, tmp_path / "s", progress=False, listener=listener)
+    assert info.value.exit_code == 4
+    assert [s["id"] for s in read_session(tmp_path / "s")[1]] == ["s000"]
+    srv.unlock()
+    capture(plan, robot, cam, tmp_path / "s", resume=True, progress=False)
+    assert [s["id"] for s in read_session(tmp_path / "s")[1]] == ["s000", "s001", "s002"]
+
+
 def _send_script(port: int, text: str) -> None:
     with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
         s.sendall(text.encode())
