@@ -109,7 +109,7 @@ def bench_kill_resume(runs: int) -> list[tuple]:
     from _kill_resume import kill_resume
 
     rows = []
-    for protocol in ("kuka", "abb"):
+    for protocol in ("kuka", "abb", "ur"):
         with tempfile.TemporaryDirectory() as d:
             rep = kill_resume(Path(d), protocol, runs=runs, kills_per_run=2, stations=10, seed=5,
                               min_delay_s=0.0, max_delay_s=6.0)  # fmt: skip

@@ -3,7 +3,8 @@
 Run: ``.venv/bin/python benchmarks/bench_stop.py [--stops 20] [--seed 0]``.
 
 Each driver talks to its simulator over its real protocol on 127.0.0.1 (KUKAVARPROXY, the ABB line
-protocol with its stop port; the in-process simulated robot without a socket), motion times realistic
+protocol with its stop port, UR's RTDE + a stopj / stopl program on the secondary interface; the in-process
+simulated robot without a socket), motion times realistic
 (``time_scale=1``). A move to a random station (joint and linear alternately, 0.3-0.9 s long) starts in a
 thread; at a random 20-70 % of its motion time the main thread calls ``robot.stop()`` (on a loaded machine
 that call may come after the arrival: such stops are counted, not timed). Measured from just before it:
@@ -15,7 +16,8 @@ that call may come after the arrival: such stops are counted, not timed). Measur
 
 The simulated controller brakes over ``stop_time_s`` = 0.08 s from full path speed (less near the end of
 a move); the rest is the protocol: the KUKA driver's write of ``JC_STOP`` and its 20 ms ``JC_FLAG`` poll,
-the ABB driver's connection to the stop port. Target: standstill <= 0.2 s. Timings move with the load
+the ABB driver's connection to the stop port, the UR driver's next RTDE package (125 Hz) showing the arm
+standing. Target: standstill <= 0.2 s. Timings move with the load
 of the machine (the script prints the load average).
 """
 
@@ -37,6 +39,8 @@ from jcalib.acquisition.robots import (
     MotionStoppedError,
     SimulatedController,
     SimulatedRobot,
+    UrRobot,
+    UrSimServer,
 )
 
 DRIVERS = (
@@ -44,6 +48,7 @@ DRIVERS = (
     ("KUKA, KUKAVARPROXY sim", "kuka", 0.0),
     ("KUKA, sim answering in 5 ms (a real KRC: 2-10 ms)", "kuka", 0.005),
     ("ABB, line protocol sim + stop port", "abb", 0.0),
+    ("UR, RTDE + URScript sim (stopj / stopl)", "ur", 0.0),
 )
 
 
@@ -54,6 +59,9 @@ def _connect(protocol: str, ctrl: SimulatedController, reply_delay_s: float):
     if protocol == "abb":
         srv = AbbSimServer(ctrl).start()
         return srv, AbbRobot("127.0.0.1", srv.port)
+    if protocol == "ur":
+        srv = UrSimServer(ctrl, port=0).start()
+        return srv, UrRobot("127.0.0.1", rtde_port=srv.port, script_port=srv.script_port)
     return None, SimulatedRobot(ctrl)
 
 

@@ -56,7 +56,8 @@ def demo(
     ),
     stations: Annotated[int, typer.Option(help="The most robot stations (board views and tool stations) the plan "
                                           "may take; it stops when the cell's goals are predicted met.")] = 30,
-    protocol: Annotated[str, typer.Option(help="Simulated robot controller: kuka (KUKAVARPROXY) or abb.")] = "kuka",
+    protocol: Annotated[str, typer.Option(help="Simulated robot controller: kuka (KUKAVARPROXY, a KR 10), abb (an IRB "
+                                              "4600) or ur (RTDE + URScript, a UR5e).")] = "kuka",
     image_size: Annotated[str, typer.Option(help="Simulated camera resolution WIDTHxHEIGHT.")] = "640x480",
     seed: Annotated[int, typer.Option(help="Random seed of the simulated cell.")] = 0,
     camera_only: Annotated[
@@ -207,12 +208,13 @@ def calibrate(
 @app.command()
 def export(
     result: Annotated[Path, typer.Argument(help="Result JSON (jcalib.result/1).")],
-    format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid, krl, kinematics or urdf.")],
+    format: Annotated[str, typer.Option("--format", "-f", help="opencv, ros, rapid, krl, kinematics, urdf or "
+                                                             "ur-calibration.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="File to write.")],
     camera: Annotated[Optional[str], typer.Option(help="Camera id (opencv, ros).")] = None,
     module: Annotated[Optional[str], typer.Option(help="RAPID module name (rapid).")] = None,
     robot: Annotated[Optional[str], typer.Option(help="Robot whose calibrated kinematics to export (kinematics: "
-                                                      "default all; urdf: needed when several).")] = None,
+                                                      "default all; urdf, ur-calibration: needed when several).")] = None,
     tool_orientation: Annotated[
         Optional[list[str]],
         typer.Option(help="rapid, krl: TOOL=flange or TOOL=X,Y,Z (tool axis in the flange frame) for a tool whose "
@@ -220,7 +222,9 @@ def export(
     ] = None,
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID, KUKA KRL, or the calibrated robot
-    kinematics as a cell-spec table with σ and controller offsets (kinematics) or a URDF (urdf)."""
+    kinematics as a cell-spec table with σ and controller offsets (kinematics), a URDF (urdf), or a UR arm's
+    delta DH in the form of its calibration.conf (ur-calibration: for comparison and records; a UR arm's
+    calibration is applied only by UR's own procedure)."""
     check_outputs({"-o": out}, [result])
     from jcalib.io.export import export_result
     from jcalib.io.export.formats import export_options
@@ -500,9 +504,11 @@ def plan(
 @app.command()
 def simulate(
     cell: Annotated[Path, typer.Option("--cell", help="Cell spec (jcalib.cell/1 YAML).")],
-    robot_protocol: Annotated[str, typer.Option("--robot-protocol", help="kuka or abb.")],
-    robot_port: Annotated[int, typer.Option("--robot-port", help="TCP port on 127.0.0.1 (0: any free).")],
+    robot_protocol: Annotated[str, typer.Option("--robot-protocol", help="kuka, abb or ur.")],
     camera: Annotated[list[str], typer.Option("--camera", help="NAME=127.0.0.x, one per camera.")],
+    robot_port: Annotated[Optional[int], typer.Option("--robot-port", help="TCP port on 127.0.0.1 (0: any free). "
+                          "Optional with ur: UR's ports are fixed (RTDE 30004, URScript 30002); 0 puts both on "
+                          "free ports.")] = None,
     truth: Annotated[Optional[Path], typer.Option("--truth", help="Write the ground truth here (JSON).")] = None,
     robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
@@ -552,7 +558,7 @@ def simulate(
 
 @app.command()
 def capture(
-    robot: Annotated[str, typer.Option("--robot", help="kuka://HOST[:PORT] or abb://HOST[:PORT].")],
+    robot: Annotated[str, typer.Option("--robot", help="kuka://HOST[:PORT], abb://HOST[:PORT] or ur://HOST.")],
     camera: Annotated[list[str], typer.Option("--camera", help="NAME=gige://IPV4 (or replay://DIR), one per camera.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Session folder to write.")],
     plan: Annotated[Optional[Path], typer.Option("--plan", help="Station plan (jcalib.plan/1); or --goal.")] = None,
@@ -625,7 +631,7 @@ def ui(
                                                  "when you edit it, writes.")] = None,
     session: Annotated[Path, typer.Option("--session", help="Capture session folder (created by the first capture; "
                                           "an existing one is continued).")] = Path("jcalib-session"),
-    robot: Annotated[Optional[str], typer.Option("--robot", help="kuka://HOST[:PORT] or abb://HOST[:PORT].")] = None,
+    robot: Annotated[Optional[str], typer.Option("--robot", help="kuka://HOST[:PORT], abb://HOST[:PORT] or ur://HOST.")] = None,
     camera: Annotated[Optional[list[str]], typer.Option("--camera", help="NAME=gige://IPV4 (or replay://DIR), "
                                                          "one per camera.")] = None,
     simulate: Annotated[bool, typer.Option("--simulate", help="Start the simulated cell of `jcalib demo` (a KUKA "

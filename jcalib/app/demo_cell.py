@@ -7,8 +7,8 @@ The chain is the one a cell integrator runs on hardware, with simulators standin
    goal-driven selection of ``jcalib plan --kind optimal``): views of the board by ``cam_hand`` (ids
    ``s…``), then tool stations (ids ``t…``: the tip of the tool ``torch`` held in front of ``cam_fixed``,
    the tool tilted and turned), as few as meet every goal by prediction;
-2. serve a simulated robot controller (KUKAVARPROXY or ABB line protocol) and two fake GigE Vision
-   cameras — ``cam_hand`` on the flange, ``cam_fixed`` on the base — rendering the scene at the
+2. serve a simulated robot controller (KUKAVARPROXY, ABB line protocol, or UR's RTDE + URScript) and
+   two fake GigE Vision cameras — ``cam_hand`` on the flange, ``cam_fixed`` on the base — rendering the scene at the
    robot's *true* pose (repeatability noise included); ``cam_fixed`` shows the tool's silhouette on a
    backlight while the tip is in its tool zone (:mod:`jcalib.app.simcell`), the board otherwise;
 3. capture the session through the real drivers (Aravis over GVCP/GVSP, the robot protocol over TCP);
@@ -85,6 +85,8 @@ SIM_NOISE = {"sigma_px": 0.12, "tip_sigma_px": 0.55}
 #: px here): the stated 0.5 px on that one point tells as much about the axis as 1.1 px on the four (the sums
 #: of squared distances from the tip differ 5x).
 PLAN_NOISE = {**SIM_NOISE, "axis_sigma_px": 1.1}
+#: The robot the demo cell has on each simulated protocol (a preset of :mod:`jcalib.geometry.robots`).
+DEMO_ROBOTS = {"kuka": "kuka_kr10_r1100_sixx", "abb": "abb_irb4600_45_205", "ur": "ur5e"}
 
 
 def run_cell_demo(
@@ -103,7 +105,8 @@ def run_cell_demo(
         out_dir: folder for the plan, session, observations, result, report and exports.
         stations: the most views and tool stations the goal-driven plan may take (:func:`plan_demo`; it stops
             when the cell's goals are predicted met).
-        protocol: simulated controller, "kuka" or "abb".  image_size: "WIDTHxHEIGHT", px.
+        protocol: simulated controller, "kuka" (a KUKA KR 10 R1100 sixx), "abb" (an ABB IRB 4600-45/2.05) or "ur" (a
+            Universal Robots UR5e over RTDE and URScript, on UR's fixed ports).  image_size: "WIDTHxHEIGHT", px.
         seed: noise seed of the simulated cell (and of its kinematic errors).
         kinematic_errors: the arm hides kinematic errors, which the calibration estimates (module
             docstring); the rows then include the kinematic parameters (deg, mm; truth = true minus nominal).
@@ -122,12 +125,12 @@ def run_cell_demo(
     console = console or Console()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    if protocol not in ("kuka", "abb"):
-        raise BadInputError(f"--protocol: expected kuka or abb, got {protocol!r}")
+    if protocol not in DEMO_ROBOTS:
+        raise BadInputError(f"--protocol: expected kuka, abb or ur, got {protocol!r}")
     cell_path = out_dir / "cell.yaml"
     write_text_atomic(cell_path, DEMO_CELL)
     size = parse_image_size(image_size)
-    robot = "kuka_kr10_r1100_sixx" if protocol == "kuka" else "abb_irb4600_45_205"
+    robot = DEMO_ROBOTS[protocol]
     calib_cell = cell_path
     if kinematic_errors:
         calib_cell = out_dir / "cell_kinematics.yaml"

@@ -20,7 +20,7 @@ def run_simulate(
     cell: str | Path,
     *,
     robot_protocol: str,
-    robot_port: int,
+    robot_port: int | None,
     camera_addresses: Mapping[str, str],
     truth: str | Path | None = None,
     robot: str | None = None,
@@ -37,14 +37,15 @@ def run_simulate(
     """``jcalib simulate``: serve the cell's nominal layout (robot + fake GigE cameras) until ``stop``.
 
     The robot is the layout's preset (:class:`~jcalib.acquisition.robots.model.DHRobotModel`) behind a
-    KUKAVARPROXY or ABB line-protocol server on 127.0.0.1:``robot_port``; each camera named in
+    KUKAVARPROXY, ABB line-protocol or UR (RTDE + URScript) server on 127.0.0.1:``robot_port``; each camera named in
     ``camera_addresses`` is a fake GigE camera on its loopback address rendering the scene at the
     robot's true pose. Everything listens on loopback only.
 
     Args:
         cell: cell spec (path or mapping); see :func:`jcalib.planning.layout.cell_layout`.
-        robot_protocol: "kuka" or "abb".
-        robot_port: TCP port (0: any free one; the ready info says which).
+        robot_protocol: "kuka", "abb" or "ur".
+        robot_port: TCP port (0: any free one; the ready info says which). None: UR's fixed ports (RTDE 30004,
+            secondary interface 30002) for "ur", required for the others; for "ur" 0 puts both on free ports.
         camera_addresses: camera id -> 127.x.y.z address.
         truth: write the ground truth (:func:`jcalib.app.simcell.layout_truth`) here.
         robot, image_size: passed to :func:`~jcalib.planning.layout.cell_layout`.
@@ -69,9 +70,12 @@ def run_simulate(
     from jcalib.io.atomic import write_json_atomic
     from jcalib.sim.render import RenderOptions
 
-    if robot_protocol not in ("kuka", "abb"):
-        raise BadInputError(f"--robot-protocol: expected kuka or abb, got {robot_protocol!r}")
-    if not 0 <= int(robot_port) <= 65535:
+    if robot_protocol not in ("kuka", "abb", "ur"):
+        raise BadInputError(f"--robot-protocol: expected kuka, abb or ur, got {robot_protocol!r}")
+    if robot_port is None and robot_protocol != "ur":
+        raise BadInputError(f"--robot-port: give the TCP port of the {robot_protocol} simulator (0: any free one); "
+                            "only ur has fixed ports")
+    if robot_port is not None and not 0 <= int(robot_port) <= 65535:
         raise BadInputError(f"--robot-port: expected 0..65535, got {robot_port}")
     if not camera_addresses:
         raise BadInputError("--camera: expected at least one camera, e.g. --camera cam0=127.0.0.1")
@@ -116,7 +120,8 @@ def run_simulate(
     waiter = threading.Thread(target=announce, daemon=True)
     waiter.start()
     run_simulated_cell(
-        scene, robot_protocol=robot_protocol, robot_port=int(robot_port), camera_addresses=camera_addresses,
+        scene, robot_protocol=robot_protocol, robot_port=None if robot_port is None else int(robot_port),
+        camera_addresses=camera_addresses,
         robot_model=model, time_scale=time_scale, seed=seed, stop=stop, ready=ready, info=info, options=options,
         true_forward=true_forward,
     )  # fmt: skip
@@ -126,7 +131,7 @@ def run_simulated_cell(
     scene: Any,
     *,
     robot_protocol: str,
-    robot_port: int,
+    robot_port: int | None,
     camera_addresses: Mapping[str, str],
     robot_model: Any = None,
     time_scale: float = 1.0,
@@ -141,15 +146,17 @@ def run_simulated_cell(
 
     Args:
         scene: a :class:`jcalib.sim.scene.Scene` (cameras and targets on "base" / "flange").
-        robot_protocol: "kuka" or "abb".
-        robot_port: TCP port of the simulated controller on 127.0.0.1.
+        robot_protocol: "kuka", "abb" or "ur".
+        robot_port: TCP port of the simulated controller on 127.0.0.1 (None: UR's fixed ports; see
+            :func:`jcalib.acquisition.robots.serve.make_server`).
         camera_addresses: scene camera name -> loopback address of its fake GigE camera.
         robot_model: controller model (default: the generic six-axis arm).
         time_scale: motion-time scale of the simulated controller.
         seed: seed of the repeatability noise and of the sensor noise.
         stop: set it to shut everything down (default: run until KeyboardInterrupt).
         ready: set once every device is listening.
-        info: filled before ``ready`` is set: ``{"robot": "kuka://127.0.0.1:PORT", "cameras": {id: "gige://ADDR"}}``.
+        info: filled before ``ready`` is set: ``{"robot": "kuka://127.0.0.1:PORT", "cameras": {id: "gige://ADDR"}}``
+            (UR: ``ur://127.0.0.1``, or ``ur://127.0.0.1:RTDE:SCRIPT`` on free ports).
         options: the cameras' :class:`jcalib.sim.render.RenderOptions` (None: the defaults).
         true_forward: the robot's true kinematics (joints rad -> ``T_base_flange``), which the cameras
             see while the controller reports ``robot_model``'s (None: no kinematic error).
@@ -177,7 +184,7 @@ def run_simulated_cell(
             fake = FakeGigECamera(source, address, sensor_size=size, serial=f"SIM{k}-{name}"[:15])
             stack.enter_context(fake)
         if info is not None:
-            info.update(robot=f"{robot_protocol}://{server.host}:{server.port}",
+            info.update(robot=getattr(server, "url", f"{robot_protocol}://{server.host}:{server.port}"),
                         cameras={name: f"gige://{a}" for name, a in camera_addresses.items()})  # fmt: skip
         if ready is not None:
             ready.set()

@@ -22,7 +22,7 @@ from jcalib.geometry.kinematic_models import (CONVENTIONS, JOINT_TYPES, PRESETS,
                                               convert, effective_base_flange, forward, joint_frames, make_model,
                                               poe_from_frames, suggest)
 
-__all__ = ["from_spec", "table", "to_spec"]
+__all__ = ["DELTA_DH_KEYS", "apply_delta_dh", "from_spec", "table", "to_spec"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -153,6 +153,36 @@ def _preset(name: Any, where: str) -> Kinematics:
     return PRESETS[name]()
 
 
+#: ``delta_dh`` keys: UR's ``calibration.conf`` names without ``delta_`` (rad, m).
+DELTA_DH_KEYS = ("theta", "a", "d", "alpha")
+
+
+def apply_delta_dh(model: Kinematics, delta: Any, where: str) -> Kinematics:
+    """``model`` (a dh chain) with ``delta`` ``{theta, a, d, alpha: [n numbers]}`` (rad, m) added to its joint rows.
+
+    This is how a Universal Robots controller applies its factory calibration (``calibration.conf``'s
+    ``delta_theta``, ``delta_a``, ``delta_d``, ``delta_alpha``) to the nominal DH table of its type: the
+    effective table is nominal + delta, ``theta_i = q_i + theta_i``.
+
+    Raises:
+        BadInputError: not a dh chain, a missing or extra key, a list of the wrong length, a non-finite number.
+    """
+    if model.convention != "dh":
+        raise BadInputError(f"{where}: delta_dh: the preset is a {model.convention} chain; deltas apply to dh tables")
+    if not isinstance(delta, dict):
+        raise BadInputError(f"{where}: delta_dh: expected a mapping {{theta: [...], a: [...], d: [...], alpha: [...]}} "
+                            f"(rad, m), got {delta!r}")
+    _check_keys(delta, DELTA_DH_KEYS, f"{where}: delta_dh", "delta_dh")
+    n = model.num_joints
+    rows = np.zeros((n, 4))
+    for col, key in ((0, "theta"), (1, "d"), (2, "a"), (3, "alpha")):
+        if key in delta:
+            rows[:, col] = _array(delta, key, (n,), f"{where}: delta_dh", f"[{n} numbers] ({'rad' if key in ('theta', 'alpha') else 'm'})")
+    nominal = np.asarray(model.nominal, dtype=np.float64).copy()
+    nominal[: 4 * n] += rows.reshape(-1)
+    return dataclasses.replace(model, nominal=jnp.asarray(nominal))
+
+
 def _convention(spec: dict, where: str) -> str:
     if "convention" not in spec:
         raise BadInputError(f"{where}: missing field 'convention'; write convention: dh, mdh or poe")
@@ -260,8 +290,10 @@ def _poe_table(spec: dict, robot: str, where: str) -> Kinematics:
 def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
     """Build the kinematics of a cell-spec ``kinematics:`` entry.
 
-    Accepts a preset name; ``{"preset": NAME}`` with optional ``"base": [[4x4]]`` (m, pre-multiplied:
-    the preset's base frame in the robot base frame) and ``"convention"`` (converted, same FK); a
+    Accepts a preset name; ``{"preset": NAME}`` with optional ``"delta_dh": {theta, a, d, alpha}`` (lists of
+    one number per joint, rad and m, added to the preset's dh table: a UR controller's factory calibration,
+    :func:`apply_delta_dh`), ``"base": [[4x4]]`` (m, pre-multiplied: the preset's base frame in the robot base
+    frame) and ``"convention"`` (converted, same FK); a
     dh/mdh table ``{"convention", "joints": [{"name", "type", "a_m", "alpha_deg", "d_m",
     "theta_deg" (default 0), "beta_deg" (mdh, default 0), "sign" (default 1), "limits_deg" |
     "limits_mm"}], "base", "flange"}`` (4x4, m, default identity); or a poe table ``{"convention":
@@ -281,9 +313,11 @@ def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
         raise BadInputError(f"{where}: expected a preset name or a mapping (preset: ..., or a dh/mdh/poe "
                             f"table), got {spec!r}")
     if "preset" in spec:
-        _check_keys(spec, {"preset", "base", "convention"}, where, "the preset entry")
+        _check_keys(spec, {"preset", "base", "convention", "delta_dh"}, where, "the preset entry")
         model = _preset(spec["preset"], where)
         model = dataclasses.replace(model, name=f"{robot} ({model.name})")
+        if "delta_dh" in spec:
+            model = apply_delta_dh(model, spec["delta_dh"], where)
         if "base" in spec:
             base = jnp.asarray(_transform(spec, "base", where), dtype=jnp.float64)
             model = dataclasses.replace(model, T_base_link0=base @ model.T_base_link0)

@@ -1,4 +1,4 @@
-"""Robot presets: nominal DH models of two common arms (standard DH, see ``kinematics.py``).
+"""Robot presets: nominal DH models of common arms (standard DH, see ``kinematics.py``).
 
 Joint values are the controller's axis values in radians (``q = radians(axis_deg)``): same zero, same
 positive direction. The flange is the frame the controller reports with a null tool (ABB ``tool0``,
@@ -25,6 +25,17 @@ Sources and checks:
   zero = arm stretched horizontally forward (A2 = -90 deg is the upper arm vertical); ``$FLANGE`` x
   points out of the flange. Working ranges: A1 +-170 deg, A2 -190/+45, A3 -120/+156, A4 +-185,
   A5 +-120, A6 +-350.
+- **Universal Robots UR5e**: UR's own DH table ("DH parameters for calculations of kinematics and dynamics",
+  universal-robots.com): ``a = [0, -0.425, -0.3922, 0, 0, 0]`` m, ``d = [0.1625, 0, 0, 0.1333, 0.0997,
+  0.0996]`` m, ``alpha = [pi/2, 0, 0, pi/2, -pi/2, 0]``, ``theta = q`` (offsets 0, signs +1). DH frame 0 is
+  the controller's base frame and DH frame 6 its flange (the TCP with ``set_tcp(p[0,0,0,0,0,0])``), so the
+  pose the controller reports (RTDE ``actual_TCP_pose``) is this model's FK, as ``ur_description``'s
+  ``base -> tool0``. Check: at zero joints the flange is at ``(a2 + a3, -(d4 + d6), d1 - d5) = (-817.2,
+  -232.9, 62.8)`` mm, the numbers the teach pendant shows; reach (shoulder to wrist centre, stretched)
+  ``0.425 + 0.3922 = 0.817`` m + wrist = the published 850 mm. Working ranges +-360 deg on every joint
+  (UR's), except the elbow limited to +-180 deg as ``ur_description`` does (beyond, the arm folds through
+  itself). Joint speeds 180 deg/s (the datasheet's). A real UR5e's factory calibration (``calibration.conf``:
+  delta DH) differs from these by up to millimetres; see :mod:`jcalib.geometry.ur_calibration`.
 """
 
 from __future__ import annotations
@@ -34,7 +45,7 @@ import numpy as np
 from jcalib.errors import BadInputError
 from jcalib.geometry.kinematics import DHRobot
 
-__all__ = ["PRESETS", "abb_irb4600_45_205", "home_joints", "kuka_kr10_r1100_sixx", "robot_preset"]
+__all__ = ["PRESETS", "abb_irb4600_45_205", "home_joints", "kuka_kr10_r1100_sixx", "robot_preset", "ur5e"]
 
 _HALF_PI = np.pi / 2.0
 
@@ -74,9 +85,33 @@ def kuka_kr10_r1100_sixx() -> DHRobot:
     )
 
 
+#: UR's names of the joints (``ur_description``'s, without ``_joint``).
+UR_JOINT_NAMES = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+#: The UR5e's nominal DH table (UR's published values): ``a`` (m), ``d`` (m), ``alpha`` (rad); ``theta = q``.
+UR5E_DH = {
+    "a": (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
+    "d": (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
+    "alpha": (_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
+}
+
+
+def ur5e() -> DHRobot:
+    """Nominal Universal Robots UR5e (UR's standard DH table, joints in rad, flange = ``tool0``)."""
+    return DHRobot(
+        a=UR5E_DH["a"],
+        alpha=UR5E_DH["alpha"],
+        d=UR5E_DH["d"],
+        lower=np.radians([-360.0, -360.0, -180.0, -360.0, -360.0, -360.0]),
+        upper=np.radians([360.0, 360.0, 180.0, 360.0, 360.0, 360.0]),
+        name="Universal Robots UR5e",
+        joint_names=UR_JOINT_NAMES,
+    )
+
+
 PRESETS = {
     "abb_irb4600_45_205": abb_irb4600_45_205,
     "kuka_kr10_r1100_sixx": kuka_kr10_r1100_sixx,
+    "ur5e": ur5e,
 }
 """Preset name -> constructor."""
 
@@ -93,12 +128,16 @@ def robot_preset(name: str) -> DHRobot:
 
 def home_joints(robot: DHRobot) -> np.ndarray:
     """``(n,)`` the usual home posture of ``robot``, rad: zeros, with axis 5 at 30 deg on a six-axis arm and,
-    for a KUKA, A2 = -90 deg, A3 = +90 deg; clipped to the joint limits. The simulated controllers start
-    there and the planners seed their inverse kinematics there."""
+    for a KUKA, A2 = -90 deg, A3 = +90 deg; for a Universal Robots arm ``(0, -100, 100, -90, -90, 0)`` deg
+    (elbow up, the tool pointing down, the flange 0.42 m out along base -x and 0.48 m up: UR's zero is
+    the arm stretched out); clipped to the joint limits. The simulated controllers start there and the planners
+    seed their inverse kinematics there."""
     lower, upper = np.asarray(robot.lower, dtype=np.float64), np.asarray(robot.upper, dtype=np.float64)
     home = np.zeros(int(robot.num_joints))
     if home.size == 6:
         home[4] = np.radians(30.0)
         if "KUKA" in robot.name.upper():
             home[1], home[2] = np.radians(-90.0), np.radians(90.0)
+        elif robot.name.startswith("Universal Robots"):
+            home[:] = np.radians([0.0, -100.0, 100.0, -90.0, -90.0, 0.0])
     return np.clip(home, lower, upper)

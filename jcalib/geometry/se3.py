@@ -259,6 +259,17 @@ def pose_from_kuka(xyzabc: np.ndarray) -> np.ndarray:
     return make_pose(matrix_from_kuka_abc(v[3:6]), v[:3] / 1000.0)
 
 
+def pose_to_ur(T: np.ndarray) -> np.ndarray:
+    """(4, 4) pose in m -> Universal Robots' ``[x, y, z, rx, ry, rz]`` (m, rotation vector in rad, angle in [0, pi])."""
+    return np.concatenate([np.asarray(T, dtype=np.float64)[:3, 3], rotvec(np.asarray(T, dtype=np.float64)[:3, :3])])
+
+
+def pose_from_ur(pose: np.ndarray) -> np.ndarray:
+    """Universal Robots' ``[x, y, z, rx, ry, rz]`` (m, rotation vector in rad) -> (4, 4) pose in m."""
+    v = np.asarray(pose, dtype=np.float64)
+    return make_pose(exp_so3(v[3:6]), v[:3])
+
+
 def rotation_angle(R: np.ndarray) -> float:
     """Angle (rad) of a rotation matrix, robust near 0 and pi."""
     c = (np.trace(R) - 1.0) / 2.0

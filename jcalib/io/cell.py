@@ -309,7 +309,7 @@ def _positive_vector(value: Any, where: str) -> np.ndarray:
     return arr
 
 
-def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
+def _parse_robot(entry: Any, where: str, name: str | None = None, base_dir: Path | None = None) -> RobotSpec:
     if entry is None:
         return RobotSpec(name=name)
     if not isinstance(entry, dict):
@@ -320,11 +320,11 @@ def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
     if model is not None and not isinstance(model, str):
         raise _fail(where + ".model", f"expected a robot preset name, got {model!r}")
     base = _pose(entry["base"], where + ".base") if entry.get("base") is not None else None
-    kin, which = _parse_kinematics(entry, where, name or "robot")
+    kin, which, kin_spec = _parse_kinematics(entry, where, name or "robot", base_dir)
     noise = entry.get("pose_noise")
     if noise is None:
         return RobotSpec(model=model, name=name, base=base, kinematics=kin, calibrate_kinematics=which,
-                         kinematics_spec=entry.get("kinematics"))
+                         kinematics_spec=kin_spec)
     _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
     if "translation_m" not in noise or "rotation_deg" not in noise:
         raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
@@ -336,15 +336,34 @@ def _parse_robot(entry: Any, where: str, name: str | None = None) -> RobotSpec:
         base=base,
         kinematics=kin,
         calibrate_kinematics=which,
-        kinematics_spec=entry.get("kinematics"),
+        kinematics_spec=kin_spec,
     )
 
 
-def _parse_kinematics(entry: dict, where: str, robot: str):
-    """``(model or None, names to calibrate)`` of a robot entry's ``kinematics:`` and ``calibrate_kinematics:``."""
+def _ur_calibration(spec: Any, where: str, base_dir: Path | None) -> Any:
+    """``spec`` with a ``ur_calibration: FILE`` replaced by the ``delta_dh`` the file holds (so that a cell stored in
+    a session does not depend on the file); other specs unchanged."""
+    if not isinstance(spec, dict) or "ur_calibration" not in spec:
+        return spec
+    from jcalib.io.ur_calibration import read_ur_calibration
+
+    if "delta_dh" in spec or "preset" not in spec:
+        raise _fail(where + ".kinematics", "ur_calibration: give it with the robot type's preset and without delta_dh, "
+                                           "e.g. {preset: ur5e, ur_calibration: calibration.conf}")
+    name = spec["ur_calibration"]
+    if not isinstance(name, str) or not name:
+        raise _fail(where + ".kinematics.ur_calibration", f"expected the path of a UR calibration.conf, got {name!r}")
+    path = Path(name) if Path(name).is_absolute() or base_dir is None else base_dir / name
+    rest = {k: v for k, v in spec.items() if k != "ur_calibration"}
+    return {**rest, "delta_dh": read_ur_calibration(path)}
+
+
+def _parse_kinematics(entry: dict, where: str, robot: str, base_dir: Path | None = None):
+    """``(model or None, names to calibrate, the kinematics entry)`` of a robot entry's ``kinematics:`` and
+    ``calibrate_kinematics:`` (a ``ur_calibration`` file is read into the entry's ``delta_dh``)."""
     from jcalib.geometry import kinematic_models, kinematic_tables
 
-    spec, which = entry.get("kinematics"), entry.get("calibrate_kinematics")
+    spec, which = _ur_calibration(entry.get("kinematics"), where, base_dir), entry.get("calibrate_kinematics")
     if which is not None and (not isinstance(which, list) or not all(isinstance(n, str) and n for n in which)):
         raise _fail(where + ".calibrate_kinematics", "expected a list of parameter names or groups (e.g. "
                                                      f"[joint_offsets, link_lengths]), got {which!r}")
@@ -352,14 +371,14 @@ def _parse_kinematics(entry: dict, where: str, robot: str):
         if which:
             raise _fail(where + ".calibrate_kinematics", "calibrating kinematics needs the robot's nominal model: "
                                                          "add kinematics: <preset> (or a DH / MDH / POE table)")
-        return None, ()
+        return None, (), None
     model = kinematic_tables.from_spec(spec, robot, source=where + ".kinematics")
     if which:
         kinematic_models.select(model, list(which), source=where + ".calibrate_kinematics")
-    return model, tuple(which or ())
+    return model, tuple(which or ()), spec
 
 
-def _parse_robots(data: dict, source: str) -> dict[str, RobotSpec]:
+def _parse_robots(data: dict, source: str, base_dir: Path | None = None) -> dict[str, RobotSpec]:
     """The named robots of ``robots:`` (empty without the key)."""
     if "robots" not in data:
         return {}
@@ -374,7 +393,7 @@ def _parse_robots(data: dict, source: str) -> dict[str, RobotSpec]:
         if not isinstance(n, str) or not n or n in RESERVED_ROBOT_NAMES:
             raise _fail(f"{source}: robots", f"robot name {n!r} is not allowed (names other than "
                                              f"{', '.join(RESERVED_ROBOT_NAMES)}, e.g. 'r1')")
-        robots[n] = _parse_robot(e, f"{source}: robots.{n}", name=n)
+        robots[n] = _parse_robot(e, f"{source}: robots.{n}", name=n, base_dir=base_dir)
     if len(robots) == 1:
         r = next(iter(robots.values()))
         if r.base is not None:
@@ -445,7 +464,9 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
     _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed", "goals"}, source)
-    robots = _parse_robots(data, source)
+    # files a cell names (a UR calibration) are relative to the cell file
+    base_dir = Path(source).parent if source != "<dict>" and Path(source).is_file() else None
+    robots = _parse_robots(data, source, base_dir)
     cameras_in = data.get("cameras") or {}
     if not isinstance(cameras_in, dict) or not (cameras_in or data.get("tools") or data.get("points")):
         raise _fail(source, "'cameras' must map camera ids to entries (at least one camera, unless the cell "
@@ -483,7 +504,7 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
         e = e or {}
         pos = _matrix(e["position"], (3,), f"{source}: points.{n}.position") if "position" in e else None
         points[str(n)] = PointSpec(name=str(n), position=pos)
-    robot = _parse_robot(data["robot"], f"{source}: robot") if "robot" in data else None
+    robot = _parse_robot(data["robot"], f"{source}: robot", base_dir=base_dir) if "robot" in data else None
     cameras, targets, tools = _check_robot_refs(cameras, targets, tools, points, robots, source)
     if len(robots) == 1:
         robot = next(iter(robots.values()))

@@ -1,6 +1,8 @@
 """Devices from URLs, for the command line and the app alike.
 
-Robots: ``kuka://HOST[:PORT]`` (KUKAVARPROXY, 7000) and ``abb://HOST[:PORT]`` (jcalib RAPID server, 5515).
+Robots: ``kuka://HOST[:PORT]`` (KUKAVARPROXY, 7000), ``abb://HOST[:PORT]`` (jcalib RAPID server, 5515) and
+``ur://HOST`` (Universal Robots: RTDE 30004, URScript on the secondary interface 30002; ``ur://HOST:RTDE:SCRIPT``
+names other ports, e.g. a simulator's free ones).
 Cameras: ``gige://IPV4`` (opened by address, never by discovery) and ``replay://FOLDER``.
 """
 
@@ -17,7 +19,7 @@ from jcalib.errors import BadInputError
 __all__ = ["open_robot", "open_camera", "close_devices", "check_urls", "parse_named", "parse_image_size",
            "parse_settings", "capture_settings", "ROBOT_SCHEMES", "CAMERA_SCHEMES"]
 
-ROBOT_SCHEMES = ("kuka", "abb")
+ROBOT_SCHEMES = ("kuka", "abb", "ur")
 CAMERA_SCHEMES = ("gige", "replay")
 
 
@@ -31,14 +33,36 @@ def _split(url: str, what: str, schemes: tuple[str, ...]) -> tuple[str, str]:
 def check_urls(robot_url: str | None, camera_urls: Mapping[str, str]) -> None:
     """Refuse malformed device URLs before anything is opened (naming the option)."""
     if robot_url is not None:
-        _split(robot_url, "--robot", ROBOT_SCHEMES)
+        scheme, rest = _split(robot_url, "--robot", ROBOT_SCHEMES)
+        if scheme == "ur":
+            _ur_ports(rest, robot_url)
     for name, url in camera_urls.items():
         _split(url, f"--camera {name}", CAMERA_SCHEMES)
 
 
+def _ur_ports(rest: str, url: str) -> tuple[str, int, int]:
+    from jcalib.acquisition.robots.rtde import RTDE_PORT, SCRIPT_PORT
+
+    host, *ports = rest.split(":")
+    if not host or len(ports) not in (0, 2):
+        raise BadInputError(f"--robot: expected ur://HOST (or ur://HOST:RTDE_PORT:SCRIPT_PORT), got {url!r}")
+    try:
+        rtde_port, script_port = (int(p) for p in ports) if ports else (RTDE_PORT, SCRIPT_PORT)
+    except ValueError:
+        raise BadInputError(f"--robot: ports must be numbers, got {url!r}") from None
+    if not (0 < rtde_port < 65536 and 0 < script_port < 65536):
+        raise BadInputError(f"--robot: ports must be in 1..65535, got {url!r}")
+    return host, rtde_port, script_port
+
+
 def open_robot(url: str, **kw: Any) -> Robot:
-    """Connect to the robot at ``kuka://HOST[:PORT]`` or ``abb://HOST[:PORT]``."""
+    """Connect to the robot at ``kuka://HOST[:PORT]``, ``abb://HOST[:PORT]`` or ``ur://HOST[:RTDE:SCRIPT]``."""
     scheme, rest = _split(url, "--robot", ROBOT_SCHEMES)
+    if scheme == "ur":
+        from jcalib.acquisition.robots.ur import UrRobot
+
+        host, rtde_port, script_port = _ur_ports(rest, url)
+        return UrRobot(host, rtde_port=rtde_port, script_port=script_port, **kw)
     host, _, port = rest.partition(":")
     try:
         port_n = int(port) if port else (7000 if scheme == "kuka" else 5515)

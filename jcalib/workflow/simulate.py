@@ -56,7 +56,7 @@ class SimulatorProcess:
     """A running ``jcalib simulate``.
 
     Attributes:
-        process: the process.  robot_url: ``kuka://127.0.0.1:PORT`` (or ``abb://``).
+        process: the process.  robot_url: ``kuka://127.0.0.1:PORT`` (or ``abb://``, or ``ur://127.0.0.1``).
         camera_urls: camera id -> ``gige://ADDRESS``.  log_path: its stderr.
     """
 
@@ -83,7 +83,7 @@ def start_simulator(cell: str | Path, *, addresses: dict[str, str], log_path: st
 
     Args:
         cell: the cell spec file.  addresses: camera id -> loopback address of its fake GigE camera.
-        log_path: where the simulator's messages go.  protocol: "kuka" or "abb".
+        log_path: where the simulator's messages go.  protocol: "kuka", "abb" or "ur" (UR on its fixed ports).
         robot: robot preset (default: the cell's).  image_size: "WxH" of cameras without intrinsics.
         seed: noise seed.  time_scale: motion-time scale (0: instantaneous moves; 1: a real robot's speed).
         noise: "clean" or "realistic" images.  fast_noise: fast sensor noise for live views.
@@ -93,8 +93,10 @@ def start_simulator(cell: str | Path, *, addresses: dict[str, str], log_path: st
         DeviceError: the simulator did not start (its log is quoted).
     """
     cmd = [sys.executable, "-c", "from jcalib.app.cli import main; main()", "simulate", "--cell", str(cell),
-           "--robot-protocol", protocol, "--robot-port", "0", "--time-scale", str(time_scale), "--seed", str(int(seed)),
+           "--robot-protocol", protocol, "--time-scale", str(time_scale), "--seed", str(int(seed)),
            "--noise", noise]  # fmt: skip
+    if protocol != "ur":  # UR's ports are fixed (30004, 30002): free in the private namespace the cell runs in
+        cmd += ["--robot-port", "0"]
     if robot:
         cmd += ["--robot", robot]
     if image_size:

@@ -5,7 +5,9 @@ and talks to it with programs jcalib did not write: Aravis' ``arv-tool-0.8`` (fe
 always ``-a 127.0.0.1``) and ``arv-camera-test-0.8`` (software-triggered grabbing), and the PyPI
 KUKAVARPROXY client ``py_openshowvar`` (reads, writes, a motion through the ``JCALIB_MOVE`` variables);
 records ``ss -lunpt``; sends 10,000 random packets to every port of the simulator; checks that jcalib's own
-clients and Aravis' tool are still served. Then the same listing, flood and check for the ABB simulator.
+clients and Aravis' tool are still served. Then the same listing, flood and check for the ABB simulator, and
+for the UR simulator (on UR's fixed ports, free in this namespace), whose RTDE interface the PyPI client
+``ur_rtde`` (``rtde_receive.RTDEReceiveInterface``) reads before and after the flood.
 Writes ``OUT/report.json``.
 """
 
@@ -50,8 +52,12 @@ def listening(pid: int) -> list[tuple[str, str, int]]:
 
 
 def start(out: Path, protocol: str) -> tuple[subprocess.Popen, str]:
-    cmd = [*JCALIB, "simulate", "--cell", str(out / "cell.yaml"), "--robot-protocol", protocol, "--robot-port", "0",
+    cmd = [*JCALIB, "simulate", "--cell", str(out / "cell.yaml"), "--robot-protocol", protocol,
            "--camera", "cam0=127.0.0.1", "--time-scale", "0", "--image-size", "320x240"]  # fmt: skip
+    if protocol == "ur":
+        cmd += ["--robot", "ur5e"]  # UR's fixed ports: free inside this namespace
+    else:
+        cmd += ["--robot-port", "0"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=open(out / f"simulate-{protocol}.err", "w"), text=True)
     line = proc.stdout.readline() if proc.stdout else ""
     if not line.startswith("READY"):
@@ -87,6 +93,16 @@ def flood(ports: list[tuple[str, str, int]], seed: int) -> dict:
                         if rng.random() < 0.2:
                             data = (rng.choice(["PING", "GETP", "MOVJ", "TOOL", "SPEED"]) + " " + " ".join(
                                 str(v) for v in rng.normal(0, 1e3, int(rng.integers(0, 9)))) + "\n").encode()
+                        if rng.random() < 0.2:  # RTDE-like packages: a size, a command, a payload
+                            body = bytes([int(rng.choice(list(b"VvOISPUM")))]) + data
+                            data = int(rng.integers(0, 3 + len(body) + 2)).to_bytes(2, "big") + body
+                        if rng.random() < 0.2:  # URScript-like programs and lines
+                            nums = ", ".join(f"{v:.4g}" for v in rng.normal(0, 1.0, int(rng.integers(0, 8))))
+                            data = str(rng.choice([f"movej(p[{nums}])\n", f"movel(p[{nums}], a=1, v=0.1)\n",
+                                                   f"def f():\n  set_tcp(p[{nums}])\n", "end\n", "halt\n",
+                                                   f"write_output_integer_register({nums[:3]}, 7)\n",
+                                                   f"if not get_inverse_kin_has_solution(p[{nums}]):\n",
+                                                   f"stopj({nums[:5]})\n"])).encode()
                         try:
                             s.sendall(data)
                         except OSError:
@@ -116,6 +132,31 @@ def our_clients_work(robot_url: str) -> dict:
         res["exposure_us"] = float(cam.get("ExposureTime"))
     finally:
         cam.close()
+    return res
+
+
+def ur_rtde_reads() -> dict:
+    """What the PyPI client ``ur_rtde`` reads from the simulator's RTDE interface (pose, joints, modes), and what
+    jcalib's driver reads right after (the arm stands still)."""
+    import rtde_receive
+
+    from jcalib.workflow.devices import open_robot
+
+    r = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+    try:
+        time.sleep(0.2)
+        res = {"pose": list(r.getActualTCPPose()), "q": list(r.getActualQ()), "robot_mode": r.getRobotMode(),
+               "safety_mode": r.getSafetyMode(), "runtime_state": r.getRuntimeState(),
+               "connected": r.isConnected(), "protective_stop": r.isProtectiveStopped(),
+               "timestamp": r.getTimestamp()}  # fmt: skip
+    finally:
+        r.disconnect()
+    robot = open_robot("ur://127.0.0.1", timeout_s=5.0)
+    try:
+        s = robot.state()
+        res["jcalib_T_base_flange"], res["jcalib_joints_deg"] = s.T_base_flange.tolist(), s.joints_deg.tolist()
+    finally:
+        robot.close()
     return res
 
 
@@ -184,6 +225,22 @@ def main() -> None:
         proc.terminate()
         proc.wait(30)
     report["abb_exit"] = proc.returncode
+    proc, robot_url = start(out, "ur")
+    try:
+        report["ur_url"] = robot_url
+        report["ur_sockets"] = listening(proc.pid)
+        report["ur_rtde_before"] = ur_rtde_reads()
+        report["ur_before"] = our_clients_work(robot_url)  # moves the arm 10 mm
+        report["ur_rtde_moved"] = ur_rtde_reads()
+        report["ur_flood"] = flood(report["ur_sockets"], 3)
+        time.sleep(0.5)
+        report["ur_alive"] = proc.poll() is None
+        report["ur_after"] = our_clients_work(robot_url)
+        report["ur_rtde_after"] = ur_rtde_reads()
+    finally:
+        proc.terminate()
+        proc.wait(30)
+    report["ur_exit"] = proc.returncode
     (out / "report.json").write_text(json.dumps(report, default=str))
     print("INTEROP-DONE", flush=True)
 

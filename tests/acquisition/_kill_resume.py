@@ -1,7 +1,7 @@
 """Capture killed with SIGKILL at random moments and resumed, through the ``jcalib`` CLI (test + benchmark).
 
-:func:`kill_resume` starts ``jcalib simulate`` (one fake GigE camera on 127.0.0.1, a KUKA or ABB
-controller with motion time), then for each run: starts ``jcalib capture``, kills it with SIGKILL at
+:func:`kill_resume` starts ``jcalib simulate`` (one fake GigE camera on 127.0.0.1, a KUKA, ABB or UR
+controller with motion time; UR on free ports, ``--robot-port 0``), then for each run: starts ``jcalib capture``, kills it with SIGKILL at
 a random moment (start-up, control-channel wait, motion, grab, write: anything), resumes it with
 ``--resume``, kills again..., and finally resumes it to the end. It then checks the session: every
 planned station exactly once in ``stations.jsonl``, status ok, each image readable, of the camera's
@@ -29,7 +29,7 @@ cameras:
 targets:
   board: {type: checkerboard, cols: 8, rows: 5, square: 0.02, mount: base}
 """
-ROBOTS = {"kuka": "kuka_kr10_r1100_sixx", "abb": "abb_irb4600_45_205"}
+ROBOTS = {"kuka": "kuka_kr10_r1100_sixx", "abb": "abb_irb4600_45_205", "ur": "ur5e"}
 IMAGE_SIZE = (320, 240)
 
 

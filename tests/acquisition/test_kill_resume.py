@@ -1,6 +1,6 @@
 """Acceptance: a capture killed with SIGKILL at random moments and resumed each time ends with every planned
 station exactly once, with readable images that show the board where the recorded pose puts it, on both
-robot protocols. Through the ``jcalib`` CLI against ``jcalib simulate`` (one fake GigE camera, 127.0.0.1).
+robot protocols (KUKA, ABB, UR). Through the ``jcalib`` CLI against ``jcalib simulate`` (one fake GigE camera, 127.0.0.1).
 
 The short test kills each protocol's capture twice; the long variant (20 kills per protocol, 2 per run)
 is marked slow and is what ``benchmarks/bench_acquisition.py --kill-resume`` runs and tabulates.
@@ -27,7 +27,7 @@ def _assert_report(report: dict, kills: int) -> None:
 
 
 @pytest.mark.parametrize("protocol", ["kuka", pytest.param("abb", marks=pytest.mark.slow(
-    reason="the same kill-and-resume over ABB's protocol (21 s); its driver's stop and resume: test_stop.py"))])
+    reason="the same kill-and-resume over ABB's protocol (21 s); its driver's stop and resume: test_stop.py")), "ur"])
 def test_sigkill_twice_then_resume(aravis, tmp_path, protocol):
     report = kill_resume(tmp_path, protocol, runs=1, kills_per_run=2, stations=8, seed=11,
                          min_delay_s=1.0, max_delay_s=4.0)  # fmt: skip
@@ -35,7 +35,7 @@ def test_sigkill_twice_then_resume(aravis, tmp_path, protocol):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("protocol", ["kuka", "abb"])
+@pytest.mark.parametrize("protocol", ["kuka", "abb", "ur"])
 def test_sigkill_20_moments_then_resume(aravis, tmp_path, protocol):
     report = kill_resume(tmp_path, protocol, runs=10, kills_per_run=2, stations=10, seed=5,
                          min_delay_s=0.0, max_delay_s=6.0)  # fmt: skip

@@ -268,11 +268,18 @@ def test_lost_connection_is_a_device_error(cell):
         robot.state()  # stays failed, no hang
 
 
-@pytest.mark.parametrize("protocol", ["kuka", "abb"])
+@pytest.mark.parametrize("protocol", ["kuka", "abb", "ur"])
 def test_simulator_runs_as_a_subprocess(protocol):
-    proc, port = start_subprocess(protocol, time_scale=0.0)
+    from jcalib.acquisition.robots.serve import listening_url
+    from jcalib.workflow.devices import open_robot
+
+    proc, port = start_subprocess(protocol, port=0, time_scale=0.0)  # UR: both ports free (not 30004, 30002)
     try:
-        robot = (KukaRobot if protocol == "kuka" else AbbRobot)("127.0.0.1", port)
+        if protocol == "ur":
+            robot = open_robot(listening_url(proc))
+            assert robot.address == listening_url(proc) and robot.rtde_port == port
+        else:
+            robot = (KukaRobot if protocol == "kuka" else AbbRobot)("127.0.0.1", port)
         s0 = robot.state()
         T = _target(s0, [0.0, 0.1, 0.0], [0.0, 0.0, 0.1])
         s = robot.move(T)

@@ -1,4 +1,4 @@
-"""Stopping the robot and controlling a capture: Robot.stop() on every driver over its real protocol on
+"""Stopping the robot and controlling a capture: Robot.stop() on every driver (KUKA, ABB, UR) over its real protocol on
 127.0.0.1 (realistic motion times, time_scale=1), and CaptureControl's pause / resume / abort / STOP.
 
 Timing (stop -> standstill within 0.2 s) is measured by ``benchmarks/bench_stop.py``, not asserted here."""
@@ -28,6 +28,8 @@ from jcalib.acquisition.robots import (
     MotionStoppedError,
     SimulatedController,
     SimulatedRobot,
+    UrRobot,
+    UrSimServer,
 )
 from jcalib.errors import DeviceError
 from jcalib.geometry.se3 import pose_distance
@@ -44,10 +46,13 @@ def _connect(protocol: str, ctrl: SimulatedController):
     if protocol == "abb":
         srv = AbbSimServer(ctrl).start()
         return srv, AbbRobot("127.0.0.1", srv.port, motion_timeout_s=20.0)
+    if protocol == "ur":
+        srv = UrSimServer(ctrl, port=0).start()
+        return srv, UrRobot("127.0.0.1", rtde_port=srv.port, script_port=srv.script_port, motion_timeout_s=20.0)
     return None, SimulatedRobot(ctrl)
 
 
-@pytest.fixture(params=["sim", "kuka", "abb"])
+@pytest.fixture(params=["sim", "kuka", "abb", "ur"])
 def cell(request):
     ctrl = SimulatedController(time_scale=1.0, seed=5)
     srv, robot = _connect(request.param, ctrl)

@@ -29,9 +29,9 @@ def test_each_format_writes_its_golden_text(fmt, options, golden, tmp_path):
 
 
 def test_formats_and_bad_requests(tmp_path):
-    assert sorted(EXPORT_FORMATS) == ["kinematics", "krl", "opencv", "rapid", "ros", "urdf"]
+    assert sorted(EXPORT_FORMATS) == ["kinematics", "krl", "opencv", "rapid", "ros", "ur-calibration", "urdf"]
     with pytest.raises(
-        BadInputError, match="format: expected one of opencv, ros, rapid, krl, kinematics, urdf, got 'sdf'"
+        BadInputError, match="format: expected one of opencv, ros, rapid, krl, kinematics, urdf, ur-calibration, got 'sdf'"
     ):
         export_result(GOLDEN / "result.json", "sdf", tmp_path / "x")
     with pytest.raises(

@@ -249,7 +249,7 @@ def test_cli_export_kinematics_and_urdf(tmp_path, run_cli):
     assert np.max(np.abs(urdf_fk(urdf, dict(zip(model.joint_names, q[0].tolist()))) - want[0])) < FK_TOL
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cell7.urdf", "k.yaml", "result.json"]  # atomic writes
     code, text = run_cli("export", path, "-f", "opencv", "--robot", "cell7", "-o", tmp_path / "x.yaml")
-    assert code == 2 and "--robot applies to the kinematics and urdf formats" in text
+    assert code == 2 and "--robot applies to the kinematics, urdf and ur-calibration formats" in text
     empty = tmp_path / "empty.json"
     ResultFile(stats={"num_residuals": 1}).save(empty)
     code, text = run_cli("export", empty, "-f", "urdf", "-o", tmp_path / "y.urdf")

@@ -1,4 +1,5 @@
-"""Robot drivers: KUKA (KUKAVARPROXY), ABB (jcalib RAPID socket server), simulated controllers."""
+"""Robot drivers: KUKA (KUKAVARPROXY), ABB (jcalib RAPID socket server), Universal Robots (RTDE + URScript),
+simulated controllers."""
 
 from jcalib.acquisition.robots.abb import AbbRobot
 from jcalib.acquisition.robots.abb_sim import AbbSimServer
@@ -15,6 +16,8 @@ from jcalib.acquisition.robots.model import (
 )
 from jcalib.acquisition.robots.serve import make_server, start_subprocess
 from jcalib.acquisition.robots.simulated import SimulatedController, SimulatedRobot, UnreachableError
+from jcalib.acquisition.robots.ur import UrRobot
+from jcalib.acquisition.robots.ur_sim import UrSimServer
 
 __all__ = [
     "AbbRobot",
@@ -33,6 +36,8 @@ __all__ = [
     "SimulatedRobot",
     "SixAxisArm",
     "UnreachableError",
+    "UrRobot",
+    "UrSimServer",
     "default_model",
     "make_server",
     "preset_model",

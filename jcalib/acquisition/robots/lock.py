@@ -80,4 +80,4 @@ class RobotLock:
 
 def needs_lock(address: str) -> bool:
     """Network robots are locked; an in-process simulated robot (``sim://``) belongs to its process."""
-    return address.split("://", 1)[0] in ("kuka", "abb")
+    return address.split("://", 1)[0] in ("kuka", "abb", "ur")

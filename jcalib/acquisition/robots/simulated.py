@@ -162,6 +162,13 @@ class SimulatedController:
         with self._lock:
             return self._joints_at(time.monotonic())[0].copy()
 
+    def joint_velocities_rad_s(self, dt: float = 0.002) -> np.ndarray:
+        """(n,) current joint speeds, rad/s: the change over the last ``dt`` seconds (what an encoder-based
+        velocity reads; 0 when standing, ring-down included while it lasts)."""
+        with self._lock:
+            now = time.monotonic()
+            return (self._joints_at(now)[0] - self._joints_at(now - dt)[0]) / dt
+
     @property
     def motion_time_s(self) -> float:
         """Duration of the current (or last) trajectory, s: the motion's, or the braking's after :meth:`halt`."""
@@ -187,6 +194,24 @@ class SimulatedController:
         with self._lock:
             T = self.model.forward(self._joints_at(time.monotonic())[0])
             return invert(self.bases[self.base]) @ T @ self.tools[self.tool]
+
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One consistent reading: joints ``(n,)`` rad, joint speeds ``(n,)`` rad/s, the active tool in the active
+        base ``(4, 4)`` m, and the active tool in the flange ``(4, 4)`` m."""
+        with self._lock:
+            q = self.joints_rad()
+            T_tool = self.tools[self.tool]
+            T = invert(self.bases[self.base]) @ self.model.forward(q) @ T_tool
+            return q, self.joint_velocities_rad_s(), T, T_tool.copy()
+
+    def set_tool(self, index: int, T_flange_tool: np.ndarray) -> None:
+        """Define tool ``index`` (>= 1) as ``T_flange_tool`` (4, 4, m) and make it active (a controller's ``set_tcp``)."""
+        T = check_pose(T_flange_tool, f"tools[{index}]")
+        if int(index) < 1:
+            raise BadInputError(f"tool: index 0 is the flange itself and cannot be redefined, got {index}")
+        with self._lock:
+            self.tools[int(index)] = T
+            self.tool = int(index)
 
     def select_tool(self, index: int) -> None:
         with self._lock:

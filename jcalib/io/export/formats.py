@@ -15,6 +15,7 @@ from jcalib.io.export.kinematics import kinematics_urdf, kinematics_yaml
 from jcalib.io.export.kuka_krl import kuka_config_lines
 from jcalib.io.export.opencv_yaml import opencv_yaml
 from jcalib.io.export.ros import ros_camera_info
+from jcalib.io.export.ur_calibration import ur_calibration_export
 from jcalib.io.result import ResultFile, load_result
 
 __all__ = ["DEFAULT_FILE_NAMES", "EXPORT_FORMATS", "FORMAT_DESCRIPTIONS", "export_options", "export_result", "export_text",
@@ -23,7 +24,8 @@ __all__ = ["DEFAULT_FILE_NAMES", "EXPORT_FORMATS", "FORMAT_DESCRIPTIONS", "expor
 #: Format name -> ``(result, **options) -> str``. Options per format:
 #: ``opencv``: ``cameras`` (one id or a pair); ``ros``: ``camera``, ``camera_name``;
 #: ``rapid``: ``tools``, ``wobjs``, ``module``, ``loads``; ``krl``: ``tools``, ``bases``;
-#: ``kinematics``: ``robots``; ``urdf``: ``robot`` (both need a result with calibrated kinematics).
+#: ``kinematics``: ``robots``; ``urdf``, ``ur-calibration``: ``robot`` (all three need a result with calibrated
+#: kinematics).
 EXPORT_FORMATS: dict[str, Callable[..., str]] = {
     "opencv": opencv_yaml,
     "ros": ros_camera_info,
@@ -31,6 +33,7 @@ EXPORT_FORMATS: dict[str, Callable[..., str]] = {
     "krl": kuka_config_lines,
     "kinematics": kinematics_yaml,
     "urdf": kinematics_urdf,
+    "ur-calibration": ur_calibration_export,
 }
 
 
@@ -42,12 +45,15 @@ FORMAT_DESCRIPTIONS = {
     "krl": "KUKA KRL TOOL_DATA / BASE_DATA lines",
     "kinematics": "calibrated robot kinematics (cell-spec YAML with σ and controller offsets)",
     "urdf": "calibrated robot kinematics as a URDF",
+    "ur-calibration": "calibrated UR kinematics as Universal Robots' delta DH (calibration.conf form; applied only by "
+                      "UR's own procedure)",
 }
 #: The file name a download of each format gets.
 DEFAULT_FILE_NAMES = {"opencv": "camera_opencv.yaml", "ros": "camera_info.yaml", "rapid": "jcalib_cell.mod",
-                      "krl": "jcalib_cell.dat", "kinematics": "kinematics.yaml", "urdf": "robot.urdf"}
+                      "krl": "jcalib_cell.dat", "kinematics": "kinematics.yaml", "urdf": "robot.urdf",
+                      "ur-calibration": "ur_calibration.conf"}
 #: ``jcalib export`` option -> the formats that take it.
-_OPTION_FORMATS = {"camera": ("opencv", "ros"), "module": ("rapid",), "robot": ("kinematics", "urdf"),
+_OPTION_FORMATS = {"camera": ("opencv", "ros"), "module": ("rapid",), "robot": ("kinematics", "urdf", "ur-calibration"),
                    "tool_orientation": ("rapid", "krl")}
 
 
@@ -73,8 +79,9 @@ def export_options(fmt: str, *, camera: str | None = None, module: str | None = 
     for name, value in given.items():
         if value is not None and fmt not in _OPTION_FORMATS[name]:
             flag = "--" + name.replace("_", "-")
-            raise BadInputError(f"{flag} applies to the {' and '.join(_OPTION_FORMATS[name])} format"
-                                f"{'s' if len(_OPTION_FORMATS[name]) > 1 else ''}, not {fmt!r}")
+            *rest, last = _OPTION_FORMATS[name]
+            which = f"{', '.join(rest)} and {last} formats" if rest else f"{last} format"
+            raise BadInputError(f"{flag} applies to the {which}, not {fmt!r}")
         if value is not None and name != "tool_orientation" and not isinstance(value, str):
             raise BadInputError(f"--{name}: expected text, got {value!r}")
     if tool_orientation is not None and (isinstance(tool_orientation, str) or
@@ -84,7 +91,7 @@ def export_options(fmt: str, *, camera: str | None = None, module: str | None = 
     return {"opencv": {"cameras": camera}, "ros": {"camera": camera},
             "rapid": {"module": module, "orientations": orientations or None},
             "krl": {"orientations": orientations or None}, "kinematics": {"robots": robot},
-            "urdf": {"robot": robot}}[fmt]  # fmt: skip
+            "urdf": {"robot": robot}, "ur-calibration": {"robot": robot}}[fmt]  # fmt: skip
 
 
 def export_text(result: ResultFile | str | os.PathLike, fmt: str, **names: Any) -> str:
@@ -111,7 +118,7 @@ def export_result(
     result_path: str | os.PathLike | ResultFile, fmt: str, out_path: str | os.PathLike, **names: Any
 ) -> Path:
     """Read a result file, export it in format ``fmt`` (``opencv``, ``ros``, ``rapid``, ``krl``,
-    ``kinematics``, ``urdf``) and write ``out_path`` atomically. ``names`` are the format's options (see
+    ``kinematics``, ``urdf``, ``ur-calibration``) and write ``out_path`` atomically. ``names`` are the format's options (see
     :data:`EXPORT_FORMATS`); None values are left to the format's defaults.
 
     Returns:

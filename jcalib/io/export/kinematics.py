@@ -44,7 +44,7 @@ from jcalib.io.export._common import (
 from jcalib.io.result import KinematicsResult, ResultFile, load_result
 
 __all__ = ["CONTROLLER_OFFSET_CONVENTION", "calibrated_model", "kinematics_spec", "kinematics_urdf", "kinematics_yaml",
-           "rpy_from_matrix", "write_kinematics_yaml", "write_urdf"]
+           "pick_robot", "rpy_from_matrix", "write_kinematics_yaml", "write_urdf"]
 
 KINEMATICS_SCHEMA = "jcalib.kinematics/1"
 
@@ -71,7 +71,9 @@ def _entries(result: ResultFile, fmt: str) -> Mapping[str, KinematicsResult]:
     return result.kinematics
 
 
-def _pick(result: ResultFile, robot: str | None, fmt: str) -> str:
+def pick_robot(result: ResultFile, robot: str | None, fmt: str) -> str:
+    """``robot``, or the result's only robot with calibrated kinematics; :class:`BadInputError` otherwise (and for a
+    result without kinematics, naming export format ``fmt``)."""
     entries = _entries(result, fmt)
     if robot is None:
         if len(entries) != 1:
@@ -251,7 +253,7 @@ def kinematics_yaml(result: ResultFile, robots: str | Sequence[str] | None = Non
         BadInputError: no kinematics in the result, an unknown robot, or an unusable entry.
     """
     entries = _entries(result, "kinematics")
-    names = list(entries) if robots is None else [_pick(result, r, "kinematics") for r in
+    names = list(entries) if robots is None else [pick_robot(result, r, "kinematics") for r in
                                                    ([robots] if isinstance(robots, str) else robots)]
     lines = [f"# {c}" for c in ["jcalib calibrated robot kinematics", *provenance_lines(result)]]
     lines += [f"schema: {KINEMATICS_SCHEMA}", "robots:"]
@@ -333,7 +335,7 @@ def kinematics_urdf(result: ResultFile, robot: str | None = None) -> str:
     """
     import jax.numpy as jnp
 
-    robot = _pick(result, robot, "urdf")
+    robot = pick_robot(result, robot, "urdf")
     k = result.kinematics[robot]
     model = calibrated_model(k, robot)
     n = model.num_joints
