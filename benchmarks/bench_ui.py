@@ -1,6 +1,6 @@
 """The operator app against the simulated cell, in headless Chromium: live rates, first paint, warm re-solve, STOP.
 
-Run: ``.venv/bin/python benchmarks/bench_ui.py [--image-size 1280x960] [--live-seconds 20] [--stations 12]
+Run: ``.venv/bin/python benchmarks/bench_ui.py [--image-size 640x480] [--live-seconds 20] [--stations 30]
 [--out benchmarks/data/bench_ui.txt]``.
 
 What it does, on this machine (everything on loopback; the simulator shares the two cores with the app and
@@ -12,7 +12,7 @@ the browser, as it would not on a real cell):
    overlays per second per camera, as the page counts them (``window.jcalibLive``), and the camera's own
    delivered frame rate (what the server receives over GigE);
 3. **first paint**: every page's first contentful paint after navigation (Performance API), median of 3;
-4. **re-solve**: the demo's plan (hand-eye + tool stations, :func:`jcalib.app.demo_cell.plan_demo`)
+4. **re-solve**: the demo's plan toward its goals (hand-eye + tool stations, :func:`jcalib.app.demo_cell.plan_demo`)
    captured, calibrated once (cold: it compiles), then a view excluded by the page's button: the solve time
    the app reports, the whole job (detections from the cache, observations, the solve, the result file) and
    the click-to-table time in the browser; then three more exclusions (different views);
@@ -130,9 +130,12 @@ def first_paint(page, base: str) -> dict:
 
 def resolve(page, base: str, exclusions: int) -> dict:
     page.goto(base + "/inspect")
+    first = last_id(page, "calibrate")
     t0 = time.monotonic()
     page.click("#calibrate-button")
-    job = job_after(page, "calibrate", last_id(page, "calibrate"))
+    job = job_after(page, "calibrate", first)
+    if job["status"] != "done":
+        raise SystemExit(f"the calibration job ended {job['status']}: {job.get('error')}")
     cold = {"job_s": job["elapsed_s"], "solve_s": job["result"]["solve_s"], "wall_s": time.monotonic() - t0}
     page.wait_for_selector("#views-table tbody tr")
     rows = []
@@ -170,9 +173,9 @@ def stop_latency(page, base: str, stops: int) -> list[dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--image-size", default="1280x960")
+    ap.add_argument("--image-size", default="640x480")
     ap.add_argument("--live-seconds", type=float, default=20.0)
-    ap.add_argument("--stations", type=int, default=12, help="hand-eye stations of the demo plan")
+    ap.add_argument("--stations", type=int, default=30, help="most stations of the demo plan (views + tool)")
     ap.add_argument("--exclusions", type=int, default=4)
     ap.add_argument("--stops", type=int, default=5)
     ap.add_argument("--out", type=Path)
@@ -188,8 +191,9 @@ def main() -> None:
     (session / "app").mkdir(parents=True)
     (work / "cell.yaml").write_text(DEMO_CELL)
     size = parse_image_size(a.image_size)
-    counts = plan_demo(work / "cell.yaml", session / "app" / "plan.json", robot="kuka_kr10_r1100_sixx",
-                       stations=a.stations, tool_stations=7, image_size=size)
+    plan = plan_demo(work / "cell.yaml", session / "app" / "plan.json", robot="kuka_kr10_r1100_sixx",
+                     max_stations=a.stations, image_size=size)
+    counts = (plan.num_views, plan.num_tool)
     load0 = os.getloadavg()
     proc, url = start(work, ["--cell", str(work / "cell.yaml"), "--session", str(session), "--image-size",
                              a.image_size])
@@ -215,6 +219,8 @@ def main() -> None:
             first = last_id(page, "capture")
             fetch(page, "POST", "/api/capture/start", {"confirm": True, "mode": "plan"})
             job = job_after(page, "capture", first, 1800)
+            if job["status"] != "done":
+                raise SystemExit(f"the capture job ended {job['status']}: {job.get('error')}")
             report["capture"] = job["result"]
             report["resolve"] = resolve(page, base, a.exclusions)
             browser.close()
