@@ -27,11 +27,10 @@ __all__ = ["UIConfig", "AppState"]
 
 #: How often the robot's state is read while no job uses the robot, s.
 ROBOT_POLL_S = 1.0
-
-
 #: Live views grab at most this many frames per second per camera (software trigger): a page draws about as
 #: many, and grabs beyond it take the CPU that the detection overlays need.
 LIVE_MAX_FPS = 15.0
+
 
 @dataclass
 class UIConfig:
