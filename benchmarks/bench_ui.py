@@ -27,6 +27,7 @@ Targets (issue 30): >= 10 frames/s, >= 5 overlays/s, warm re-solve <= 0.3 s, fir
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -65,6 +66,24 @@ def start(work: Path, extra: list[str]) -> tuple[subprocess.Popen, str]:
             raise SystemExit("jcalib ui did not start:\n" + "".join(lines[-30:]))
         time.sleep(0.2)
     return proc, found["url"]
+
+
+@contextlib.contextmanager
+def controlling_page(proc: subprocess.Popen, url: str):
+    """``(page, base URL)`` of a headless Chromium that controls the app at ``url``; the app ends afterwards."""
+    from playwright.sync_api import sync_playwright
+
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            page = browser.new_page(viewport={"width": 1400, "height": 1000})
+            page.goto(url)
+            fetch(page, "POST", "/api/control/claim", None)
+            yield page, url.split("/?")[0]
+            browser.close()
+    finally:
+        proc.terminate()
+        proc.wait(120)
 
 
 def fetch(page, method: str, path: str, body: dict | None = None):
@@ -182,7 +201,6 @@ def main() -> None:
     ap.add_argument("--stops", type=int, default=5)
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    from playwright.sync_api import sync_playwright
 
     from jcalib.app.demo_cell import plan_demo
     from jcalib.workflow.devices import parse_image_size
@@ -203,66 +221,36 @@ def main() -> None:
 
     # live, at the issue's 1280x960: the robot at the first planned station (the flange camera sees the board)
     _, proc, url = app(work / "session-live", a.live_image_size)
-    base = url.split("/?")[0]
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-            page = browser.new_page(viewport={"width": 1400, "height": 1000})
-            page.goto(url)
-            fetch(page, "POST", "/api/control/claim", None)
-            page.goto(base + "/capture")
-            first = last_id(page, "capture")
-            fetch(page, "POST", "/api/capture/start", {"confirm": True, "mode": "plan"})
-            page.wait_for_function("document.getElementById('content').innerText.includes('1 of')", timeout=300_000)
-            fetch(page, "POST", "/api/capture/abort", None)
-            job_after(page, "capture", first)
-            report["live"] = live(page, base, a.live_seconds)
-            report["load_live"] = os.getloadavg()
-            browser.close()
-    finally:
-        proc.terminate()
-        proc.wait(120)
+    with controlling_page(proc, url) as (page, base):
+        page.goto(base + "/capture")
+        first = last_id(page, "capture")
+        fetch(page, "POST", "/api/capture/start", {"confirm": True, "mode": "plan"})
+        page.wait_for_function("document.getElementById('content').innerText.includes('1 of')", timeout=300_000)
+        fetch(page, "POST", "/api/capture/abort", None)
+        job_after(page, "capture", first)
+        report["live"] = live(page, base, a.live_seconds)
+        report["load_live"] = os.getloadavg()
     # first paint, the demo's capture and calibration, re-solves: the demo cell at the demo's image size
     session = work / "session"
     plan, proc, url = app(session, a.image_size)
     report["stations"] = [plan.num_views, plan.num_tool]
-    base = url.split("/?")[0]
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-            page = browser.new_page(viewport={"width": 1400, "height": 1000})
-            page.goto(url)
-            fetch(page, "POST", "/api/control/claim", None)
-            report["first_paint_s"] = first_paint(page, base)
-            page.goto(base + "/capture")
-            first = last_id(page, "capture")
-            fetch(page, "POST", "/api/capture/start", {"confirm": True, "mode": "plan"})
-            job = job_after(page, "capture", first, 1800)
-            if job["status"] != "done":
-                raise SystemExit(f"the capture job ended {job['status']}: {job.get('error')}")
-            report["capture"] = job["result"]
-            report["resolve"] = resolve(page, base, a.exclusions)
-            browser.close()
-    finally:
-        proc.terminate()
-        proc.wait(120)
+    with controlling_page(proc, url) as (page, base):
+        report["first_paint_s"] = first_paint(page, base)
+        page.goto(base + "/capture")
+        first = last_id(page, "capture")
+        fetch(page, "POST", "/api/capture/start", {"confirm": True, "mode": "plan"})
+        job = job_after(page, "capture", first, 1800)
+        if job["status"] != "done":
+            raise SystemExit(f"the capture job ended {job['status']}: {job.get('error')}")
+        report["capture"] = job["result"]
+        report["resolve"] = resolve(page, base, a.exclusions)
     # STOP: a second app on a fresh session (the first one's plan is captured)
     session2 = work / "session2"
     (session2 / "app").mkdir(parents=True)
     (session2 / "app" / "plan.json").write_text((session / "app" / "plan.json").read_text())
     proc, url = start(work, ["--cell", str(work / "cell.yaml"), "--session", str(session2), "--image-size", a.image_size])
-    base = url.split("/?")[0]
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-            page = browser.new_page(viewport={"width": 1400, "height": 1000})
-            page.goto(url)
-            fetch(page, "POST", "/api/control/claim", None)
-            report["stop"] = stop_latency(page, base, a.stops)
-            browser.close()
-    finally:
-        proc.terminate()
-        proc.wait(120)
+    with controlling_page(proc, url) as (page, base):
+        report["stop"] = stop_latency(page, base, a.stops)
     report["load_after"] = os.getloadavg()
     text = render(report)
     print(text)
