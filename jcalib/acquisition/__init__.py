@@ -1,4 +1,4 @@
-"""Acquisition: drive cameras and robots, write capture sessions (see DESIGN.md, "Capture session").
+"""Acquisition: drive cameras and robots, write capture sessions (see docs/design.md, "Capture session").
 
 Cameras (:mod:`jcalib.acquisition.cameras`): GigE Vision through Aravis, opened by IP address; a fake
 GigE camera serving rendered frames; in-process simulated and replay cameras. Robots

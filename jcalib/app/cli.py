@@ -640,8 +640,9 @@ def ui(
     host: Annotated[str, typer.Option("--host", help="Address to listen on; an address other than loopback lets "
                                       "other machines reach the app (the token still guards every request).")]
     = "127.0.0.1",
-    image_size: Annotated[str, typer.Option(help="--simulate: WxH of the simulated cameras without intrinsics.")]
-    = "1280x960",
+    image_size: Annotated[str, typer.Option(help="--simulate: WxH of the simulated cameras without intrinsics (the "
+                                          "demo's 640x480: the tool stations are planned for what it shows).")]
+    = "640x480",
     seed: Annotated[int, typer.Option(help="--simulate: noise seed of the simulated cell.")] = 0,
 ) -> None:
     """Start the operator's web app: live view, plan and capture toward goals, calibrate and inspect, export.

@@ -1,6 +1,6 @@
 """Geometry: Lie groups and pose conventions, camera models, calibration targets, robot kinematics.
 
-Conventions (DESIGN.md): ``T_a_b`` maps points of frame *b* into frame *a*; poses are ``wxyz`` +
+Conventions (docs/design.md): ``T_a_b`` maps points of frame *b* into frame *a*; poses are ``wxyz`` +
 ``xyz`` 7-vectors (metres) or 4x4 matrices; tangent vectors are ``(rx, ry, rz, tx, ty, tz)`` with
 right perturbation ``T · Exp(δ)``.
 """

@@ -9,7 +9,7 @@ Every function takes array-likes with leading batch axes and returns:
 - JAX arrays when any argument is a JAX array. The same value checks run on concrete arrays; under
   ``jit``/``vmap``/``grad`` (tracers) only the shape checks run, and the functions are traceable.
 
-Conventions (see DESIGN.md): ``T_a_b`` maps points of frame *b* into frame *a*; internal units are
+Conventions (see docs/design.md): ``T_a_b`` maps points of frame *b* into frame *a*; internal units are
 metres and radians; quaternions are ``wxyz`` unit quaternions with ``w >= 0`` on output.
 
 - OpenCV: ``rvec`` = axis * angle (rad), ``tvec`` (m); ``R = cv2.Rodrigues(rvec)[0]``.

@@ -389,7 +389,7 @@ _NON_GEOMETRY_KEYS = {"type", "mount", "pose"}
 
 
 def target_from_spec(spec: dict) -> Target:
-    """Build a target from a cell-spec entry (see DESIGN.md), e.g. ``{type: checkerboard, ...}``.
+    """Build a target from a cell-spec entry (see docs/design.md), e.g. ``{type: checkerboard, ...}``.
 
     Args:
         spec: mapping with ``type`` (``checkerboard``, ``charuco``, ``circles``, ``aprilgrid`` or

@@ -1,6 +1,6 @@
 """The cell spec (``cell.yaml``, schema ``jcalib.cell/1``): what is in the cell and what is unknown.
 
-See DESIGN.md, "File formats and entry points". Loading validates everything a later stage relies
+See docs/design.md, "File formats and entry points". Loading validates everything a later stage relies
 on and raises :class:`~jcalib.errors.BadInputError` naming the file, the key and what to do.
 
 Robots: a cell has no robot, one robot (``robot: {...}``, as always) or named robots

@@ -1,6 +1,6 @@
 """Observations (``observations.json``, schema ``jcalib.observations/1``): what the vision layer produces.
 
-See DESIGN.md. Metres; pixels in the OpenCV convention (centre of the top-left pixel is (0, 0)).
+See docs/design.md. Metres; pixels in the OpenCV convention (centre of the top-left pixel is (0, 0)).
 Loading validates shapes, finiteness and indices, and names the station and camera of any problem.
 """
 

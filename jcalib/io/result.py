@@ -1,7 +1,7 @@
 """The result file (``result.json``, schema ``jcalib.result/1``): what a calibration found.
 
 A pure data layer (NumPy only, no JAX): the solver fills a :class:`ResultFile`, the report and the
-exports (:mod:`jcalib.io.export`) read one. See DESIGN.md, "File formats and entry points".
+exports (:mod:`jcalib.io.export`) read one. See docs/design.md, "File formats and entry points".
 
 Units and conventions (the file states them, readers rely on them):
 

@@ -9,7 +9,7 @@
 
 The covariances come from the solve (its linear model, or the result file the solve wrote), or from a
 planner's prediction; they are propagated through the lens model's projection of fixed rays, a derived
-quantity (DESIGN.md: "the projection of a pixel ray ... by linear propagation with JAX Jacobians"),
+quantity (docs/design.md: "the projection of a pixel ray ... by linear propagation with JAX Jacobians"),
 not a model of the calibration: the calibration's own linear model is never re-derived here.
 The report draws these numbers and the goal-driven planner predicts with them (both import this module).
 """

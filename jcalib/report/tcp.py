@@ -1,7 +1,7 @@
 """TCP uncertainty for the report: a TCP calibration as a result file, σ of the TCP per flange axis
 and of a gripped point in the robot base frame.
 
-A TCP is the transform ``T_flange_<tool>`` of a result file (DESIGN.md), its covariance ``(6, 6)``
+A TCP is the transform ``T_flange_<tool>`` of a result file (docs/design.md), its covariance ``(6, 6)``
 over the right-perturbation tangent ``(rx, ry, rz, tx, ty, tz)`` (rad, m) in the TCP frame. The TCP
 *position* a robot controller takes is the tip in the flange frame, ``t = T_flange_tcp[:3, 3]``; to
 first order a tangent ``δ = (ω, v)`` moves it by ``R_flange_tcp · v``, so its covariance in the

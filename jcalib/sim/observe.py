@@ -15,7 +15,7 @@ truth and the station's true flange poses, and records what the cell's sensors w
 - the measured flange poses: the true ones times ``Exp(δ)``, δ ~ N(0, diag(σ_rot², σ_t²)) (right
   perturbation, flange frame), as the robot pose model of the builder assumes.
 
-Frames and names follow the builder (DESIGN.md): the cell's frame is ``base`` (one robot), ``world``
+Frames and names follow the builder (docs/design.md): the cell's frame is ``base`` (one robot), ``world``
 (several robots) or, without robots, the frame of the rig's reference camera. Every random draw happens
 whatever the outcome (a detection out of view still consumes its noise), so a station's noise does not
 depend on what the other stations saw.

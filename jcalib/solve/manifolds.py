@@ -9,7 +9,7 @@ Every manifold maps one parameter row (``param_dim``) and one tangent vector (``
   no exp, trig or normalisation: the engine differentiates through it for Gauss–Newton Jacobians
   (always taken at ``δ = 0``), never for updates or second derivatives.
 
-Layouts (DESIGN.md): SO(3) parameters are a ``wxyz`` unit quaternion, tangent ``(rx, ry, rz)`` in
+Layouts (docs/design.md): SO(3) parameters are a ``wxyz`` unit quaternion, tangent ``(rx, ry, rz)`` in
 radians. SE(3) parameters are ``wxyz_xyz`` (quaternion, then translation in metres), tangent
 ``(rx, ry, rz, tx, ty, tz)`` — rotation first, unlike jaxlie's ``(tx, ty, tz, rx, ry, rz)``; the
 SE(3) exponential and logarithm are jcalib.geometry's, so no SE(3) tangent is ever handed to jaxlie.
@@ -115,7 +115,7 @@ class SO3(eqx.Module):
         return K.so3_right_jacobian_inverse(self.local(x, y), jnp)
 
     def normalize(self, x):
-        """Unit norm and ``w >= 0`` (the sign convention of DESIGN.md)."""
+        """Unit norm and ``w >= 0`` (the sign convention of docs/design.md)."""
         q = x / jnp.linalg.norm(x)
         return jnp.where(q[0] < 0.0, -q, q)
 

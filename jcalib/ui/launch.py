@@ -60,7 +60,7 @@ def _check_host(host: str) -> None:
 
 
 def run_ui(*, cell: Path | None, session: Path, robot: str | None, cameras: dict[str, str], simulate: bool,
-           port: int | None, host: str, image_size: str = "1280x960", seed: int = 0,
+           port: int | None, host: str, image_size: str = "640x480", seed: int = 0,
            print_url=print) -> int:  # fmt: skip
     """Start the app (see the module docstring); returns the exit status when the server stops.
 
@@ -178,10 +178,12 @@ def _serve(sock: socket.socket, token: str, *, cell, session: Path, robot, camer
         if state.device_error:
             print_url(f"jcalib ui: device problem: {state.device_error}")
         sys.stdout.flush()
+        # No per-message deflate: the live frames are JPEG (deflate only spends the CPU that detection needs).
         server = _Server(uvicorn.Config(app, fd=sock.fileno(), log_level="warning", ws="websockets-sansio",
-                                        lifespan="on", timeout_graceful_shutdown=3))  # fmt: skip
+                                        ws_per_message_deflate=False, lifespan="on",
+                                        timeout_graceful_shutdown=3))  # fmt: skip
         server.run()
-        state.close_devices()
+        state.begin_close()
         left = state.join_background(timeout_s=SHUTDOWN_WAIT_S)
         if left:
             # The interpreter's exit would abort (a thread inside XLA or OpenCV): end without it, files are
@@ -206,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--simulate", action="store_true")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int)
-    p.add_argument("--image-size", default="1280x960")
+    p.add_argument("--image-size", default="640x480")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
     return run_ui(cell=a.cell, session=a.session, robot=None, cameras={}, simulate=a.simulate, port=a.port,

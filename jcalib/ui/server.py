@@ -44,7 +44,7 @@ def make_app(state: AppState, token: str, hosts: set[str]):
     async def lifespan(app):
         state.bus.bind(asyncio.get_running_loop())
         yield
-        await run_in_threadpool(state.close_devices)
+        state.begin_close()  # the app's stop waits for it (launch: join_background)
 
     api = FastAPI(title="jcalib ui", lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
     api.mount("/static", StaticFiles(directory=STATIC), name="static")

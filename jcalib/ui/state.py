@@ -27,6 +27,9 @@ __all__ = ["UIConfig", "AppState"]
 
 #: How often the robot's state is read while no job uses the robot, s.
 ROBOT_POLL_S = 1.0
+#: Live views grab at most this many frames per second per camera (software trigger): a page draws about as
+#: many, and grabs beyond it take the CPU that the detection overlays need.
+LIVE_MAX_FPS = 15.0
 
 
 @dataclass
@@ -102,6 +105,7 @@ class AppState:
         self.robot_state: dict = {"connected": False, "error": None}
         self._closing = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._cache: dict[str, Any] = {}  # image size and nominal layout (see image_size, layout)
 
     # --- devices -------------------------------------------------------------------------------------
     def open_devices(self) -> None:
@@ -117,7 +121,7 @@ class AppState:
                 problems.append(f"robot {self.config.robot_url}: {e}")
         for name, url in self.config.camera_urls.items():
             try:
-                self.cameras[name] = LiveCamera(open_camera(name, url))
+                self.cameras[name] = LiveCamera(open_camera(name, url), max_fps=LIVE_MAX_FPS)
             except (BadInputError, DeviceError) as e:
                 problems.append(f"camera {name} ({url}): {e}")
         self.device_error = "; ".join(problems) or None
@@ -134,7 +138,7 @@ class AppState:
         return thread
 
     def join_background(self, timeout_s: float) -> list[str]:
-        """After :meth:`close_devices`: wait up to ``timeout_s`` in all for the running job, the report being
+        """After :meth:`begin_close`: wait up to ``timeout_s`` in all for the running job, the report being
         written and the device threads (a thread still inside XLA or OpenCV when the interpreter exits aborts
         the process); the names of what still runs."""
         deadline = time.monotonic() + timeout_s
@@ -181,6 +185,15 @@ class AppState:
                     if robot is not None:
                         robot.close()
                     self.robot = None
+
+    def begin_close(self) -> None:
+        """Close the devices in a background thread (:meth:`close_devices`; once): a device that vanished
+        can hold its close for its protocol's timeouts, and :meth:`join_background` bounds the wait."""
+        with self.lock:
+            if self._closing.is_set():
+                return
+            self._closing.set()
+        self.spawn(self.close_devices, "close-devices")
 
     def close_devices(self) -> None:
         """Stop the robot if a capture runs, then close everything (idempotent)."""
@@ -258,6 +271,7 @@ class AppState:
         if not isinstance(settings, dict):
             raise BadInputError("settings: expected {feature: value}")
         apply_camera_settings({camera: self.cameras[camera]}, {camera: settings})
+        self._cache.pop("image_size", None)
         return next(c for c in self.camera_list()["cameras"] if c["name"] == camera)
 
     # --- cell ----------------------------------------------------------------------------------------
@@ -276,9 +290,26 @@ class AppState:
             raise BadInputError(f"{source}: the cell spec is larger than 16 MiB")
         return parse_cell(parse_yaml(text, source), source)
 
+    def _cell_stamp(self) -> tuple[int, int] | None:
+        try:
+            st = self.config.cell_path.stat()
+        except OSError:
+            return None
+        return (st.st_mtime_ns, st.st_size)
+
     def image_size(self) -> tuple[int, int] | None:
         """The image size of the connected cameras the cell gives no intrinsics for (what plans and the nominal
-        layout assume for them, as ``jcalib plan --image-size``), or None."""
+        layout assume for them, as ``jcalib plan --image-size``), or None. Kept until the cell file or a
+        camera's settings change (the live view asks for every frame)."""
+        stamp = self._cell_stamp()
+        cached = self._cache.get("image_size")
+        if cached is not None and cached[0] == stamp:
+            return cached[1]
+        size = self._image_size()
+        self._cache["image_size"] = (stamp, size)
+        return size
+
+    def _image_size(self) -> tuple[int, int] | None:
         try:
             spec = self.cell_spec()
         except BadInputError:
@@ -293,10 +324,17 @@ class AppState:
         return None
 
     def layout(self):
-        """The nominal layout of the cell (:func:`jcalib.planning.cell_layout`) for the connected cameras."""
+        """The nominal layout of the cell (:func:`jcalib.planning.cell_layout`) for the connected cameras (kept
+        while the cell file and the image size stay the same)."""
         from jcalib.planning import cell_layout
 
-        return cell_layout(self.config.cell_path, image_size=self.image_size())
+        key = (self._cell_stamp(), self.image_size())
+        cached = self._cache.get("layout")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        layout = cell_layout(self.config.cell_path, image_size=key[1])
+        self._cache["layout"] = (key, layout)
+        return layout
 
     @staticmethod
     def cell_summary(spec) -> dict:

@@ -1,4 +1,4 @@
-"""Cell spec and observations: contracts of DESIGN.md, validation messages, atomic writes."""
+"""Cell spec and observations: contracts of docs/design.md, validation messages, atomic writes."""
 
 import json
 import os

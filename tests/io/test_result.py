@@ -30,7 +30,7 @@ from jcalib.io.result import (
 
 GOLDEN = Path(__file__).parent / "golden"
 
-# The example of DESIGN.md ("Result"), with its descriptive covariance strings left out.
+# The example of docs/design.md ("Result"), with its descriptive covariance strings left out.
 DESIGN_EXAMPLE = {
     "schema": "jcalib.result/1",
     "cameras": {

@@ -1,5 +1,5 @@
 """The input layer (jcalib.io.schema) and output checks (jcalib.io.outputs): limits, messages,
-the extensions in force in DESIGN.md, legitimate YAML that must keep working."""
+the extensions in force in docs/design.md, legitimate YAML that must keep working."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Robot kinematic calibration inside the joint problem: recovery, identifiability, degenerate motion,
-bad input and the result file (DESIGN.md: kinematics is a preset of the one builder)."""
+bad input and the result file (docs/design.md: kinematics is a preset of the one builder)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """What every importer shares: writing the capture session, reading poses, checking options.
 
-An importer turns another tool's data set into a ``jcalib.session/1`` folder (DESIGN.md, "Capture
+An importer turns another tool's data set into a ``jcalib.session/1`` folder (docs/design.md, "Capture
 session"): ``session.json`` with the cell spec the source describes, ``stations.jsonl`` with one record
 per robot station (``T_base_flange`` in metres, the images of each camera), ``images/<camera>/<station>.png``
 (PNG sources copied byte for byte, other formats decoded and re-encoded losslessly as PNG), and a copy
@@ -11,7 +11,7 @@ format, the source path and the conventions the importer assumed.
 Sources that hold pose pairs without images (hand-eye samples of easy_handeye, MoveIt, camodocal) give
 stations without images and an ``observations.json`` whose stations carry 6-DOF target poses measured
 by the camera: ``"poses": [{"camera": c, "target": t, "T_cam_target": [[4x4]]}]`` (metres). The cell
-then names the marker as a ``type: points`` target (DESIGN.md: points known from the observations).
+then names the marker as a ``type: points`` target (docs/design.md: points known from the observations).
 """
 
 from __future__ import annotations

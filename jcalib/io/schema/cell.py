@@ -1,4 +1,4 @@
-"""Schema of the cell spec (``jcalib.cell/1``, DESIGN.md), including the extensions in force.
+"""Schema of the cell spec (``jcalib.cell/1``, docs/design.md), including the extensions in force.
 
 :func:`validate_cell_document` runs before :func:`jcalib.io.cell.parse_cell` builds the data
 classes: types, shapes, ranges and known keys (with "did you mean"), then the checks that need the

@@ -1,4 +1,4 @@
-"""Schema of observations (``jcalib.observations/1``, DESIGN.md), including the extensions in force.
+"""Schema of observations (``jcalib.observations/1``, docs/design.md), including the extensions in force.
 
 :func:`validate_observations_document` runs before :func:`jcalib.io.observations.parse_observations`
 builds the data classes: types and shapes (a fractional ``point_index`` is refused, never
