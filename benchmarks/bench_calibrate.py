@@ -105,13 +105,16 @@ def make_views(num_views: int, seed: int):
     return cam, random_calibration_views(cam, BOARD.points, num_views, rng=seed)
 
 
-def make_data(cam, poses, seed: int, sigma_px: float = 0.2):
-    """Observations (jcalib), float32 corner lists (OpenCV) and the corners (N, 54, 2) of the same noise."""
+def make_data(cam, poses, seed: int, sigma_px: float = 0.2, outliers: int = 0):
+    """Observations (jcalib), float32 corner lists (OpenCV) and the corners (N, 54, 2) of the same noise;
+    with ``outliers``, that many views (every fifth) have one corner moved ~10 px (a gross outlier)."""
     rng = np.random.default_rng(seed)
     stations, pixels = [], []
     for i, T in enumerate(poses):
         pix, _ = project_target(cam, T, BOARD.points)
         pix = pix + sigma_px * rng.standard_normal(pix.shape)
+        if i % 5 == 0 and i // 5 < outliers:
+            pix[(7 * i) % len(pix)] += (7.0, -7.0)
         pixels.append(pix)
         stations.append({"id": f"s{i:03d}", "detections": [{"camera": "cam", "target": "board",
                          "point_index": list(range(len(BOARD.points))), "pixels": pix.tolist()}]})
@@ -151,13 +154,15 @@ def run_mrcal(pixels: np.ndarray, repeats: int) -> dict | None:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def bench_views(views, repeats, use_mrcal):
-    cell = parse_cell(CELL)
+def bench_views(views, repeats, use_mrcal, outliers=(25,)):
+    """Rows per N (and per N in ``outliers`` with 5 gross outliers): ``jcalib.calibrate`` with the dicts a
+    user passes (the cell spec and the observations document, parsed and checked inside the call)."""
+    cell = CELL
     rows = []
-    for n in views:
+    for n, bad in [(n, 0) for n in views] + [(n, 5) for n in outliers]:
         cam, poses = make_views(n, seed=n)
-        data, obj, img, pixels = make_data(cam, poses, seed=n)
-        obs = parse_observations(data)
+        data, obj, img, pixels = make_data(cam, poses, seed=n, outliers=bad)
+        obs = data
         t_first, res = timed(lambda: jcalib.calibrate(cell, obs))
         ours, cv, cvx = [], [], []
         for _ in range(repeats):  # interleaved A/B
@@ -174,21 +179,23 @@ def bench_views(views, repeats, use_mrcal):
         m = statistics.median(mr["times"]) if mr else float("nan")
         cal = res.details
         fx = float(cal.cameras["cam"].params[0])
-        rows.append((n, t_first, o, ob, c, cx, m, cal.iterations, cal.rms_px, rms_cv, fx, K_cv[0, 0],
-                     mr["intrinsics"][0] if mr else float("nan")))
+        label = f"{n}" if not bad else f"{n}+{bad}o"
+        rows.append((label, t_first, o, ob, c, cx, m, cal.iterations, cal.rms_px, rms_cv, fx, K_cv[0, 0],
+                     mr["intrinsics"][0] if mr else float("nan"), len(cal.outliers)))
     print(f"\nSteady state (medians of {repeats}); OpenCV criteria: {CRITERIA_TEXT}")
     print("jcalib = the public jcalib.calibrate (checks, start, solve + covariance, outlier round, result file); "
           "mrcal = seed_stereographic + 2 optimize passes (OPENCV5), /usr/bin/python3" + ("" if use_mrcal else
                                                                                         " (not run: mrcal absent)"))
     print("jcalib ms: interleaved with the two OpenCV calls (/cv, /cv ext); b2b ms: back to back, as mrcal's loop "
           "times itself (/mrcal)")
-    print(f"{'N':>5} {'first s':>8} {'jcalib ms':>10} {'b2b ms':>7} {'cv ms':>8} {'cv ext ms':>10} {'mrcal ms':>9} "
+    print("N+5o: 5 views with one corner moved ~10 px; out: measurements jcalib rejected")
+    print(f"{'N':>6} {'first s':>8} {'jcalib ms':>10} {'b2b ms':>7} {'cv ms':>8} {'cv ext ms':>10} {'mrcal ms':>9} "
           f"{'/cv':>6} {'/cv ext':>8} {'/mrcal':>7} {'iters':>6} {'rms jcalib':>11} {'rms cv':>9} "
-          f"{'fx jcalib':>10} {'fx cv':>9} {'fx mrcal':>9}")
-    for n, tf, o, ob, c, cx, m, it, rms, rcv, fx, fxc, fxm in rows:
-        print(f"{n:>5} {tf:>8.2f} {o * 1e3:>10.1f} {ob * 1e3:>7.1f} {c * 1e3:>8.1f} {cx * 1e3:>10.1f} {m * 1e3:>9.1f} "
+          f"{'fx jcalib':>10} {'fx cv':>9} {'fx mrcal':>9} {'out':>4}")
+    for n, tf, o, ob, c, cx, m, it, rms, rcv, fx, fxc, fxm, nout in rows:
+        print(f"{n:>6} {tf:>8.2f} {o * 1e3:>10.1f} {ob * 1e3:>7.1f} {c * 1e3:>8.1f} {cx * 1e3:>10.1f} {m * 1e3:>9.1f} "
               f"{o / c:>6.2f} {o / cx:>8.2f} {ob / m:>7.2f} {it:>6} {rms:>11.5f} {rcv:>9.5f} {fx:>10.3f} {fxc:>9.3f} "
-              f"{fxm:>9.3f}")
+              f"{fxm:>9.3f} {nout:>4}")
 
 
 def _device_line() -> str:
@@ -266,6 +273,8 @@ def bench_cli(num_views=25):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--views", type=int, nargs="*", default=[25, 100, 400])
+    ap.add_argument("--outlier-views", type=int, nargs="*", default=[25],
+                    help="N of the rows with 5 gross outliers (one corner moved ~10 px in 5 views)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--mc", type=int, default=1000)
     ap.add_argument("--mc-no-sequential", action="store_true",
@@ -280,7 +289,7 @@ def main():
         print(f"note: mrcal not found for {SYSTEM_PYTHON} (Debian: apt-get install python3-mrcal); "
               "its column is left empty")
     if args.views:
-        bench_views(args.views, args.repeats, use_mrcal)
+        bench_views(args.views, args.repeats, use_mrcal, args.outlier_views)
     if args.mc:
         bench_monte_carlo(args.mc, sequential=not args.mc_no_sequential)
     if not args.skip_cli:

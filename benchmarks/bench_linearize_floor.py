@@ -170,7 +170,7 @@ def main():
 
     def jac_engine(p, x, hand=True):
         p = engine_problem(p, hand)
-        _, H, g, r, J, _ = linear.factor_linearization(p, x, p.factors[corners], linear.free_masks(p))
+        _, H, g, r, J, _, _ = linear.factor_linearization(p, x, p.factors[corners], linear.free_masks(p))
         return r, J
 
     def lin_engine_autodiff(p, x):

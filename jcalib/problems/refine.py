@@ -5,9 +5,11 @@ they run on a list of data sets at once: a round re-solves every member that nee
 vmapped call (:func:`jcalib.solve.solve_many`), so a Monte-Carlo batch is as cheap as one data set
 per member; a single calibration is a list of one.
 
-1. **Re-seeding** (free targets): a view whose RMS residual is far above the rest may have started
-   in the flipped planar-PnP minimum; its other PnP pose starts a second solve, kept when the cost
-   drops.
+1. **Re-seeding** (free targets): a view whose typical corner error (the median over its corners)
+   is far above the other views' may have started in the flipped planar-PnP minimum; its other PnP
+   pose starts a second solve, kept when the cost drops. The median, not the RMS: a view with one
+   gross outlier corner is a good pose with a bad corner (round 2 rejects it), and re-seeding it cost
+   a PnP and a long second solve that was then thrown away.
 2. **Outliers**: corners, tool tips and axis points beyond ``outlier_threshold`` σ of their own kind
    are rejected (σ: a robust scale, 1.4826 MAD of the kind's inlier residual coordinates, with
    a-posteriori noise; the stated σ otherwise) and the problem re-solved from the last estimate; every
@@ -62,7 +64,7 @@ MIN_VARIANCE_FACTOR = 1e-6
 VIEW_PRIOR_DOF = 20.0
 #: relative cost decrease a re-seeded solve must bring to replace the first one
 RESEED_MIN_DECREASE = 1e-6
-#: Views whose RMS exceeds this many times the median are re-seeded.
+#: Views whose median corner error exceeds this many times the median over views are re-seeded.
 RESEED_FACTOR = 3.0
 
 
@@ -296,12 +298,12 @@ class _Rounds:
 def _reseed_values(x: Member):
     """Start values with suspect views of free targets re-started from their other PnP pose."""
     g, built, sol, start = x.g, x.built, x.sol, x.start
-    rms = _view_rms(built, sol, x.weights)
-    median = float(np.median(list(rms.values()))) if rms else 0.0
+    typical = _view_error(built, sol, x.weights)
+    median = float(np.median(list(typical.values()))) if typical else 0.0
     by_name = {gr.name: gr for gr in built.groups}
     values = {k: v.copy() for k, v in sol.values.items()}
     suspects = []
-    for (name, k), v in sorted(rms.items()):
+    for (name, k), v in sorted(typical.items()):
         gr = by_name[name]
         cam, target = gr.key
         if v <= RESEED_FACTOR * max(median, 1e-3) or target not in built.free_entry:
@@ -316,18 +318,22 @@ def _reseed_values(x: Member):
     return values, suspects
 
 
-def _view_rms(built: Built, sol: Solution, weights) -> dict[tuple[str, int], float]:
-    """``(group, station) -> RMS`` of each view's inlier corners (pixels)."""
+def _view_error(built: Built, sol: Solution, weights) -> dict[tuple[str, int], float]:
+    """``(group, station) -> median`` corner error (pixels) of each view's inlier corners: robust to a
+    few gross outliers in a view, high for a view whose pose is wrong (every corner off)."""
     out = {}
     res = residuals(built, sol)
     for gr in built.groups:
         if gr.kind != "corner":
             continue
-        sq = np.sum(res[gr.name] ** 2, axis=1) * (weights[gr.name] > 0)
-        count = np.bincount(gr.stations, weights=(weights[gr.name] > 0).astype(float))
-        total = np.bincount(gr.stations, weights=sq)
-        for k in np.unique(gr.stations):
-            out[(gr.name, int(k))] = float(np.sqrt(total[k] / max(count[k], 1.0))) if count[k] else 0.0
+        inlier = weights[gr.name] > 0
+        err, stations = np.linalg.norm(res[gr.name], axis=1)[inlier], gr.stations[inlier]
+        order = np.lexsort((err, stations))  # by station, then error: each view's errors sorted
+        views, first, count = np.unique(stations[order], return_index=True, return_counts=True)
+        ranked = err[order]
+        median = 0.5 * (ranked[first + (count - 1) // 2] + ranked[first + count // 2])
+        out.update(((gr.name, int(k)), float(m)) for k, m in zip(views, median))
+        out.update(((gr.name, int(k)), 0.0) for k in np.setdiff1d(gr.stations, views))
     return out
 
 
