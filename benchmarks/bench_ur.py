@@ -4,8 +4,8 @@ For each robot (``kuka_kr10_r1100_sixx`` over KUKAVARPROXY, ``ur5e`` over RTDE +
 capture`` uses, against the in-process protocol simulators on free loopback ports, motion instantaneous) and each
 seed, the whole demo cell of :mod:`jcalib.app.demo_cell` (an eye-in-hand camera, a fixed camera, a board, a torch):
 
-- **hand-eye**: 16 hand-eye + 7 tool stations planned for the robot, captured with the realistic image noise
-  (``jcalib demo``), detected and calibrated jointly; errors against the simulator's truth of ``T_flange_cam_hand``
+- **hand-eye**: the stations ``jcalib demo`` plans for the robot toward the cell's goals (board views and tool
+  stations), captured with the realistic image noise (``jcalib demo``), detected and calibrated jointly; errors against the simulator's truth of ``T_flange_cam_hand``
   (translation mm, rotation deg), ``T_base_cam_fixed``, ``T_base_board`` and the TCP ``T_flange_torch`` (mm), and
   the largest |error / σ| over all unknowns;
 - **kinematic**: the same with hidden kinematic errors of the arm (``jcalib demo --kinematic-errors``: seeded,
@@ -40,7 +40,7 @@ from jcalib.acquisition.cameras.simulated import SimulatedCamera
 from jcalib.acquisition.capture import capture
 from jcalib.acquisition.robots import KukaRobot, KukaSimServer, SimulatedController, UrRobot, UrSimServer
 from jcalib.acquisition.robots.model import preset_model
-from jcalib.app.demo_cell import (DEMO_CELL, KINEMATIC_STATIONS, TOOL_STATIONS, compare_kinematics, compare_with_truth,
+from jcalib.app.demo_cell import (DEMO_CELL, KINEMATIC_STATIONS, MAX_STATIONS, compare_kinematics, compare_with_truth,
                                   kinematic_cell, plan_demo)  # fmt: skip
 from jcalib.app.simcell import layout_truth, scene_frame_source, scene_from_layout, simulated_kinematics
 from jcalib.io.plan import load_plan
@@ -80,7 +80,7 @@ def run_once(work: Path, protocol: str, mode: str, seed: int, model) -> dict:
         calib_cell.write_text(kinematic_cell(robot))
     plan = work / f"plan-{protocol}-{mode}.json"
     if not plan.exists():
-        plan_demo(calib_cell, plan, robot=robot, stations=16, tool_stations=TOOL_STATIONS, image_size=SIZE,
+        plan_demo(calib_cell, plan, robot=robot, max_stations=MAX_STATIONS, image_size=SIZE,
                   kinematic_stations=KINEMATIC_STATIONS if mode == "kinematic" else 0)  # fmt: skip
     layout = cell_layout(cell_path, robot=robot, image_size=SIZE)
     scene = scene_from_layout(layout)
