@@ -227,7 +227,7 @@ def _parse_detection(d: Any, where: str, obs_cameras: dict, obs_targets: dict,
             f"index out of range (target '{target}' has {n_points} points, got "
             f"{int(index.min())}..{int(index.max())}); the detections do not match this target",
         )
-    if np.unique(index).size != index.size:
+    if index.size and np.count_nonzero(np.bincount(index, minlength=n_points)) != index.size:
         raise _fail(where + ".point_index", "a target point appears twice in one detection")
     return Detection(camera=camera, target=target, point_index=index, pixels=pixels,
                      orientation_ambiguous=bool(d.get("orientation_ambiguous", False)))

@@ -109,8 +109,15 @@ FORBIDDEN_NAME_CHARACTERS = "/\\[]\"'`"
 _MAX_NAME = 64
 
 
+#: Names made only of ASCII letters, digits, ``_ - .`` and inner spaces, not starting with '.': valid without
+#: looking at each character's Unicode category (almost every name; a 100-view document has thousands).
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9_-](?:[A-Za-z0-9_. -]*[A-Za-z0-9_.-])?")
+
+
 def check_name(value: Any, what: str = "name") -> str:
     """``value`` if it is a valid name (see the module docstring), else ValueError saying why."""
+    if type(value) is str and len(value) <= _MAX_NAME and _PLAIN_NAME.fullmatch(value):
+        return value
     if not isinstance(value, str):
         raise ValueError(f"expected a {what} (text), got {format_value(value)}")
     if not value:

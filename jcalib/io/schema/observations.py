@@ -214,7 +214,8 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
                                      "one to one"))
                 continue
             n = targets[tgt]
-            bad = [k for k, v in enumerate(index) if not 0 <= v < n]
+            bad = [] if not index or 0 <= min(index) and max(index) < n else [
+                k for k, v in enumerate(index) if not 0 <= v < n]
             if bad:
                 problems.append((f"{at}.point_index[{bad[0]}]", f"index {index[bad[0]]} is out of range: target {tgt!r} "
                                                                 f"has {n} points (0..{n - 1})"))
