@@ -27,7 +27,8 @@ __all__ = ["SECTIONS", "render_report", "write_report"]
 
 #: The page's sections (``<h2>``), in order; every report has all of them.
 SECTIONS = ("Warnings", "Summary", "Prediction from the robot's poses", "Per-view reprojection error",
-            "Task-space uncertainty", "Correlations", "Weakest directions", "What would help", "Residuals", "Cross-validation", "Provenance")
+            "Task-space uncertainty", "Correlations", "Weakest directions", "What would help", "Residuals",
+            "Cross-validation", "Provenance")
 
 
 def _options(options, file):
