@@ -173,6 +173,8 @@ def calibrate(
                                                      "at a prior instead of failing.", "--fix-unobservable")] = None,
     unobservable_prior_m: Annotated[Optional[float], _opt("Prior value of that translation, m [0].")] = None,
     unobservable_prior_sigma_m: Annotated[Optional[float], _opt("Prior σ of that translation, m [1e-6].")] = None,
+    prediction: Annotated[Optional[bool], _opt("Held-out prediction from the robot's poses (robot cells) [on].",
+                                               "--prediction/--no-prediction")] = None,
     prior: Annotated[Optional[Path], _opt("Previous result.json: re-optimise (reuse what still holds, flag what moved "
                                           "by a χ² test).")] = None,
 ) -> None:
@@ -196,6 +198,7 @@ def calibrate(
         outlier_threshold=outlier_threshold, reseed_views=reseed_views, pose_model=pose_model, method=method,
         max_iterations=max_iterations, reference_camera=reference_camera, fix_unobservable=fix_unobservable,
         unobservable_prior_m=unobservable_prior_m, unobservable_prior_sigma_m=unobservable_prior_sigma_m,
+        prediction=prediction,
     ).items() if v is not None}
     if given.get("outlier_threshold") == 0:
         given["outlier_threshold"] = None

@@ -105,6 +105,7 @@ class Calibration:
     built: object = field(default=None, repr=False)
     covariance_noise: str = "a_posteriori"
     kinematics: dict[str, dict] = field(default_factory=dict)
+    prediction: dict | None = None
 
     @property
     def rms_px(self) -> float:

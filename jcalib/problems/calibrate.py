@@ -28,6 +28,7 @@ from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
 from jcalib.problems.heldout import heldout_accuracy
 from jcalib.problems.options import CalibrationOptions, check_applicable
+from jcalib.problems.prediction import prediction
 from jcalib.problems.refine import refine
 from jcalib.problems.orientation import relabel, resolve_orientations
 from jcalib.problems.start import Start, start_intrinsics, start_poses
@@ -234,6 +235,8 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
     cal = assemble(g, s, built, r)
     for robot, held in heldout_accuracy(g, built, r, options).items():
         cal.kinematics[robot]["heldout"] = held
+    if options.prediction:
+        cal.prediction = prediction(g, built, r, options)
     return cal
 
 
@@ -358,6 +361,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         stats["outliers"] = [{"of": who, "station": sid, "point_index": idx} for who, sid, idx in cal.outliers]
     if cal.reseeded_views:
         stats["reseeded_views"] = list(cal.reseeded_views)
+    if cal.prediction is not None:
+        stats["prediction"] = cal.prediction
     if cal.robot:
         stats["robot"] = next(iter(cal.robot.values())) if len(cal.robot) == 1 and not cal.graph.multi else cal.robot
     if cal.unobservable_fixed is not None:

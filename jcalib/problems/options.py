@@ -47,6 +47,9 @@ class CalibrationOptions:
         reference_camera: the camera whose frame is the rig frame of a cell without robots.
         fix_unobservable: when every hand-eye rotation is about one axis, hold the hand-eye translation
             along it at ``unobservable_prior_m`` ± ``unobservable_prior_sigma_m`` instead of failing.
+        prediction: a robot cell's held-out prediction error (``stats.prediction``,
+            :mod:`jcalib.problems.prediction`): every station's corners predicted from its robot pose by the
+            cell calibrated without it (warm re-solves; off saves their time).
     """
 
     sigma_px: float = 0.25
@@ -67,6 +70,7 @@ class CalibrationOptions:
     fix_unobservable: bool = False
     unobservable_prior_m: float = 0.0
     unobservable_prior_sigma_m: float = 1e-6
+    prediction: bool = True
 
     def __post_init__(self):
         for name in ("sigma_px", "tip_sigma_px", "axis_sigma_px", "contact_sigma_m", "pose_sigma_deg",
@@ -87,6 +91,8 @@ class CalibrationOptions:
             raise BadInputError(f"method: got {self.method!r}, expected one of {', '.join(sorted(HAND_EYE_METHODS))}")
         if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, int) or self.max_iterations < 1:
             raise BadInputError(f"max_iterations: got {self.max_iterations!r}, expected a positive integer")
+        if not isinstance(self.prediction, bool):
+            raise BadInputError(f"prediction: got {self.prediction!r}, expected true or false")
         if not abs(self.unobservable_prior_m) < float("inf"):
             raise BadInputError(f"unobservable_prior_m: got {self.unobservable_prior_m!r}, expected a finite value (m)")
 
@@ -122,6 +128,7 @@ APPLIES = {
     "pose_model": ("a robot with pose_noise in the cell spec", lambda g: any(g.has_noise(r) for r in g.used_robots)),
     "method": (_HAND_EYE, _hand_eye_pair),
     "reference_camera": ("cells without robots (camera rigs)", lambda g: not g.has_robot),
+    "prediction": ("a robot (the prediction is from its recorded poses)", lambda g: g.has_robot),
     "fix_unobservable": (_HAND_EYE, _hand_eye_pair),
     "unobservable_prior_m": (_HAND_EYE, _hand_eye_pair),
     "unobservable_prior_sigma_m": (_HAND_EYE, _hand_eye_pair),

@@ -138,5 +138,20 @@ def print_result(result: ResultFile, console: Console | None = None, truth=None)
     parts.append(f"{s.get('num_residuals', 0)} residuals · {s.get('iterations', '?')} iterations · "
                  f"status {s.get('status', '?')} · {s.get('num_outliers', 0)} outliers rejected")
     console.print(" · ".join(parts), highlight=False)
+    line = prediction_line(s.get("prediction"))
+    if line:
+        console.print(line, highlight=False)
     for warning in s.get("warnings", []):
         console.print(f"[bold yellow]warning:[/] {warning}", highlight=False)
+
+
+def prediction_line(pred: dict | None) -> str | None:
+    """One sentence for ``stats.prediction`` (:mod:`jcalib.problems.prediction`), or None without one."""
+    if not pred:
+        return None
+    if "skipped" in pred:
+        return f"prediction from the robot's poses: not computed ({pred['skipped']})"
+    mm = pred.get("rms_mm", float("nan"))
+    at_board = f", {mm:.2f} mm at the target" if mm == mm else ""
+    return (f"predicted from the robot's pose, a held-out station's corners land within {pred['rms_px']:.2f} px RMS "
+            f"per point{at_board} ({pred['method']}, {pred['stations']} stations)")

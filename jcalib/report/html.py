@@ -26,8 +26,9 @@ from jcalib.report.markup import CSS, esc, note
 __all__ = ["SECTIONS", "render_report", "write_report"]
 
 #: The page's sections (``<h2>``), in order; every report has all of them.
-SECTIONS = ("Warnings", "Summary", "Per-view reprojection error", "Task-space uncertainty", "Correlations",
-            "Weakest directions", "What would help", "Residuals", "Cross-validation", "Provenance")
+SECTIONS = ("Warnings", "Summary", "Prediction from the robot's poses", "Per-view reprojection error",
+            "Task-space uncertainty", "Correlations", "Weakest directions", "What would help", "Residuals",
+            "Cross-validation", "Provenance")
 
 
 def _options(options, file):
@@ -150,6 +151,7 @@ def render_report(
         "<h2>Summary</h2>", sections.statistics(file.stats), sections.intrinsics(file), sections.transforms(file),
         sections.points(file),
         sections.targets(file), kinematics.section(file), goals_html(goals) if goals else "",
+        sections.prediction(file.stats),
         "<h2>Per-view reprojection error</h2>", sections.view_rms(file.stats),
         "<h2>Task-space uncertainty</h2>", sections.INCLUDES, sections.task_space(file),
         sections.tcps(file, reference, robot_of), "<h3>Projection uncertainty</h3>",

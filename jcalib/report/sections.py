@@ -65,6 +65,28 @@ def statistics(stats: Mapping[str, Any]) -> str:
     return table(["statistic", "value", "unit"], rows, {1})
 
 
+def prediction(stats: Mapping[str, Any]) -> str:
+    """``stats.prediction`` (:mod:`jcalib.problems.prediction`): the held-out error and each station's, worst
+    first; a note for a cell without a robot or a calibration run without it."""
+    pred = stats.get("prediction")
+    head = "<h2>Prediction from the robot's poses</h2>"
+    if not pred:
+        return head + note(esc("Not computed: " + ("the calibration ran with --no-prediction." if "robot_pose_model"
+                                                     in stats else "a cell without a robot has no robot poses to "
+                                                     "predict from.")))
+    if "skipped" in pred:
+        return head + note(esc(f"Not computed: {pred['skipped']}."))
+    models = ", ".join(f"{r}: {m}" for r, m in (pred.get("model") or {}).items())
+    text = (f"Each of {pred['stations']} stations held out in turn ({pred['method']}, {pred['folds']} solves): the "
+            "cell calibrated without it predicts its corners from the station's recorded robot pose alone. "
+            f"Held-out error {fmt(pred['rms_px'], 3)} px RMS per point (median {fmt(pred['median_px'], 3)} px), "
+            f"{fmt(pred['rms_mm'], 3)} mm at the target; robot error model {models}."
+            + (f" {pred['failed_folds']} fold(s) could not be solved." if pred.get("failed_folds") else ""))
+    rows = [[esc(sid), fmt(v["rms_px"], 3), fmt(v["rms_mm"], 3), esc(v["points"])]
+            for sid, v in sorted(pred["per_station"].items(), key=lambda kv: -kv[1]["rms_px"])]
+    return head + note(esc(text)) + table(["station", "held-out RMS (px)", "at the target (mm)", "points"], rows, {1, 2, 3})
+
+
 def intrinsics(file: ResultFile) -> str:
     out = []
     for name, cam in file.cameras.items():

@@ -241,6 +241,7 @@ OPTIONS = {
     "fix_unobservable": ["--fix-unobservable"],
     "unobservable_prior_m": ["--unobservable-prior-m", "0.01"],
     "unobservable_prior_sigma_m": ["--unobservable-prior-sigma-m", "1e-3"],
+    "prediction": ["--no-prediction"],
     "prior": None,  # per cell: the default run's own result
 }
 

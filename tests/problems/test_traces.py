@@ -83,10 +83,11 @@ def test_variance_component_resolves_do_not_retrace(traces):
     cell, obs, _ = J.make_data(41, "flange", n=10, sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     first = J.calibrate(cell, obs, sigma_px=0.5)  # stated 0.5 px for 0.2 px data: a factor ~0.16 to find
     assert first.pose_model and 0.08 < first.variance_components["corner"] < 0.3
-    assert len(traces) == 1
+    count = len(traces)  # 1, or 0 when another test worker exported this structure already
+    assert count <= 1
     cell, obs, _ = J.make_data(42, "flange", n=10, sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     J.calibrate(cell, obs, sigma_px=0.5)
-    assert len(traces) == 1
+    assert len(traces) == count
 
 
 def test_batch_compiles_once_for_members_of_different_sizes(traces):
