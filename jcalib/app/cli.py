@@ -397,21 +397,9 @@ def import_(
     failed import leaves nothing there. Paths in a manifest must stay inside the source folder
     (--option allow_outside=true where the format takes it).
     """
-    from jcalib.errors import BadInputError
-    from jcalib.io.importers import format_options, import_session
-    from jcalib.io.importers.common import check_options
+    from jcalib.io.importers import import_session, parse_options
 
-    known = format_options(format)
-    options: dict[str, str] = {}
-    for item in option or []:
-        key, sep, value = item.partition("=")
-        name = key.strip().replace("-", "_")
-        if not sep or not name:
-            raise BadInputError(f"--option: expected KEY=VALUE, got {item[:80]!r}")
-        if name in options:
-            raise BadInputError(f"--option {name}: given twice (as {key.strip()[:40]!r} and before); give each option once")
-        options[name] = value
-    check_options(format, options, known)  # unknown keys (e.g. 'mount') refused before the import starts
+    options = parse_options(format, option)  # unknown, repeated or colliding keys refused before any work
     summary = import_session(format, source, out, mount=mount, **options)
     for note in summary.notes:
         typer.echo(f"note: {note}", err=True)

@@ -23,7 +23,7 @@ from jcalib.errors import BadInputError
 from jcalib.io.importers.common import ImportSummary
 from jcalib.io.importers.output import check_output_folder
 
-__all__ = ["FORMATS", "ImportSummary", "format_options", "import_session"]
+__all__ = ["FORMATS", "ImportSummary", "format_options", "import_session", "parse_options"]
 
 #: format name -> module
 FORMATS: dict[str, str] = {
@@ -45,6 +45,29 @@ def _module(fmt: str):
 def format_options(fmt: str) -> dict[str, str]:
     """The options a format takes (name -> help)."""
     return dict(_module(fmt).OPTIONS)
+
+
+def parse_options(fmt: str, items: list[str] | None) -> dict[str, str]:
+    """``--option KEY=VALUE`` items as a mapping (``-`` in a key read as ``_``).
+
+    Raises:
+        BadInputError: an item without ``=``, a key given twice (also as ``a-b`` and ``a_b``), or a key the
+            format does not take (listing those it does), so that no option is dropped or overrides another.
+    """
+    from jcalib.io.importers.common import check_options
+
+    known = format_options(fmt)
+    options: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = str(item).partition("=")
+        name = key.strip().replace("-", "_")
+        if not sep or not name:
+            raise BadInputError(f"--option: expected KEY=VALUE, got {str(item)[:80]!r}")
+        if name in options:
+            raise BadInputError(f"--option {name[:40]}: given twice; give each option once")
+        options[name] = value
+    check_options(fmt, options, known)
+    return options
 
 
 def import_session(fmt: str, source: str | os.PathLike, out: str | os.PathLike, *, mount: str | None = None,

@@ -315,11 +315,7 @@ def _token_views(spec: dict, path: Path, images: dict[str, list[Path]], poses: l
     return views
 
 
-def _check_unique(cams: list[dict], images: dict[str, list[Path]], path: Path) -> None:
-    ids = [c["id"] for c in cams]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise BadInputError(f"{path}: camera id {dup[0][:40]!r} given twice in [[cameras]]; give each camera its own id")
+def _check_unique(images: dict[str, list[Path]], path: Path) -> None:
     seen: dict[Path, str] = {}
     for c, files in images.items():
         for f in files:
@@ -352,6 +348,10 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
     if not isinstance(cams, list) or not cams or not all(isinstance(c, dict) and isinstance(c.get("id"), str)
                                                          for c in cams):
         raise BadInputError(f"{path}: [[cameras]] with an id (text) each is required")
+    ids = [c["id"] for c in cams]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise BadInputError(f"{path}: camera id {dup[0][:40]!r} given twice in [[cameras]]; give each camera its own id")
     if topo.startswith("single") and len(cams) != 1:
         raise BadInputError(f"{path}: single_cam_handeye has exactly one camera, got {len(cams)}")
     notes = []
@@ -362,7 +362,7 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
             notes.append(f"camera {c['id'][:40]}: roi_xywh ignored (jcalib detects in the whole image; pixels are "
                          "in the full-image frame either way)")
     images = {c["id"]: _images(c, folder, f"{path}: camera {c['id'][:40]}") for c in cams}
-    _check_unique(cams, images, path)
+    _check_unique(images, path)
     handeye = topo.endswith("handeye")
     poses = _load_poses(spec, folder, path) if handeye else []
     pairing = _table(spec, "pose_pairing", path, required=False).get("kind", "by_index" if not handeye else None)

@@ -275,8 +275,10 @@ def json_safe(value: Any, depth: int = 0) -> Any:
     non-finite numbers and anything deeper than 6 levels or longer than 100 entries dropped (None)."""
     if isinstance(value, bool) or value is None:
         return value
-    if isinstance(value, (int, float)):
-        return value if math.isfinite(float(value)) and abs(float(value)) < 1e300 else None
+    if isinstance(value, int):
+        return value if abs(value) < 2**63 else None
+    if isinstance(value, float):
+        return value if math.isfinite(value) and abs(value) < 1e300 else None
     if isinstance(value, str):
         return value[:200]
     if depth >= 6:

@@ -201,12 +201,28 @@ def _check_bag_folder(path: Path, allow_outside: bool) -> None:
         raise BadInputError(f"{meta_file}: rosbag2_bagfile_information.relative_file_paths: expected a list of file names")
     for f in files:
         folder.file(PurePath(f).name, str(meta_file), "relative_file_paths entry")
-    for t in info.get("topics_with_message_count") or []:
-        qos = (t.get("topic_metadata") or {}).get("offered_qos_profiles") if isinstance(t, dict) else None
+    topics = info.get("topics_with_message_count")
+    if not isinstance(topics, list):
+        raise BadInputError(f"{meta_file}: topics_with_message_count: expected a list of topics")
+    for k, t in enumerate(topics):
+        where = f"{meta_file}: topics_with_message_count[{k}]"
+        tm = t.get("topic_metadata") if isinstance(t, dict) else None
+        if not isinstance(tm, dict) or not all(isinstance(tm.get(n), str) for n in ("name", "type", "serialization_format")):
+            raise BadInputError(f"{where}: expected topic_metadata with name, type and serialization_format (text)")
+        if isinstance(t.get("message_count"), bool) or not isinstance(t.get("message_count"), int):
+            raise BadInputError(f"{where}: message_count: expected an integer")
+        qos = tm.get("offered_qos_profiles")
         if isinstance(qos, str) and qos:
             from jcalib.io.schema.reading import parse_yaml
 
-            parse_yaml(qos, f"{meta_file}: offered_qos_profiles")
+            parse_yaml(qos, f"{where}: offered_qos_profiles")
+    for key, sub in (("duration", "nanoseconds"), ("starting_time", "nanoseconds_since_epoch")):
+        v = info.get(key).get(sub) if isinstance(info.get(key), dict) else None
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise BadInputError(f"{meta_file}: {key}.{sub}: expected an integer")
+    for key, kind in (("version", int), ("message_count", int), ("storage_identifier", str)):
+        if isinstance(info.get(key), bool) or not isinstance(info.get(key), kind):
+            raise BadInputError(f"{meta_file}: {key}: expected {'an integer' if kind is int else 'text'}")
 
 
 def _chain(edges: set[tuple[str, str]], base: str, flange: str) -> list[tuple[str, str, bool]]:
@@ -267,8 +283,9 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
     max_dt = int(_positive(options, "max_dt_ms", 20.0) * 1e6)
     still_m = _positive(options, "still_mm", 0.5) * 1e-3
     still_rad = np.deg2rad(_positive(options, "still_deg", 0.05))
+    allow_outside = flag_option(options, "allow_outside", FORMAT)
     if path.is_dir():
-        _check_bag_folder(path, flag_option(options, "allow_outside", FORMAT))
+        _check_bag_folder(path, allow_outside)
     prismatic = {s.strip() for s in str(options.get("prismatic", "")).split(",") if s.strip()}
     js_topic = str(options.get("joint_states_topic", "/joint_states"))
 
