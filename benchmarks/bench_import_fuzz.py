@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "fuzz"))
 
-from import_fuzz import FORMATS, VARIANTS, cases, run_case  # noqa: E402
+from import_fuzz import FORMATS, VARIANTS, cases, run_case
 
 
 def main() -> None:

@@ -20,6 +20,7 @@ the outcomes; ``benchmarks/bench_import_fuzz.py`` tabulates them.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import io
 import json
@@ -540,7 +541,8 @@ def _out(kind: str) -> Callable:
     def mutate(ws: Path, seed: Seed, rng: random.Random) -> list[str] | None:
         manifest = (seed.files.get("manifest") or seed.files.get("json") or seed.files.get("binary"))[0]
         out = {"existing-file": ws / "keep.txt", "manifest": ws / manifest, "source": ws / seed.source,
-               "inside-source": ws / "src" / "sess", "non-empty": ws / "old", "no-parent": ws / "nope" / "sess",
+               "inside-source": (ws / seed.source if (ws / seed.source).is_dir() else ws / "src") / "sess",
+               "non-empty": ws / "old", "no-parent": ws / "nope" / "sess",
                "empty-dir": ws / "empty"}[kind]
         if kind == "empty-dir":
             out.mkdir()
@@ -565,8 +567,7 @@ MUTATIONS: dict[str, Callable] = {
     "json:bool": _json_value_mutation(True), "json:deep": _json_value_mutation(lambda: json.loads("[" * 500 + "]" * 500)),
     "json:huge": _json_value_mutation(1e308),
     "yaml:alias-bomb": _alias_bomb, "yaml:second-document": _second_document, "dup-key": _duplicate_line,
-    **{f"escape:{k}": (lambda k: lambda ws, s, r: _escape_paths(ws, s, r, k))(k)
-       for k in ("absolute", "dotdot", "symlink", "glob")},
+    **{f"escape:{k}": functools.partial(_escape_paths, how=k) for k in ("absolute", "dotdot", "symlink", "glob")},
     "duplicates": _duplicates, "regex-backtracking": _regex_backtracking, "zero-size-image": _zero_image,
     **{f"out:{k}": _out(k) for k in ("existing-file", "manifest", "source", "inside-source", "non-empty", "no-parent",
                                      "empty-dir")},

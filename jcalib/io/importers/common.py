@@ -178,11 +178,11 @@ def integer(value: Any, where: str, *, minimum: int = 1, maximum: int = 100_000)
 
 
 def _describe(value: Any) -> str:
-    """A value for a message: short numbers as they are, anything else by its type only."""
+    """A value for a message: short numbers as they are, anything else by its type (and length) only."""
     if isinstance(value, (bool, int, float)) and len(repr(value)) <= 32:
         return repr(value)
-    if isinstance(value, str):
-        return f"text of {len(value)} characters" if len(value) > 32 else f"the text {value!r}"
+    if isinstance(value, str):  # never the text itself: the file may be one that should not be shown
+        return f"text ({len(value)} characters)"
     return "nothing" if value is None else f"a {type(value).__name__}"
 
 

@@ -44,21 +44,22 @@ def check_output_folder(out: str | os.PathLike, source: str | os.PathLike, fmt: 
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise BadInputError(f"{where} exists and is not a folder; import never overwrites a file: name a new "
                             "folder for the session")
-    if out.is_dir():
-        try:
-            empty = next(os.scandir(out), None) is None
-        except OSError as e:
-            raise BadInputError(f"{where}: cannot list it ({e.strerror or e})") from None
-        if not empty:
-            raise BadInputError(f"{where} already holds files; import writes a new session and never changes "
-                                "files that exist: name a new (or empty) folder, e.g. a fresh --out, and delete "
-                                "the old session first if it is to be replaced")
     out_real, src_real = _real(out), _real(Path(source))
     if out_real == src_real or out_real.is_relative_to(src_real):
         raise BadInputError(f"{where} is the source {source} or lies inside it; the source must stay as it is: "
                             "choose a folder outside the data set")
     if src_real.is_relative_to(out_real):
         raise BadInputError(f"{where} holds the source {source}; choose a folder outside the data set")
+    if out.is_dir():
+        try:
+            with os.scandir(out) as entries:
+                empty = next(entries, None) is None
+        except OSError as e:
+            raise BadInputError(f"{where}: cannot list it ({e.strerror or e})") from None
+        if not empty:
+            raise BadInputError(f"{where} already holds files; import writes a new session and never changes "
+                                "files that exist: name a new (or empty) folder; to replace an old session, move "
+                                "or delete it first")
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir():
         raise BadInputError(f"{where}: the folder {parent} does not exist (or is a file); create it first "
