@@ -12,7 +12,7 @@ in the file: ``--mount`` is required.
 The file must be OpenCV's YAML (``%YAML:1.0`` first, as camodocal writes it), within the YAML size
 budget, UTF-8, and nested at most :data:`MAX_NESTING` levels before OpenCV's parser sees it (OpenCV's
 parser recurses without a limit and crashes the process on a deeply nested file). ``frameCount`` must be
-an integer; a top-level key given twice is refused (OpenCV would keep one silently); pairs beyond it (``T1_i`` / ``T2_i`` with ``i >= frameCount``) are refused by name rather than
+an integer; a key given twice (at the top or in one matrix) is refused (OpenCV would keep one silently); pairs beyond it (``T1_i`` / ``T2_i`` with ``i >= frameCount``) are refused by name rather than
 dropped.
 """
 
@@ -77,14 +77,20 @@ def _storage(folder: SourceFolder, path: Path, what: str):
         raise BadInputError(f"{path}: not an OpenCV FileStorage YAML file (it starts with %YAML:1.0 as OpenCV writes it)")
     if "\x00" in text:
         raise BadInputError(f"{path}: holds a NUL character; not an OpenCV FileStorage YAML file")
-    keys: dict[str, int] = {}
+    keys: dict[tuple[str, str], int] = {}
+    top = ""
     for n, line in enumerate(text.splitlines(), start=1):
-        if line[:1] not in ("", " ", "\t", "%", "#", "-", "[", "{") and ":" in line:
-            key = line.split(":", 1)[0].strip()
-            if key in keys:
-                raise BadInputError(f"{path} line {n}: the key {key[:40]!r} appears twice (first on line {keys[key]}); "
-                                    "OpenCV keeps one silently: keep one")
-            keys[key] = n
+        name = line.split(":", 1)[0].strip()
+        if ":" not in line or not name or line[:1] in ("%", "#", "-", "[", "{") or not name.replace("_", "").isalnum():
+            continue
+        nested = line[:1] in (" ", "\t")
+        key = (top if nested else "", name)
+        if key in keys:
+            raise BadInputError(f"{path} line {n}: the key {'.'.join(k for k in key if k)[:60]!r} appears twice (first "
+                                f"on line {keys[key]}); OpenCV keeps one silently: keep one")
+        keys[key] = n
+        if not nested:
+            top = name
     depth = nesting_depth(text)
     if depth > MAX_NESTING:
         raise BadInputError(f"{path}: nested about {depth} levels deep, more than the {MAX_NESTING} read; not a "
