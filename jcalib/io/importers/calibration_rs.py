@@ -67,7 +67,6 @@ from jcalib.io.importers.common import (
     resolve_source,
     write_session,
 )
-from jcalib.io.importers.pattern import FilenamePattern, PatternError
 from jcalib.io.importers.source import (
     ALLOW_OUTSIDE_HELP,
     SourceFolder,
@@ -270,6 +269,28 @@ def _target(t: Any, path: Path) -> dict:
             "dictionary": _text(t["dictionary"], f"{where}.dictionary")[:64]}
 
 
+#: Longest pairing pattern accepted (characters).
+MAX_PATTERN = 1000
+
+
+def filename_pattern(raw: str, where: str):
+    """The pairing regex compiled by RE2 (``google-re2``): time linear in the file name whatever the pattern,
+    the syntax of the Rust ``regex`` crate calibration-rs uses (named groups ``(?<name>...)``, no
+    look-around or back-references). Raises :class:`BadInputError` naming ``where``."""
+    import re2
+
+    if len(raw) > MAX_PATTERN:
+        raise BadInputError(f"{where}: {len(raw)} characters; a file-name pattern has at most {MAX_PATTERN}")
+    options = re2.Options()
+    options.log_errors = False  # the reason goes into our message, not to stderr
+    try:
+        return re2.compile(raw, options=options)
+    except re2.error as e:
+        why = e.args[0].decode(errors="replace") if e.args and isinstance(e.args[0], bytes) else str(e)
+        raise BadInputError(f"{where}: not a regular expression RE2 (the Rust regex crate's syntax) accepts: "
+                            f"{why[:120]}") from None
+
+
 def _token_views(spec: dict, path: Path, images: dict[str, list[Path]], poses: list, handeye: bool,
                  notes: list[str]) -> list:
     """Views paired by a shared file-name token (a named group of the pairing regex)."""
@@ -277,10 +298,7 @@ def _token_views(spec: dict, path: Path, images: dict[str, list[Path]], poses: l
     raw = pp.get("regex")
     if not isinstance(raw, str):
         raise BadInputError(f"{path}: pose_pairing.regex: expected a regular expression (text)")
-    try:
-        rx = FilenamePattern(raw)
-    except PatternError as e:
-        raise BadInputError(f"{path}: pose_pairing.regex: {e}") from None
+    rx = filename_pattern(raw, f"{path}: pose_pairing.regex")
     group = pp.get("group")
     if not isinstance(group, str) or group not in rx.groupindex:
         raise BadInputError(f"{path}: pose_pairing.group: the regex has no named group {str(group)[:40]!r} "
