@@ -396,17 +396,13 @@ def import_(
 
     Then `jcalib detect --session OUT` and `jcalib calibrate OUT/cell.yaml OUT/observations.json -o RESULT`.
     Each format states the conventions it assumes (frames, units, quaternion order) and refuses
-    ambiguous input instead of guessing.
+    ambiguous input instead of guessing. OUT must be a new or empty folder outside the source; a
+    failed import leaves nothing there. Paths in a manifest must stay inside the source folder
+    (--option allow_outside=true where the format takes it).
     """
-    from jcalib.errors import BadInputError
-    from jcalib.io.importers import import_session
+    from jcalib.io.importers import import_session, parse_options
 
-    options = {}
-    for item in option or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise BadInputError(f"--option: expected KEY=VALUE, got {item!r}")
-        options[key.strip().replace("-", "_")] = value
+    options = parse_options(format, option)  # unknown, repeated or colliding keys refused before any work
     summary = import_session(format, source, out, mount=mount, **options)
     for note in summary.notes:
         typer.echo(f"note: {note}", err=True)

@@ -10,12 +10,12 @@ Conventions (``ControlTabWidget::takeTransformSamples`` / ``loadSamplesBtnClicke
 ``effector_wrt_world`` is the end effector's pose in the robot base ("TF base-to-eef") = ``T_base_flange``;
 ``object_wrt_sensor`` is the target's pose in the camera ("TF camera-to-target") = ``T_cam_target``;
 metres. The sensor mount type (eye-in-hand / eye-to-hand) lives in the rviz config, not in the sample
-file: ``--mount`` is required.
+file: ``--mount`` is required. The file is read with jcalib's guarded JSON / YAML readers (size, UTF-8,
+aliases, depth, duplicate keys); matrix entries must be finite numbers.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from typing import Any
 
@@ -27,6 +27,7 @@ from jcalib.io.importers.common import (
     pose_pair_session,
     resolve_source,
 )
+from jcalib.io.importers.source import SourceFolder
 
 FORMAT = "moveit"
 OPTIONS = {"camera": "camera id (default cam0)", "target": "target id (default marker)"}
@@ -38,16 +39,12 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
     Raises:
         BadInputError: not a sample file, a malformed matrix, or no ``mount``.
     """
-    import yaml
-
     check_options(FORMAT, options, OPTIONS)
     path = resolve_source(source, None, f"import {FORMAT}")
     cell_entries_for_mount(mount, FORMAT, "the sample file does not record the sensor mount type")
-    text = path.read_text(encoding="utf-8")
-    try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as e:
-        raise BadInputError(f"{path}: not JSON/YAML ({e})") from None
+    folder = SourceFolder(path.parent, FORMAT)
+    what = f"import {FORMAT}: samples"
+    data = folder.read_json(path, what) if path.suffix.lower() == ".json" else folder.read_yaml(path, what)
     if not isinstance(data, list) or not data:
         raise BadInputError(f"{path}: expected a list of samples")
     pairs = []

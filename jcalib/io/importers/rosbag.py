@@ -32,6 +32,11 @@ Time synchronisation (stated, and checked for every image):
    time is taken as is). Images failing this are skipped, and counted in the summary's notes.
 4. Consecutive stations whose flange poses agree within ``still_mm`` / ``still_deg`` are one station
    (a robot resting while the camera streams): the first image is kept.
+
+Input checks: a ROS 2 bag's ``metadata.yaml`` is read with jcalib's guarded YAML loader first, and its
+storage files must resolve inside the bag's folder (``allow_outside=true`` to follow symlinks out); a
+message that cannot be decoded, a joint-state message whose position count differs from its names,
+an empty image, or non-finite values are refused by topic; numeric options must be finite and positive.
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ from jcalib.io.importers.common import (
     pose_from_xyz_quat,
     write_session,
 )
+from jcalib.io.importers.source import ALLOW_OUTSIDE_HELP, SourceFolder, flag_option
+from jcalib.io.schema.common import MAX_IMAGE_SIDE_PX
 from jcalib.io.target_files import read_target_file
 
 FORMAT = "rosbag"
@@ -69,6 +76,7 @@ OPTIONS = {
     "still_deg": "robot at rest: rotation tolerance, degrees (default 0.05)",
     "camera_model": "lens model without camera_info (default opencv5)",
     "intrinsics": "initial (default) or held: camera_info intrinsics as start values or fixed",
+    "allow_outside": ALLOW_OUTSIDE_HELP + " (a ROS 2 bag's storage files)",
 }
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/Image",
                "sensor_msgs/CompressedImage")
@@ -90,17 +98,23 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     import cv2
 
     if hasattr(msg, "format") and not hasattr(msg, "encoding"):  # CompressedImage
-        img = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise BadInputError(f"{where}: compressed image ({msg.format}) cannot be decoded")
+        data = np.asarray(msg.data, np.uint8).reshape(-1)
+        try:
+            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        except cv2.error:
+            img = None
+        if img is None or img.size == 0:
+            raise BadInputError(f"{where}: compressed image ({str(msg.format)[:40]}) cannot be decoded")
         return img
     enc = str(msg.encoding).lower()
     if enc not in _CHANNELS:
-        raise BadInputError(f"{where}: image encoding {msg.encoding!r} not supported ({', '.join(_CHANNELS)})")
+        raise BadInputError(f"{where}: image encoding {str(msg.encoding)[:40]!r} not supported ({', '.join(_CHANNELS)})")
     ch, dtype = _CHANNELS[enc]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    raw = np.asarray(msg.data, np.uint8)
+    raw = np.asarray(msg.data, np.uint8).reshape(-1)
     itemsize = np.dtype(dtype).itemsize
+    if not (1 <= h <= MAX_IMAGE_SIDE_PX and 1 <= w <= MAX_IMAGE_SIDE_PX):
+        raise BadInputError(f"{where}: image of {w}x{h} px; expected 1 to {MAX_IMAGE_SIDE_PX} px a side")
     if step < w * ch * itemsize or raw.size < h * step:
         raise BadInputError(f"{where}: {h}x{w} {enc} image with step {step} and {raw.size} bytes is inconsistent")
     rows = raw[: h * step].reshape(h, step)[:, : w * ch * itemsize]
@@ -145,15 +159,70 @@ def _parse_cameras(value: Any, image_topics: list[str]) -> dict[str, str]:
             raise BadInputError(f"import {FORMAT}: the bag has image topics {image_topics or 'none'}; name the "
                                 "camera topics with cameras=cam0=/topic[,cam1=/topic]")
         return {"cam0": image_topics[0]}
-    out = {}
+    out: dict[str, str] = {}
     for part in str(value).split(","):
-        name, _, topic = part.partition("=")
+        name, _, topic = (t.strip() for t in part.partition("="))
         if not name or not topic:
-            raise BadInputError(f"import {FORMAT}: cameras: expected NAME=TOPIC, got {part!r}")
+            raise BadInputError(f"import {FORMAT}: cameras: expected NAME=TOPIC, got {part[:80]!r}")
         if topic not in image_topics:
-            raise BadInputError(f"import {FORMAT}: cameras: {topic} is not an image topic of the bag ({image_topics})")
-        out[name.strip()] = topic.strip()
+            raise BadInputError(f"import {FORMAT}: cameras: {topic[:80]} is not an image topic of the bag ({image_topics})")
+        if name in out:
+            raise BadInputError(f"import {FORMAT}: cameras: camera {name[:40]!r} named twice; give each camera one topic")
+        if topic in out.values():
+            raise BadInputError(f"import {FORMAT}: cameras: topic {topic[:80]} given to two cameras; each camera has "
+                                "its own image topic")
+        out[name] = topic
     return out
+
+
+def _positive(options: dict, key: str, default: float) -> float:
+    raw = options.get(key, default)
+    try:
+        value = float(raw)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (np.isfinite(value) and 0 < value < 1e9):
+        raise BadInputError(f"import {FORMAT}: {key}: expected a positive number, got {str(raw)[:40]!r}")
+    return value
+
+
+def _check_bag_folder(path: Path, allow_outside: bool) -> None:
+    """A ROS 2 bag folder: ``metadata.yaml`` through the guarded loader, storage files inside the folder."""
+    from pathlib import PurePath
+
+    meta_file = path / "metadata.yaml"
+    if not meta_file.exists():
+        return  # rosbags says what is missing
+    folder = SourceFolder(path, FORMAT, allow_outside)
+    meta = folder.read_yaml(folder.file("metadata.yaml", str(path), "metadata.yaml"), f"import {FORMAT}: metadata")
+    info = meta.get("rosbag2_bagfile_information") if isinstance(meta, dict) else None
+    files = info.get("relative_file_paths") if isinstance(info, dict) else None
+    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+        raise BadInputError(f"{meta_file}: rosbag2_bagfile_information.relative_file_paths: expected a list of file names")
+    for f in files:
+        folder.file(PurePath(f).name, str(meta_file), "relative_file_paths entry")
+    topics = info.get("topics_with_message_count")
+    if not isinstance(topics, list):
+        raise BadInputError(f"{meta_file}: topics_with_message_count: expected a list of topics")
+    for k, t in enumerate(topics):
+        where = f"{meta_file}: topics_with_message_count[{k}]"
+        tm = t.get("topic_metadata") if isinstance(t, dict) else None
+        if not isinstance(tm, dict) or not all(isinstance(tm.get(n), str) for n in ("name", "type", "serialization_format")):
+            raise BadInputError(f"{where}: expected topic_metadata with name, type and serialization_format (text)")
+        if isinstance(t.get("message_count"), bool) or not isinstance(t.get("message_count"), int):
+            raise BadInputError(f"{where}: message_count: expected an integer")
+        qos = tm.get("offered_qos_profiles")
+        if isinstance(qos, str) and qos:
+            from jcalib.io.schema.reading import parse_yaml
+
+            parse_yaml(qos, f"{where}: offered_qos_profiles")
+    for key, sub in (("duration", "nanoseconds"), ("starting_time", "nanoseconds_since_epoch")):
+        v = info.get(key).get(sub) if isinstance(info.get(key), dict) else None
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise BadInputError(f"{meta_file}: {key}.{sub}: expected an integer")
+    for key, kind in (("version", int), ("message_count", int), ("storage_identifier", str)):
+        if isinstance(info.get(key), bool) or not isinstance(info.get(key), kind):
+            raise BadInputError(f"{meta_file}: {key}: expected {'an integer' if kind is int else 'text'}")
 
 
 def _chain(edges: set[tuple[str, str]], base: str, flange: str) -> list[tuple[str, str, bool]]:
@@ -211,20 +280,21 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
     if mode == "tf" and ("base_frame" not in options or "flange_frame" not in options):
         raise BadInputError(f"import {FORMAT}: poses=tf needs base_frame=... and flange_frame=... (the /tf frames of "
                             "the robot base and flange)")
-    try:
-        max_dt = int(float(options.get("max_dt_ms", 20.0)) * 1e6)
-        still_m = float(options.get("still_mm", 0.5)) * 1e-3
-        still_rad = np.deg2rad(float(options.get("still_deg", 0.05)))
-    except ValueError as e:
-        raise BadInputError(f"import {FORMAT}: {e}") from None
+    max_dt = int(_positive(options, "max_dt_ms", 20.0) * 1e6)
+    still_m = _positive(options, "still_mm", 0.5) * 1e-3
+    still_rad = np.deg2rad(_positive(options, "still_deg", 0.05))
+    allow_outside = flag_option(options, "allow_outside", FORMAT)
+    if path.is_dir():
+        _check_bag_folder(path, allow_outside)
     prismatic = {s.strip() for s in str(options.get("prismatic", "")).split(",") if s.strip()}
     js_topic = str(options.get("joint_states_topic", "/joint_states"))
 
     try:
         reader_cm = AnyReader([path])
         reader = reader_cm.__enter__()
-    except Exception as e:  # rosbags raises its own reader errors
-        raise BadInputError(f"import {FORMAT}: cannot open {path} as a ROS 1 or ROS 2 bag ({e})") from None
+    except Exception as e:  # noqa: BLE001 - rosbags raises its own reader errors
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:120]
+        raise BadInputError(f"import {FORMAT}: cannot open {path} as a ROS 1 or ROS 2 bag ({why})") from None
     try:
         by_topic = {c.topic: c for c in reader.connections}
         image_topics = sorted(t for t, c in by_topic.items() if c.msgtype in IMAGE_TYPES)
@@ -246,9 +316,13 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
         static: dict[tuple[str, str], np.ndarray] = {}
         js = _Series()
         js_names: list[str] | None = None
-        for conn, _, raw in reader.messages(connections=[by_topic[t] for t in sorted(want)]):
-            msg = reader.deserialize(raw, conn.msgtype)
+        for conn, _, raw in _messages(reader, [by_topic[t] for t in sorted(want)], path):
             where = f"{path} {conn.topic}"
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as e:  # noqa: BLE001 - rosbags' decoders raise many kinds on corrupt bytes
+                raise BadInputError(f"{where}: a {conn.msgtype} message cannot be decoded ({type(e).__name__}); "
+                                    "the bag is damaged") from None
             if conn.topic in topic_cam:
                 images[topic_cam[conn.topic]].append((_stamp_ns(msg.header, where), msg))
             elif conn.topic.endswith("/camera_info"):
@@ -267,8 +341,13 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
                 if js_names is None:
                     js_names = names
                 if names != js_names:
-                    raise BadInputError(f"{where}: joint names change between messages ({js_names} vs {names})")
-                js.add(_stamp_ns(msg.header, where), np.asarray(msg.position, dtype=np.float64))
+                    raise BadInputError(f"{where}: joint names change between messages ({len(js_names)} names, then "
+                                        f"{len(names)}); record one robot's joint states on this topic")
+                q = np.asarray(msg.position, dtype=np.float64).reshape(-1)
+                if q.shape != (len(names),) or not np.all(np.isfinite(q)):
+                    raise BadInputError(f"{where}: a JointState message has {q.size} positions for {len(names)} names "
+                                        "(or non-finite positions); every message needs one finite position per joint")
+                js.add(_stamp_ns(msg.header, where), q)
     finally:
         reader_cm.__exit__(None, None, None)
 
@@ -329,10 +408,13 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
         if info is not None:
             dm = str(info.distortion_model)
             d = [float(v) for v in info.d] if hasattr(info, "d") else [float(v) for v in info.D]
-            K = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=np.float64).reshape(3, 3)
+            K = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=np.float64).reshape(-1)
+            if K.size != 9:
+                raise BadInputError(f"{path} {topic}: camera_info K has {K.size} values, expected 9")
+            K = K.reshape(3, 3)
             model = {"plumb_bob": "opencv5", "rational_polynomial": "opencv8", "equidistant": "fisheye"}.get(dm)
             if model is None:
-                raise BadInputError(f"{path} {topic}: distortion_model {dm!r} has no jcalib lens model")
+                raise BadInputError(f"{path} {topic}: distortion_model {dm[:40]!r} has no jcalib lens model")
             entry = {"model": model, "mount": cam_mount, "intrinsics": {"K": K.tolist(), "dist": d}}
             if held == "held":
                 entry["fix"] = ["fx", "fy", "cx", "cy", *({"opencv5": ["k1", "k2", "p1", "p2", "k3"],
@@ -352,3 +434,17 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
                       if mode == "tf" else f"{js_topic} positions rad -> deg (prismatic m -> mm)")
                    + "; geometry_msgs/Transform m, quaternion x y z w")
     return write_session(out, cell, stations, fmt=FORMAT, source=path, conventions=conventions, notes=tuple(notes))
+
+
+def _messages(reader: Any, connections: list, path: Path):
+    """The bag's messages of ``connections``; a damaged bag is a BadInputError, not a crash."""
+    it = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except Exception as e:  # noqa: BLE001 - rosbags raises its own, struct and sqlite errors on damaged storage
+            raise BadInputError(f"import {FORMAT}: {path}: cannot read the bag's messages ({type(e).__name__}); "
+                                "the bag is damaged") from None
+        yield item

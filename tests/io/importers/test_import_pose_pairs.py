@@ -121,7 +121,9 @@ def test_moveit_samples_yaml_and_json(tmp_path):
 
 def test_opencv_pairs_synthetic_and_camodocal_real(real_data, tmp_path):
     pairs = cell("flange")
-    f = tmp_path / "TransformPairsInput.yml"
+    src = tmp_path / "src"  # the session goes outside the source folder (import never writes inside it)
+    src.mkdir()
+    f = src / "TransformPairsInput.yml"
     fs = cv2.FileStorage(str(f), cv2.FILE_STORAGE_WRITE)
     fs.write("frameCount", len(pairs))
     for i, (Tb, Tc) in enumerate(pairs):
@@ -129,8 +131,8 @@ def test_opencv_pairs_synthetic_and_camodocal_real(real_data, tmp_path):
         fs.write(f"T2_{i}", Tc)
     fs.release()
     with pytest.raises(BadInputError, match="--mount"):
-        import_session("opencv-pairs", tmp_path, tmp_path / "refused")
-    import_session("opencv-pairs", tmp_path, tmp_path / "sess", mount="flange")
+        import_session("opencv-pairs", src, tmp_path / "refused")
+    import_session("opencv-pairs", src, tmp_path / "sess", mount="flange")
     check(solve_session(tmp_path / "sess"), X_TRUE)
     # camodocal's real example: marker on the gripper, fixed camera; published ArmTipToMarkerTagTransform
     real = real_data / "handeye_camodocal_example"
