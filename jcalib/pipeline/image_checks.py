@@ -91,25 +91,26 @@ def identical_images(paths: Sequence[Path]) -> dict[Path, Path]:
     return out
 
 
-def size_warnings(camera: str, cam_spec: Any, size: tuple[int, int], recorded: Mapping[str, Any] | None = None,
+def size_warnings(cam_spec: Any, size: tuple[int, int], recorded: Mapping[str, Any] | None = None,
                   recorded_where: str = "") -> list[str]:
     """What contradicts a camera's image size ``(width, height)``: the cell's intrinsics (principal point far
     off the image centre), the cell's GenICam ``Width``/``Height`` settings, the ``Width``/``Height`` the
-    capture recorded (``recorded``: the session's camera settings; ``recorded_where`` names the file)."""
+    capture recorded (``recorded``: the session's camera settings; ``recorded_where`` names the file).
+    Each sentence is said of the camera (the callers report it as ``camera <id>: ...``)."""
     w, h = size
     out = []
     K = getattr(cam_spec, "K", None)
     if K is not None:
         cx, cy = float(K[0][2]), float(K[1][2])
         if abs(cx - (w - 1) / 2) > PRINCIPAL_POINT_OFF_CENTRE * w or abs(cy - (h - 1) / 2) > PRINCIPAL_POINT_OFF_CENTRE * h:
-            out.append(f"camera {camera}: its images are {w}x{h} px but the cell's intrinsics put the principal point "
+            out.append(f"its images are {w}x{h} px but the cell's intrinsics put the principal point "
                        f"at ({cx:.0f}, {cy:.0f}), far from the image centre: intrinsics of another resolution "
                        "(binned, cropped or resized images)?")
     for source, settings in (("the cell's settings", getattr(cam_spec, "settings", None) or {}),
                              (f"{recorded_where} (recorded at capture)", recorded or {})):
         sw, sh = settings.get("Width"), settings.get("Height")
         if isinstance(sw, (int, float)) and isinstance(sh, (int, float)) and (int(sw), int(sh)) != (w, h):
-            out.append(f"camera {camera}: its images are {w}x{h} px but {source} give Width x Height "
+            out.append(f"its images are {w}x{h} px but {source} give Width x Height "
                        f"{int(sw)}x{int(sh)}: resized or replaced images, or images of another camera?")
     return out
 

@@ -70,9 +70,9 @@ def detect_images(
         det = Detection(camera=camera, target=target_spec.name, point_index=res.point_index, pixels=res.pixels,
                         orientation_ambiguous=ambiguous)
         stations.append(Station(id=sid, detections=(det,)))
-    if warnings is not None and image_size:
-        for text in size_warnings(camera, cell.camera(camera), image_size):
-            warnings[f"camera {camera}"] = text
+    said_size = size_warnings(cell.camera(camera), image_size) if image_size else []
+    if warnings is not None and said_size:
+        warnings[f"camera {camera}"] = "; ".join(said_size)
     obs = Observations(
         cameras={camera: image_size} if image_size else {},
         targets={target_spec.name: geometry.points},

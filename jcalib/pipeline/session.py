@@ -268,9 +268,9 @@ def detect_session(
                     joints_deg=_joints(rec.get("joints_deg")))
         )
     for cam, size in sizes.items():
-        for text in size_warnings(cam, spec.cameras[cam], size, recorded_settings(meta, cam), str(d / "session.json")):
-            if warnings is not None:
-                warnings[f"camera {cam}"] = text
+        said = size_warnings(spec.cameras[cam], size, recorded_settings(meta, cam), str(d / "session.json"))
+        if warnings is not None and said:
+            warnings[f"camera {cam}"] = "; ".join(said)
     for cam in {c for _, c, _ in images} - set(sizes):  # cameras that never saw a target: size from an image
         from jcalib.vision.image import image_header_size
 
