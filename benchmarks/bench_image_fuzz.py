@@ -4,7 +4,8 @@
    EXIF files, duplicates, session symlinks, ``-o`` over other files; seed 0), run through the CLI in this
    process: exit status, what the output says about the file (skipped and why, warned, refused), wall time.
 2. Large blank (and noise) images, each ``jcalib detect`` in a subprocess on one core: wall time, the
-   process's peak memory, and the estimate the memory budget checks (``detection_memory_bytes``).
+   process's peak memory (VmHWM), and the estimate the memory budget checks (``detection_memory_bytes``:
+   the image's share, without the interpreter's ~75 MiB).
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_image_fuzz.py [--no-large]``; the output
 is kept in ``benchmarks/data/bench_image_fuzz.txt``.
@@ -85,8 +86,9 @@ def large_table() -> list[str]:
 
     rows = ["| image | px | file | exit | wall s | peak MiB | estimate MiB |", "|---|---|---|---|---|---|---|"]
     cell = "schema: jcalib.cell/1\ncameras:\n  c: {model: opencv5}\ntargets:\n  b: {type: checkerboard, cols: 9, rows: 6, square: 0.03}\n"
-    code = ("import resource, sys\nfrom jcalib.app.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
-            "    print('exit', e.code, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+    code = ("import re, sys\nfrom jcalib.app.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
+            "    hwm = re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)\n"
+            "    print('exit', e.code, hwm, file=sys.stderr)\n")  # VmHWM: ru_maxrss keeps the forking parent's peak
     with tempfile.TemporaryDirectory() as d:
         (Path(d) / "cell.yaml").write_text(cell)
         for name, w, h, kind, ext in LARGE:
@@ -117,8 +119,8 @@ def main() -> None:
     print("## Image inputs of `jcalib detect` (tests/fuzz/image_cases.py, seed 0)\n")
     print("\n".join(fuzz_table()))
     if not args.no_large:
-        print("\n## Large images, one `jcalib detect` process each (checkerboard 9x6; peak = ru_maxrss, with the "
-              "interpreter's ~300 MiB)\n")
+        print("\n## Large images, one `jcalib detect` process each (checkerboard 9x6; peak = VmHWM of the process, "
+              "the interpreter's ~100 MiB included)\n")
         print("\n".join(large_table()))
 
 

@@ -11,7 +11,6 @@ them peaks far below what decoding one would take.
 from __future__ import annotations
 
 import os
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -40,17 +39,19 @@ def test_image_input(case, tmp_path, monkeypatch):
     assert {k: after.get(k) for k in before} == before, "a file that existed before was changed"
 
 
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="the peak memory is read from /proc (Linux)")
 def test_header_bombs_are_refused_before_decoding(tmp_path):
     """Every header bomb in one ``jcalib detect`` run, in a subprocess: refused by name, and the process peaks
-    well under one decoded image (the smallest claims 268 Mpx: 0.8 GiB as 8-bit BGR, 4.8 GiB as float RGB)."""
+    under 400 MiB, less than one decoded image (the smallest claims 268 Mpx: 0.8 GiB as 8-bit BGR)."""
     (tmp_path / "cell.yaml").write_text("schema: jcalib.cell/1\ncameras:\n  cam0: {model: opencv4}\ntargets:\n"
                                         "  board: {type: checkerboard, cols: 5, rows: 4, square: 0.03}\n")
     paths = []
     for ext, make in HEADER_BOMBS.items():
         paths.append(tmp_path / f"bomb_{ext}.{ext}")
         paths[-1].write_bytes(make())
-    code = ("import resource, sys\nfrom jcalib.app.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
-            "    print('exit', e.code, 'maxrss_kb', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n")
+    code = ("import re, sys\nfrom jcalib.app.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
+            "    hwm = re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)\n"
+            "    print('exit', e.code, 'peak_kb', hwm)\n")  # VmHWM: this process's own peak (ru_maxrss keeps the forking parent's)
     env = {**os.environ, "COLUMNS": "100000"}
     proc = subprocess.run([sys.executable, "-c", code, "detect", "--cell", str(tmp_path / "cell.yaml"), "--camera",
                            "cam0", *map(str, paths), "-o", str(tmp_path / "obs.json"), "-j", "1"],
@@ -59,5 +60,4 @@ def test_header_bombs_are_refused_before_decoding(tmp_path):
     assert last[:2] == ["exit", "2"], proc.stdout + proc.stderr
     for p in paths:
         assert p.name in proc.stderr, proc.stderr
-    assert int(last[3]) < 700 * 1024, f"peak {int(last[3]) / 1024:.0f} MiB: a header bomb was decoded"
-    assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss < 700 * 1024
+    assert int(last[3]) < 400 * 1024, f"peak {int(last[3]) / 1024:.0f} MiB: a header bomb was decoded"
