@@ -112,8 +112,11 @@ def detect(
     jobs: Annotated[
         Optional[int], typer.Option("--jobs", "-j", help="Worker processes (default: every core; 1: none).")
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an -o file that is not observations.json.")] = False,
 ) -> None:
     """Detect the cell's calibration target in images (or a capture session) and write observations.json."""
+    from jcalib.io.replace import check_replaceable
+
     if jobs is not None and jobs < 1:
         from jcalib.errors import BadInputError
 
@@ -126,6 +129,7 @@ def detect(
             raise BadInputError(f"--session {session}: no such folder (expected a jcalib capture session)")
         check_outputs({"-o": out if out is not None else session / "observations.json"}, [cell, *(images or [])],
                       input_dirs={session: ["observations.json"]})  # fmt: skip
+        check_replaceable("-o", out if out is not None else session / "observations.json", "jcalib.observations/1", force)
         detect_session_to_file(session, cell, out, target=target, jobs=jobs)
         return
     if not images or cell is None or camera is None or out is None:
@@ -133,6 +137,7 @@ def detect(
 
         raise BadInputError("detect: give IMAGES with --cell, --camera and -o, or --session SESSION")
     check_outputs({"-o": out}, [cell, *images])
+    check_replaceable("-o", out, "jcalib.observations/1", force)
     from jcalib.pipeline.images import detect_images_to_file
 
     detect_images_to_file(cell_path=cell, camera=camera, image_paths=images, out_path=out, target=target, jobs=jobs)

@@ -9,6 +9,7 @@ from typing import Sequence
 from jcalib.errors import BadInputError, DetectionError
 from jcalib.io.cell import load_cell
 from jcalib.io.observations import Detection, Observations, Station, save_observations
+from jcalib.pipeline.image_checks import identical_images, same_file_twice, size_warnings
 
 
 def detect_images(
@@ -40,6 +41,10 @@ def detect_images(
     ids = [p.stem for p in paths]
     if len(set(ids)) != len(ids):
         raise BadInputError("two images share a file name stem; station ids must be unique")
+    same_file_twice(list(zip(ids, paths)), "detect")
+    if warnings is not None:
+        for path, twin in identical_images(paths).items():
+            warnings[str(path)] = f"byte-identical to {twin}: two stations with one view (a copy or a stale frame?)"
     results = detect_many(paths, geometry, progress=progress, jobs=jobs)
     image_size = None
     stations, failures = [], {}
@@ -58,11 +63,16 @@ def detect_images(
         if notes is not None and note:
             notes[str(path)] = note
         ambiguous = "orientation_ambiguous" in res.warnings
-        if warnings is not None and ambiguous:
-            warnings[str(path)] = orientation_warning(target_spec.name)
+        said = [orientation_warning(target_spec.name)] if ambiguous else []
+        said += list(res.image_notes) + ([warnings[str(path)]] if warnings is not None and str(path) in warnings else [])
+        if warnings is not None and said:
+            warnings[str(path)] = "; ".join(said)
         det = Detection(camera=camera, target=target_spec.name, point_index=res.point_index, pixels=res.pixels,
                         orientation_ambiguous=ambiguous)
         stations.append(Station(id=sid, detections=(det,)))
+    said_size = size_warnings(cell.camera(camera), image_size) if image_size else []
+    if warnings is not None and said_size:
+        warnings[f"camera {camera}"] = "; ".join(said_size)
     obs = Observations(
         cameras={camera: image_size} if image_size else {},
         targets={target_spec.name: geometry.points},

@@ -47,8 +47,10 @@ class SessionFailure:
         station: station id.  camera: camera id (None: the whole station).
         target: target id, tool id (a tool-tip search), or None.
         reason: short keyword ("skipped", "excluded" (the session's ``exclusions.json``, see
-            :mod:`jcalib.io.exclusions`), "missing_image", "not_found", "partially_visible",
-            "too_blurred", "unreadable"; for a tool also "tip_outside_image", "ambiguous").
+            :mod:`jcalib.io.exclusions`), "missing_image", "outside_session" (a symlink out of the
+            session), "duplicate_image" (byte-identical to an earlier station's image taken at another
+            robot pose), "not_found", "partially_visible", "too_blurred", "unreadable"; for a tool also
+            "tip_outside_image", "ambiguous").
         message: the full explanation.
     """
 
@@ -103,13 +105,16 @@ def detect_session(
 
     Raises:
         BadInputError: not a session, no cell spec, an unknown target or tool, a station image naming
-            a camera the cell lacks, or images of one camera with different sizes.
+            a camera the cell lacks, one image file named by two stations, or images of one camera with
+            different sizes.
     """
     from jcalib.io.cell import load_cell
     from jcalib.io.exclusions import FILENAME as EXCLUSIONS_FILE
     from jcalib.io.exclusions import load_exclusions
     from jcalib.io.session import read_session
     from jcalib.io.observations import Detection, Observations, Station
+    from jcalib.pipeline.image_checks import (identical_images, outside_session, recorded_settings, same_file_twice,
+                                              size_warnings)
     from jcalib.pipeline.images import orientation_warning, retry_note
     from jcalib.vision import detect_many
 
@@ -154,10 +159,33 @@ def detect_session(
                     f"{spec.source} lacks (it has {', '.join(spec.cameras)}); pass the cell used for the capture"
                 )
             path = d / rel
+            outside = outside_session(d, path)
+            if outside:
+                failures.append(SessionFailure(sid, cam, None, "outside_session", outside))
+                continue
             if not path.is_file():
                 failures.append(SessionFailure(sid, cam, None, "missing_image", f"{path} does not exist"))
                 continue
             images.append((sid, cam, path))
+    same_file_twice([(sid, p) for sid, _, p in images], f"session {d}")
+    twins = identical_images([p for _, _, p in images])
+    pose_of = {str(r["id"]): (r.get("T_base_flange"), r.get("flange_poses"), r.get("joints_deg")) for r in records}
+    kept = []
+    for sid, cam, path in images:  # a later station's image identical to an earlier one: a stale frame?
+        twin = twins.get(path)
+        if twin is None:
+            kept.append((sid, cam, path))
+            continue
+        tsid = next(s for s, _, p in images if p == twin)
+        what = f"byte-identical to {twin} (station {tsid})"
+        if pose_of.get(tsid) != pose_of.get(sid):
+            failures.append(SessionFailure(sid, cam, None, "duplicate_image", f"{path} is {what}, taken at another "
+                                           "robot pose: a stale frame? left out (the earlier station keeps it)"))
+            continue
+        if warnings is not None:
+            warnings[f"{sid} {cam}"] = f"{path} is {what}; both are kept (the same robot pose)"
+        kept.append((sid, cam, path))
+    images = kept
 
     found: dict[tuple[str, str, str], Any] = {}
     sizes: dict[str, tuple[int, int]] = {}
@@ -195,6 +223,8 @@ def detect_session(
                 notes[f"{sid} {cam} {tname}"] = note
             if warnings is not None and "orientation_ambiguous" in res.warnings:
                 warnings[f"{sid} {cam} {tname}"] = orientation_warning(tname)
+            if warnings is not None and res.image_notes:
+                warnings[f"{sid} {cam}"] = f"{path}: " + "; ".join(res.image_notes)
 
     # tool tips: images of a camera observing a tool in which no target was found at all
     tips: dict[tuple[str, str], tuple[str, np.ndarray, np.ndarray]] = {}
@@ -237,6 +267,10 @@ def detect_session(
             Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64),
                     joints_deg=_joints(rec.get("joints_deg")))
         )
+    for cam, size in sizes.items():
+        said = size_warnings(spec.cameras[cam], size, recorded_settings(meta, cam), str(d / "session.json"))
+        if warnings is not None and said:
+            warnings[f"camera {cam}"] = "; ".join(said)
     for cam in {c for _, c, _ in images} - set(sizes):  # cameras that never saw a target: size from an image
         from jcalib.vision.image import image_header_size
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
 from jcalib.geometry.targets import AprilGrid, AprilTag, Charuco, Checkerboard, CircleGrid
-from jcalib.vision.image import image_stats, load_image, to_gray
+from jcalib.vision.image import image_notes, image_stats, read_image, to_gray
 
 __all__ = ["DETECTION_FAILURE_REASONS", "TargetDetection", "default_jobs", "detect_many", "detect_target"]
 
@@ -42,6 +42,8 @@ class TargetDetection:
         attempts: every attempt run, in order (``("default",)`` when nothing was retried).
         dropped: points (or ChArUco markers) found but left out because they disagree with the board
             layout and their neighbours (:mod:`jcalib.vision.validate`).
+        image_notes: what the image file holds that its decoded pixels leave out (later pages, an EXIF
+            orientation not applied: :func:`jcalib.vision.image.image_notes`); empty for an array.
     """
 
     point_index: np.ndarray
@@ -56,6 +58,7 @@ class TargetDetection:
     attempt: str = "default"
     attempts: tuple[str, ...] = ("default",)
     dropped: int = 0
+    image_notes: tuple[str, ...] = ()
 
     @property
     def retried(self) -> bool:
@@ -130,14 +133,17 @@ def detect_target(
             ``"unreadable"``; the message names the image.
         BadInputError: an unknown target type, a bad array or option.
     """
+    notes: tuple[str, ...] = ()
     if isinstance(image, (str, os.PathLike)):
         name = name or os.fspath(image)
-        image = load_image(image)
+        image, header = read_image(image)  # the pixel and memory budgets checked from the header first
+        notes = image_notes(header)
     name = name or "<array>"
     _check_arguments(target, min_points)
     gray = to_gray(image, name)
+    image = None  # the decoded array is not needed once the grey image exists (a colour image's memory)
     contrast, edge_width = image_stats(gray)
-    common = dict(image_size=gray.size, name=name, edge_width_px=edge_width, contrast=contrast)
+    common = dict(image_size=gray.size, name=name, edge_width_px=edge_width, contrast=contrast, image_notes=notes)
     blurred = ("blurred",) if edge_width > max_edge_width_px else ()
 
     def fail(partial_detail: str | None, rejected: tuple[str, ...] = ()) -> DetectionError:

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import os
-import threading
+
 import cv2
 import numpy as np
 
 from jcalib.errors import BadInputError, DetectionError
+from jcalib.vision.image_header import FORMATS, ImageHeader, read_image_header
 
-__all__ = ["GrayImage", "from_level", "image_header_size", "image_stats", "load_image", "max_image_pixels", "mosaic",
-           "to_gray", "to_level"]
+__all__ = ["GrayImage", "check_image_header", "detection_memory_bytes", "from_level", "image_header_size", "image_notes",
+           "image_stats", "load_image", "max_image_bytes", "max_image_pixels", "mosaic", "read_image", "to_gray",
+           "to_level"]
 
 
 class GrayImage:
@@ -115,51 +117,139 @@ def from_level(points: np.ndarray, k: int) -> np.ndarray:
 
 def max_image_pixels() -> int:
     """The pixel budget of one image (``JCALIB_MAX_IMAGE_MP`` megapixels, default 200)."""
-    raw = os.environ.get("JCALIB_MAX_IMAGE_MP", "")
+    return int(_budget("JCALIB_MAX_IMAGE_MP", 200.0, "megapixels") * 1e6)
+
+
+def max_image_bytes() -> int:
+    """The memory budget of one image's decoding and detection (``JCALIB_MAX_IMAGE_MB`` MiB, default 4096),
+    per process: ``--jobs N`` may use N times as much."""
+    return int(_budget("JCALIB_MAX_IMAGE_MB", 4096.0, "MiB") * 2**20)
+
+
+def _budget(variable: str, default: float, unit: str) -> float:
+    raw = os.environ.get(variable, "")
     try:
-        mp = float(raw) if raw else 200.0
+        value = float(raw) if raw else default
     except ValueError:
-        raise BadInputError(f"JCALIB_MAX_IMAGE_MP: expected a number of megapixels, got {raw!r}") from None
-    return int(mp * 1e6)
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise BadInputError(f"{variable}: expected a positive number of {unit}, got {raw!r}")
+    return value
 
 
-_PIL_LOCK = threading.Lock()
+#: Bytes per pixel that detection needs beyond the grey images: the pyramid and the finders' working
+#: copies (measured on blank and noise images with every target type, with margin:
+#: benchmarks/bench_image_fuzz.py).
+WORK_BYTES_PER_PX = 4
+#: Copies of the decoded array OpenCV's decoder holds at its peak (measured with OpenCV 4.14: it decodes,
+#: then copies; WebP and GIF decode to four channels first, OpenJPEG to 32-bit samples).
+DECODE_COPIES = {"JPEG 2000": 6, "GIF": 4, "WebP": 3}
+
+
+def detection_memory_bytes(header: ImageHeader) -> int:
+    """Peak memory (bytes) of decoding an image and detecting in it, from its header.
+
+    The largest of three stages: the decoder (:data:`DECODE_COPIES` of the decoded array, 2 by default),
+    the grey conversion (the decoded array, the uint8 grey image and, for any input but 8-bit grey, its
+    float32 copy, plus the 16-bit range stretch's copy) and the detection (the grey images and
+    :data:`WORK_BYTES_PER_PX`)."""
+    px = header.pixels
+    gray = px * (1 if header.channels == 1 and header.bytes_per_sample == 1 else 5)
+    stretch = 4 * px if header.bytes_per_sample == 2 else 0
+    decode = DECODE_COPIES.get(header.format, 2) * header.decoded_bytes
+    return max(decode, header.decoded_bytes + gray + stretch, gray + WORK_BYTES_PER_PX * px)
 
 
 def image_header_size(path: str | os.PathLike) -> tuple[int, int] | None:
-    """``(width, height)`` from the file's header without decoding the pixels (Pillow), or None
-    when Pillow does not know the format."""
-    from PIL import Image
+    """``(width, height)`` from the file's header without decoding the pixels, or None when the file is
+    not an image OpenCV reads or its header is damaged (:func:`jcalib.vision.image_header.read_image_header`)."""
+    try:
+        header = read_image_header(path)
+    except DetectionError:
+        return None
+    return None if header is None else (header.width, header.height)
 
-    with _PIL_LOCK:  # Pillow's own bomb limit is lifted while reading a header: the budget is ours
-        old, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
-        try:
-            with Image.open(path) as im:
-                return int(im.size[0]), int(im.size[1])
-        except Exception:  # noqa: BLE001 - unknown format: OpenCV decides (within its own limit)
-            return None
-        finally:
-            Image.MAX_IMAGE_PIXELS = old
+
+def check_image_header(path: str | os.PathLike) -> ImageHeader:
+    """The image's header, within the pixel and memory budgets: what :func:`load_image` checks before decoding.
+
+    Raises:
+        DetectionError: reason ``"unreadable"``: missing, not a regular file, not an image format OpenCV
+            reads, a damaged header, or over :func:`max_image_pixels` or :func:`max_image_bytes`.
+    """
+    name = os.fspath(path)
+    if not os.path.isfile(name):
+        what = "does not exist" if not os.path.lexists(name) else "is not a regular file"
+        raise DetectionError(f"{name}: cannot read the image (the path {what})", "unreadable")
+    header = read_image_header(name)
+    if header is None:
+        raise DetectionError(f"{name}: not an image format jcalib reads ({', '.join(FORMATS)})", "unreadable")
+    budget = max_image_pixels()
+    size = f"{header.width}x{header.height} px"
+    if header.pixels > budget:
+        raise DetectionError(
+            f"{name}: the image is {size} ({header.pixels / 1e6:.0f} Mpx), more than the {budget / 1e6:.0f} Mpx "
+            "jcalib decodes (set JCALIB_MAX_IMAGE_MP to raise the budget)", "unreadable")
+    need, memory = detection_memory_bytes(header), max_image_bytes()
+    if need > memory:
+        depth = f"{header.channels} channel(s) of {8 * header.bytes_per_sample} bits"
+        raise DetectionError(
+            f"{name}: the {header.format} image ({size}, {depth}) needs about {need / 2**20:.0f} MiB to decode and "
+            f"detect in, more than the {memory / 2**20:.0f} MiB budget of one image (set JCALIB_MAX_IMAGE_MB to "
+            "raise it, or save the image in grey or 8 bits)", "unreadable")
+    return header
+
+
+def image_notes(header: ImageHeader) -> tuple[str, ...]:
+    """What the file's header holds that the decoded pixels leave out: later pages or frames, an EXIF
+    orientation (not applied: the pixels are used in the order the sensor stored them)."""
+    notes = []
+    if header.pages != 1:
+        count = "several frames" if header.pages is None else f"{header.pages} pages or frames"
+        notes.append(f"the {header.format} file holds {count}; only the first is read (save each view as its "
+                     "own file)")
+    if header.orientation != 1:
+        notes.append(f"EXIF orientation {header.orientation} ({_ORIENTATIONS.get(header.orientation, 'unknown')}) "
+                     "is not applied: the pixels are used as stored, in the sensor's frame (all images of a "
+                     "camera must be stored alike)")
+    return tuple(notes)
+
+
+_ORIENTATIONS = {2: "mirrored", 3: "turned 180°", 4: "flipped", 5: "mirrored and turned 90°", 6: "turned 90°",
+                 7: "mirrored and turned 270°", 8: "turned 270°"}
+
+
+def read_image(path: str | os.PathLike) -> tuple[np.ndarray, ImageHeader]:
+    """Read an image file unchanged, and its header (:func:`check_image_header` first, so the budgets hold
+    before anything is decoded).
+
+    Returns:
+        ``(image, header)``: (H, W[, C]) uint8 / uint16 / float32 array, colour in OpenCV's BGR order.
+
+    Raises:
+        DetectionError: reason ``"unreadable"`` (:func:`check_image_header`), or OpenCV cannot decode it.
+    """
+    name = os.fspath(path)
+    header = check_image_header(name)
+    image = cv2.imread(name, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise DetectionError(f"{name}: cannot decode the {header.format} image (damaged or an unsupported "
+                             "variant)", "unreadable")
+    if (image.shape[1], image.shape[0]) != (header.width, header.height):
+        raise DetectionError(f"{name}: the decoded image is {image.shape[1]}x{image.shape[0]} px but its header "
+                             f"says {header.width}x{header.height} px (a damaged file)", "unreadable")
+    return image, header
 
 
 def load_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image file unchanged (8- or 16-bit, grey or colour in OpenCV's BGR order).
 
     Raises:
-        DetectionError: reason ``"unreadable"`` when the file is missing, not an image, or holds
-            more pixels than :func:`max_image_pixels` (checked from the header, before decoding).
+        DetectionError: reason ``"unreadable"`` when the file is missing, not an image, or needs more
+            than :func:`max_image_pixels` or :func:`max_image_bytes` (checked from the header, before
+            decoding: :func:`check_image_header`).
     """
-    name = os.fspath(path)
-    size = image_header_size(name) if os.path.isfile(name) else None
-    budget = max_image_pixels()
-    if size is not None and size[0] * size[1] > budget:
-        raise DetectionError(
-            f"{name}: the image is {size[0]}x{size[1]} px ({size[0] * size[1] / 1e6:.0f} Mpx), more than the "
-            f"{budget / 1e6:.0f} Mpx jcalib decodes (set JCALIB_MAX_IMAGE_MP to raise the budget)", "unreadable")
-    image = cv2.imread(name, cv2.IMREAD_UNCHANGED) if os.path.isfile(name) else None
-    if image is None:
-        raise DetectionError(f"{name}: cannot read the image (missing file or not an image format OpenCV reads)", "unreadable")
-    return image
+    return read_image(path)[0]
 
 
 def to_gray(image, name: str = "<array>") -> GrayImage:
@@ -181,25 +271,39 @@ def to_gray(image, name: str = "<array>") -> GrayImage:
         )
     if a.dtype == np.uint8 and a.ndim == 2:  # the common case: no float copy until one is needed
         return GrayImage(u8=np.ascontiguousarray(a), name=name)
-    if a.dtype == np.uint8:
-        f = a.astype(np.float32)
-    elif a.dtype == np.uint16:
-        f = a.astype(np.float32) * np.float32(255.0 / 65535.0)
-    elif a.dtype in (np.float32, np.float64) and np.all(np.isfinite(a)):
-        f = np.clip(a, 0.0, 1.0).astype(np.float32) * np.float32(255.0)
-    else:
-        raise BadInputError(
-            f"{name}: argument 'image' has dtype {a.dtype}, expected uint8, uint16 or finite float in [0, 1]"
-        )
-    if f.ndim == 3:
-        f = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY if f.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    bad_dtype = BadInputError(
+        f"{name}: argument 'image' has dtype {a.dtype}, expected uint8, uint16 or finite float in [0, 1]")
+    if a.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise bad_dtype
+    # converted in bands of rows: the float copies of a colour image never exist whole
+    h, w = a.shape[:2]
+    rows = max(1, CONVERT_PIXELS // w)
+    f = np.empty((h, w), np.float32)
+    for y in range(0, h, rows):
+        band = a[y:y + rows]
+        if a.dtype == np.uint8:
+            g = band.astype(np.float32)
+        elif a.dtype == np.uint16:
+            g = band.astype(np.float32) * np.float32(255.0 / 65535.0)
+        elif np.all(np.isfinite(band)):
+            g = np.clip(band, 0.0, 1.0).astype(np.float32) * np.float32(255.0)
+        else:
+            raise bad_dtype
+        f[y:y + rows] = cv2.cvtColor(g, cv2.COLOR_BGR2GRAY if g.shape[2] == 3 else cv2.COLOR_BGRA2GRAY) if g.ndim == 3 else g
     if a.dtype == np.uint16:
         # A 12-bit camera in a 16-bit container uses a fraction of the range: stretch it robustly.
         lo, hi = np.percentile(f, [0.1, 99.9])
         if hi - lo > 1e-3:
-            f = np.clip((f - lo) * np.float32(255.0 / (hi - lo)), 0.0, 255.0).astype(np.float32)
-    u8 = np.clip(np.round(f), 0, 255).astype(np.uint8)
-    return GrayImage(u8=u8, f32=np.ascontiguousarray(f, dtype=np.float32), name=name)
+            for y in range(0, h, rows):
+                f[y:y + rows] = np.clip((f[y:y + rows] - lo) * np.float32(255.0 / (hi - lo)), 0.0, 255.0)
+    u8 = np.empty((h, w), np.uint8)
+    for y in range(0, h, rows):
+        u8[y:y + rows] = np.clip(np.round(f[y:y + rows]), 0, 255)
+    return GrayImage(u8=u8, f32=f, name=name)
+
+
+#: Pixels :func:`to_gray` converts at a time (bands of rows): its float temporaries stay this small.
+CONVERT_PIXELS = 1 << 20
 
 
 #: Pixels :func:`image_stats` looks at: larger images are sampled in bands of rows.

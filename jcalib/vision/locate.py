@@ -151,6 +151,11 @@ def _is_x_ring(ring: np.ndarray, min_amplitude: float) -> np.ndarray:
     return (amp > min_amplitude) & (even_energy > 4.0 * odd_energy) & (changes == 2)
 
 
+#: Above this many points :func:`lattice_points` finds neighbours with a k-d tree (an (m, m) distance
+#: matrix of 10 000 blobs of a noise image is 800 MB and seconds).
+DENSE_POINTS = 2000
+
+
 def lattice_points(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(M,) bool: points with two non-parallel pairs of opposite neighbours among their 6 nearest; and
     (M,) the shorter of those neighbour distances (NaN where not on a lattice)."""
@@ -158,10 +163,15 @@ def lattice_points(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     spacing = np.full(m, np.nan)
     if m < 5:
         return np.zeros(m, bool), spacing
-    d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
-    np.fill_diagonal(d, np.inf)
     k = min(6, m - 1)
-    nn = np.argpartition(d, k - 1, axis=1)[:, :k]
+    if m > DENSE_POINTS:  # noise or clutter: a k-d tree, not an (m, m) distance matrix (memory, time)
+        from scipy.spatial import cKDTree
+
+        nn = cKDTree(p).query(p, k + 1)[1][:, 1:]
+    else:
+        d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        nn = np.argpartition(d, k - 1, axis=1)[:, :k]
     v = p[nn] - p[:, None, :]  # (m, k, 2)
     length = np.linalg.norm(v, axis=-1)
     ia, ib = np.triu_indices(k, 1)
