@@ -54,6 +54,9 @@ def number(lo: float, hi: float, unit: str, *, lo_open: bool = True, hi_open: bo
         above = value > lo if lo_open else value >= lo
         below = value < hi if hi_open else value <= hi
         if not (math.isfinite(value) and above and below):
+            if allow_inf and hi == math.inf:
+                raise typer.BadParameter(f"expected a number {'>' if lo_open else '>='} {lo:g} {unit} (inf: "
+                                         f"infinity), got {value}")
             raise typer.BadParameter(f"expected a finite number in {left}{lo:g}, {hi:g}{right} {unit}, got {value}")
         return value
 

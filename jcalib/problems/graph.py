@@ -372,17 +372,23 @@ class Graph:
         kin = self.robot_specs[robot].kinematics if robot in self.robot_specs else None
         if kin is None:
             return
+        calibrated = bool(self.robot_specs[robot].calibrate_kinematics)
         ids, qs, Ts = [], [], []
         for k, station in enumerate(stations):
             given = station.flange_poses.get(robot) if self.multi or station.flange_poses else station.T_base_flange
-            q = self.station_joints(station, robot) if mask[k] else None
+            try:
+                q = self.station_joints(station, robot) if mask[k] else None
+            except BadInputError:
+                if calibrated:  # the joints are used: their error stands
+                    raise
+                q = None  # joints the solve does not use (e.g. another axis count): not checked here
             if q is not None:
                 ids.append(self.station_ids[k]), qs.append(q), Ts.append(given)
         have_pose = [i for i, T in enumerate(Ts) if T is not None]
         check_joints_against_poses(kin, self.label(robot), [ids[i] for i in have_pose],
                                    np.reshape([qs[i] for i in have_pose], (len(have_pose), kin.num_joints)),
                                    np.reshape([Ts[i] for i in have_pose], (len(have_pose), 4, 4)), self.obs.source)
-        if self.robot_specs[robot].calibrate_kinematics and ids:
+        if calibrated and ids:
             check_joint_units(kin, self.label(robot), ids, np.stack(qs), self.obs.source)
 
     def _check_station_poses(self, station, need: set) -> None:
