@@ -95,10 +95,40 @@ def to_spec(model: Kinematics, params) -> dict:
 
 #: Lengths (m) beyond this are refused even where the caller states no reach limit (no overflow downstream).
 HARD_LENGTH_LIMIT_M = 1e6
-#: The largest joint-row angle (deg: alpha, theta, beta): beyond one turn is a unit error.
-MAX_TABLE_ANGLE_DEG = 360.0
-#: The largest revolute joint limit (deg): no axis turns more than ten times.
-MAX_LIMIT_DEG = 3600.0
+#: The largest angle (deg) of a table (alpha, theta, beta, a UR delta; revolute limits): ten turns. A
+#: controller's offsets can pass a whole turn (a UR's delta_theta of 6.47 rad), nothing sane passes ten.
+MAX_TABLE_ANGLE_DEG = 3600.0
+#: The largest prismatic joint limit (m): a track or a gantry lies within a cell (the reach limit bounds
+#: the links, not the travel of an external axis).
+MAX_TRAVEL_M = 100.0
+
+
+def _check_reach(model: Kinematics, where: str, limit_m: float | None, lengths: list[tuple[str, float]]) -> None:
+    """Refuse a chain whose flange lies beyond the reach limit (at zero joints, at the revolute joints' limits):
+    in a kinematic table that is a unit error (mm as m). Single lengths are not bounded: a calibrated UR's
+    link offsets reach hundreds of metres that cancel along parallel axes; its flange does not.
+
+    ``lengths``: ``(label, value m)`` of the table's lengths, the largest of which the message names.
+    """
+    if limit_m is None:
+        return
+    lo, hi = np.asarray(model.lower, np.float64), np.asarray(model.upper, np.float64)
+    revolute = np.array([t == "revolute" for t in model.joint_types])
+    # revolute axes within their limits (one turn at most), prismatic ones (tracks) at their zero
+    lo, hi = np.where(revolute, np.maximum(lo, -np.pi), 0.0), np.where(revolute, np.minimum(hi, np.pi), 0.0)
+    q = np.stack([np.zeros_like(lo), lo, hi, 0.5 * (lo + hi)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        T = np.asarray(forward(model, model.nominal, jnp.asarray(q)), np.float64)
+        dist = np.linalg.norm(T[:, :3, 3], axis=1)
+    worst = float(np.max(np.where(np.isfinite(dist), dist, np.inf)))
+    if worst <= limit_m:
+        return
+    label, value = max(lengths, key=lambda lv: abs(lv[1]), default=("", 0.0))
+    largest = f"; its largest length is {label} = {value:.4g} m" if label else ""
+    raise BadInputError(f"{where}: the flange lies up to {worst:.4g} m from the base (at zero joints and at the joint "
+                        f"limits), beyond the reach limit of {limit_m:g} m{largest}: kinematic tables are in metres; "
+                        "are these millimetres? (divide by 1000; a genuinely larger machine, e.g. on a long track: "
+                        "raise JCALIB_MAX_REACH_M)")
 
 
 def _check_length(value_m: float, key: str, where: str, limit_m: float | None) -> None:
@@ -110,11 +140,10 @@ def _check_length(value_m: float, key: str, where: str, limit_m: float | None) -
                             "machine, e.g. a long track: raise JCALIB_MAX_REACH_M)")
 
 
-def _check_angle(value_deg: float, key: str, where: str, limit_deg: float = MAX_TABLE_ANGLE_DEG,
-                 span: str = "one turn") -> None:
-    if not abs(value_deg) <= limit_deg:
-        raise BadInputError(f"{where}: {key}: {value_deg:.4g} deg is beyond ±{limit_deg:g} deg; write the angle in "
-                            f"degrees within {span}")
+def _check_angle(value_deg: float, key: str, where: str) -> None:
+    if not abs(value_deg) <= MAX_TABLE_ANGLE_DEG:
+        raise BadInputError(f"{where}: {key}: {value_deg:.4g} deg is beyond ±{MAX_TABLE_ANGLE_DEG:g} deg (ten turns); "
+                            "write the angle in degrees")
 
 
 _KEY_HINTS = {"beta_deg": " (beta_deg belongs to the mdh convention: write convention: mdh, or drop it)"}
@@ -187,7 +216,7 @@ def _preset(name: Any, where: str) -> Kinematics:
 DELTA_DH_KEYS = ("theta", "a", "d", "alpha")
 
 
-def apply_delta_dh(model: Kinematics, delta: Any, where: str, limit_m: float | None = None) -> Kinematics:
+def apply_delta_dh(model: Kinematics, delta: Any, where: str) -> Kinematics:
     """``model`` (a dh chain) with ``delta`` ``{theta, a, d, alpha: [n numbers]}`` (rad, m) added to its joint rows.
 
     This is how a Universal Robots controller applies its factory calibration (``calibration.conf``'s
@@ -211,8 +240,8 @@ def apply_delta_dh(model: Kinematics, delta: Any, where: str, limit_m: float | N
             for x in rows[:, col]:
                 if key in ("theta", "alpha"):
                     _check_angle(math.degrees(x), f"delta_dh.{key} ({x:.4g} rad)", where)
-                else:
-                    _check_length(x, f"delta_dh.{key}", where, limit_m)
+                else:  # a UR's delta_d reach hundreds of metres that cancel along parallel axes: no reach limit
+                    _check_length(x, f"delta_dh.{key}", where, None)
     nominal = np.asarray(model.nominal, dtype=np.float64).copy()
     nominal[: 4 * n] += rows.reshape(-1)
     return dataclasses.replace(model, nominal=jnp.asarray(nominal))
@@ -229,7 +258,7 @@ def _convention(spec: dict, where: str) -> str:
     return conv
 
 
-def _joint_common(js: Any, i: int, where: str, allowed: set, limit_m: float | None = None) -> tuple:
+def _joint_common(js: Any, i: int, where: str, allowed: set) -> tuple:
     """(name, type, sign, lower, upper, where) of one joint entry; limits in rad / m."""
     jwhere = f"{where}, joint {i + 1}"
     if not isinstance(js, dict):
@@ -256,9 +285,10 @@ def _joint_common(js: Any, i: int, where: str, allowed: set, limit_m: float | No
                             f"with lower < upper ({unit})")
     for x in (lo, hi):
         if joint_type == "revolute":
-            _check_angle(x, key, jwhere, MAX_LIMIT_DEG, "ten turns")
-        else:
-            _check_length(x * 1e-3, f"{key} ({x:g} mm)", jwhere, limit_m)
+            _check_angle(x, key, jwhere)
+        elif not abs(x) * 1e-3 <= MAX_TRAVEL_M:
+            raise BadInputError(f"{jwhere}: {key}: {x:.4g} mm is beyond ±{MAX_TRAVEL_M * 1e3:g} mm; prismatic "
+                                "limits are in millimetres (are these micrometres?)")
     return js["name"], joint_type, sign, lo * scale, hi * scale, jwhere
 
 
@@ -274,13 +304,14 @@ def _dh_table(spec: dict, robot: str, convention: str, where: str, limit_m: floa
     _check_keys(spec, {"convention", "joints", "base", "flange"}, where, f"the {convention} table")
     allowed = {"name", "type", "a_m", "alpha_deg", "d_m", "theta_deg", "sign", "limits_deg", "limits_mm"}
     allowed |= {"beta_deg"} if convention == "mdh" else set()
-    names, types, signs, lower, upper, rows = [], [], [], [], [], []
+    names, types, signs, lower, upper, rows, lengths = [], [], [], [], [], [], []
     for i, js in enumerate(_joints_list(spec, where)):
-        name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed, limit_m)
+        name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed)
         a = _number(js, "a_m", jwhere, "link length, m")
         d = _number(js, "d_m", jwhere, "link offset, m")
         for key, v in (("a_m", a), ("d_m", d)):
-            _check_length(v, key, jwhere, limit_m)
+            _check_length(v, key, jwhere, None)
+            lengths.append((f"joint {i + 1} ({name!r}) {key}", v))
         angles = {k: _number(js, k, jwhere, hint, default) for k, hint, default in (
             ("alpha_deg", "link twist, deg", None), ("theta_deg", "joint angle offset, deg", 0.0),
             ("beta_deg", "Hayati tilt, deg", 0.0))}
@@ -289,10 +320,12 @@ def _dh_table(spec: dict, robot: str, convention: str, where: str, limit_m: floa
         alpha, theta, beta = (math.radians(angles[k]) for k in ("alpha_deg", "theta_deg", "beta_deg"))
         rows.append([theta, d, a, alpha] if convention == "dh" else [alpha, a, theta, d, beta])
         names.append(name), types.append(joint_type), signs.append(sign), lower.append(lo), upper.append(hi)
-    return make_model(name=robot, convention=convention, joint_types=tuple(types), joint_names=names,
-                 per_joint=rows, sign=signs, lower=lower, upper=upper,
-                 base=_transform(spec, "base", where, limit_m=limit_m),
-                 flange=_transform(spec, "flange", where, limit_m=limit_m), where=where)
+    model = make_model(name=robot, convention=convention, joint_types=tuple(types), joint_names=names,
+                       per_joint=rows, sign=signs, lower=lower, upper=upper,
+                       base=_transform(spec, "base", where, limit_m=limit_m),
+                       flange=_transform(spec, "flange", where, limit_m=limit_m), where=where)
+    _check_reach(model, where, limit_m, lengths)
+    return model
 
 
 def _min_rotation(R_prev: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -309,10 +342,10 @@ def _min_rotation(R_prev: np.ndarray, z: np.ndarray) -> np.ndarray:
 def _poe_table(spec: dict, robot: str, where: str, limit_m: float | None) -> Kinematics:
     _check_keys(spec, {"convention", "joints", "home"}, where, "the poe table")
     allowed = {"name", "type", "axis", "point_m", "sign", "limits_deg", "limits_mm"}
-    names, types, signs, lower, upper, frames = [], [], [], [], [], []
+    names, types, signs, lower, upper, frames, lengths = [], [], [], [], [], [], []
     R = np.eye(3)
     for i, js in enumerate(_joints_list(spec, where)):
-        name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed, limit_m)
+        name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed)
         axis = _array(js, "axis", (3,), jwhere, "[x, y, z], a unit vector in the base frame at zero joints")
         norm = float(np.linalg.norm(axis))
         if abs(norm - 1.0) > 1e-6:
@@ -320,7 +353,8 @@ def _poe_table(spec: dict, robot: str, where: str, limit_m: float | None) -> Kin
             raise BadInputError(f"{jwhere}: axis: expected a unit vector, got {axis.tolist()} (norm {norm:.6g}); "
                                 f"write axis: {fix}")
         point = _array(js, "point_m", (3,), jwhere, "[x, y, z], a point on the axis, base frame at zero joints, m")
-        _check_length(float(np.linalg.norm(point)), "point_m (its distance from the base)", jwhere, limit_m)
+        _check_length(float(np.linalg.norm(point)), "point_m (its distance from the base)", jwhere, None)
+        lengths.append((f"joint {i + 1} ({name!r}) point_m (its distance from the base)", float(np.linalg.norm(point))))
         R = _min_rotation(R, axis / norm)
         F = np.eye(4)
         F[:3, :3], F[:3, 3] = R, point
@@ -331,7 +365,9 @@ def _poe_table(spec: dict, robot: str, where: str, limit_m: float | None) -> Kin
                             f"frame at zero joints (m)")
     like = {"name": robot, "joint_types": tuple(types), "joint_names": names, "sign": signs, "lower": lower,
             "upper": upper, "where": where}
-    return poe_from_frames(like, np.eye(4), np.stack(frames), _transform(spec, "home", where, False, limit_m))
+    model = poe_from_frames(like, np.eye(4), np.stack(frames), _transform(spec, "home", where, False, limit_m))
+    _check_reach(model, where, limit_m, lengths)
+    return model
 
 
 def from_spec(spec, robot: str, source: str = "cell", max_length_m: float | None = None) -> Kinematics:
@@ -349,10 +385,10 @@ def from_spec(spec, robot: str, source: str = "cell", max_length_m: float | None
     to revolute; a joint moves by ``sign * q`` about/along its axis. A :class:`Kinematics` passes
     through. Tables are named ``robot``, presets ``"<robot> (<model>)"``.
 
-    ``max_length_m`` (m) bounds every length of the table (link lengths and offsets, base and flange
-    translations, prismatic limits): the reach limit of cell specs
-    (:func:`jcalib.io.schema.common.max_reach_m`); None: only :data:`HARD_LENGTH_LIMIT_M`. Angles are
-    bounded too (one turn; joint limits ten turns).
+    ``max_length_m`` (m), the reach limit of cell specs (:func:`jcalib.io.schema.common.max_reach_m`), bounds
+    the flange's distance from the base (at zero joints and at the revolute joints' limits) and the base,
+    flange and home translations; None: no reach check. Single lengths are bounded by
+    :data:`HARD_LENGTH_LIMIT_M`, prismatic limits by :data:`MAX_TRAVEL_M`, angles by ten turns.
 
     Raises:
         BadInputError: naming ``source``, the robot, the joint and the field, and what to write.
@@ -369,7 +405,7 @@ def from_spec(spec, robot: str, source: str = "cell", max_length_m: float | None
         model = _preset(spec["preset"], where)
         model = dataclasses.replace(model, name=f"{robot} ({model.name})")
         if "delta_dh" in spec:
-            model = apply_delta_dh(model, spec["delta_dh"], where, max_length_m)
+            model = apply_delta_dh(model, spec["delta_dh"], where)
         if "base" in spec:
             base = jnp.asarray(_transform(spec, "base", where, limit_m=max_length_m), dtype=jnp.float64)
             model = dataclasses.replace(model, T_base_link0=base @ model.T_base_link0)

@@ -111,8 +111,9 @@ def _set_base_x(value):
 
 
 @pytest.mark.parametrize(("edit", "match"), [
-    (_set_link(560.0), r"joint 2 \('A2'\): a_m: 560 m is beyond the reach limit of 5 m.*millimetres"),
-    (_set_link(1e308), r"a_m: 1e\+308 m is beyond the reach limit"),
+    (_set_link(560.0), r"flange lies up to 5.+ m from the base .*beyond the reach limit of 5 m; its largest length "
+                       r"is joint 2 \('A2'\) a_m = 560 m.*millimetres"),
+    (_set_link(1e308), r"joint 2 \('A2'\): a_m: 1e\+308 m is beyond the reach limit of 1e\+06 m"),
     (_set_base_x(1500.0), r"base \(its translation\): 1500 m is beyond the reach limit"),
 ])
 def test_kinematic_lengths_beyond_the_reach_limit_are_refused_at_parse_time(edit, match):
@@ -125,14 +126,14 @@ def test_the_reach_limit_can_be_raised_for_a_larger_machine(monkeypatch):
     parse_cell(_kuka_cell(_set_link(560.0)), "cell.yaml")
 
 
-def test_angles_beyond_a_turn_and_absurd_limits_are_refused():
+def test_angles_beyond_ten_turns_and_absurd_limits_are_refused():
     def twist(spec):
         spec["joints"][0]["alpha_deg"] = 1e308
 
     def limits(spec):
         spec["joints"][0]["limits_deg"] = [-1e308, 1e308]
 
-    with pytest.raises(BadInputError, match="alpha_deg: 1e\\+308 deg is beyond ±360 deg"):
+    with pytest.raises(BadInputError, match="alpha_deg: 1e\\+308 deg is beyond ±3600 deg"):
         parse_cell(_kuka_cell(twist), "cell.yaml")
     with pytest.raises(BadInputError, match="limits_deg: -1e\\+308 deg is beyond ±3600 deg"):
         parse_cell(_kuka_cell(limits), "cell.yaml")
