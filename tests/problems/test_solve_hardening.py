@@ -111,8 +111,8 @@ def _set_base_x(value):
 
 
 @pytest.mark.parametrize(("edit", "match"), [
-    (_set_link(560.0), r"flange lies up to 5.+ m from the base .*beyond the reach limit of 5 m; its largest length "
-                       r"is joint 2 \('A2'\) a_m = 560 m.*millimetres"),
+    (_set_link(560.0), (r"flange lies up to 5.+ m from the base .*beyond the reach limit of 5 m; its largest "
+                        r"length is joint 2 \('A2'\) a_m = 560 m.*millimetres")),
     (_set_link(1e308), r"joint 2 \('A2'\): a_m: 1e\+308 m is beyond the reach limit of 1e\+06 m"),
     (_set_base_x(1500.0), r"base \(its translation\): 1500 m is beyond the reach limit"),
 ])
