@@ -14,6 +14,7 @@ from typing import Annotated, Optional
 import typer
 
 import jcalib
+from jcalib.app.checks import SEED, count, number
 from jcalib.errors import JcalibError
 from jcalib.io.outputs import check_output_dir, check_outputs
 
@@ -54,16 +55,16 @@ def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the session, results, report and exports.")] = Path(
         "demo-output"
     ),
-    stations: Annotated[int, typer.Option(help="The most robot stations (board views and tool stations) the plan "
+    stations: Annotated[int, typer.Option(callback=count(1), help="The most robot stations (board views and tool stations) the plan "
                                           "may take; it stops when the cell's goals are predicted met.")] = 30,
     protocol: Annotated[str, typer.Option(help="Simulated robot controller: kuka (KUKAVARPROXY, a KR 10), abb (an IRB "
                                               "4600) or ur (RTDE + URScript, a UR5e).")] = "kuka",
     image_size: Annotated[str, typer.Option(help="Simulated camera resolution WIDTHxHEIGHT.")] = "640x480",
-    seed: Annotated[int, typer.Option(help="Random seed of the simulated cell.")] = 0,
+    seed: Annotated[int, typer.Option(callback=SEED, help="Random seed of the simulated cell.")] = 0,
     camera_only: Annotated[
         bool, typer.Option(help="Only the rendered single-camera calibration (no robot, no network).")
     ] = False,
-    views: Annotated[int, typer.Option(help="--camera-only: number of rendered views.")] = 20,
+    views: Annotated[int, typer.Option(callback=count(1), help="--camera-only: number of rendered views.")] = 20,
     kinematic_errors: Annotated[
         bool, typer.Option("--kinematic-errors", help="The simulated arm hides realistic kinematic errors (seeded by "
                            "--seed); calibrate its joint offsets, link lengths and twists with the cell, and compare "
@@ -349,7 +350,8 @@ def frame(
     use: Annotated[Optional[str], typer.Option("--points", help="Point names to use, comma separated, in order.")] = None,
     name: Annotated[str, typer.Option(help="Name of the work object / base.")] = "wobj",
     origin: Annotated[str, typer.Option(help="three-point origin: first or foot.")] = "first",
-    sigma_mm: Annotated[Optional[float], typer.Option(help="Point σ (mm) where the file has no covariance.")] = None,
+    sigma_mm: Annotated[Optional[float], typer.Option(callback=number(0, 1000, "mm"),
+                                                      help="Point σ (mm) where the file has no covariance.")] = None,
     export: Annotated[Optional[str], typer.Option(help="Also write rapid (wobjdata) or krl (BASE_DATA).")] = None,
     export_out: Annotated[Optional[Path], typer.Option(help="Export file (default: OUT with .mod / .dat).")] = None,
 ) -> None:
@@ -449,25 +451,25 @@ def plan(
     kind: Annotated[str, typer.Option("--kind", help="viewsets, handeye, tcp, kinematics or optimal.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Plan JSON (jcalib.plan/1) to write.")],
     robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
-    stations: Annotated[Optional[int], typer.Option(help="Candidate stations (unreachable ones are dropped); "
+    stations: Annotated[Optional[int], typer.Option(callback=count(1), help="Candidate stations (unreachable ones are dropped); "
                                                          "kinematics: stations to plan (default 30).")] = None,
     camera: Annotated[Optional[str], typer.Option(help="Camera to plan for (viewsets, handeye, kinematics).")] = None,
     target: Annotated[Optional[str], typer.Option(help="Target to plan for (viewsets, handeye, kinematics).")] = None,
     tool: Annotated[Optional[str], typer.Option(help="Tool to plan for (tcp).")] = None,
-    amplitude_deg: Annotated[Optional[float], typer.Option(help="Largest tilt / rotation, degrees (kinematics: "
+    amplitude_deg: Annotated[Optional[float], typer.Option(callback=number(0, 90, "deg"), help="Largest tilt / rotation, degrees (kinematics: "
                                                                 "largest view angle from the target normal, 45).")] = None,
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
-    candidates: Annotated[Optional[int], typer.Option(help="kinematics: candidate configurations to choose from "
+    candidates: Annotated[Optional[int], typer.Option(callback=count(1, 100_000), help="kinematics: candidate configurations to choose from "
                                                            "(default 20 per station); optimal: candidate stations "
                                                            "(default 400).")] = None,
-    seed: Annotated[int, typer.Option(help="kinematics, optimal: random seed of the candidates.")] = 0,
-    sigma_px: Annotated[Optional[float], typer.Option(help="kinematics, optimal: corner noise (px) assumed for the "
+    seed: Annotated[int, typer.Option(callback=SEED, help="kinematics, optimal: random seed of the candidates.")] = 0,
+    sigma_px: Annotated[Optional[float], typer.Option(callback=number(0, 10, "px"), help="kinematics, optimal: corner noise (px) assumed for the "
                                                            "predicted σ (default 0.2 / the calibration's 0.25).")] = None,
     goal: Annotated[Optional[list[str]], typer.Option("--goal", help="optimal: what must be accurate, "
                                                       "NAME:QUANTITY<=VALUE, e.g. T_flange_cam0:translation_mm<=0.05, "
                                                       "T_flange_cam0:rotation_deg<=0.01, T_flange_torch:position_mm<=0.02, "
                                                       "cam0:projection_px<=0.1 (repeatable; default: the cell's goals:).")] = None,
-    max_stations: Annotated[Optional[int], typer.Option(help="optimal: most stations to plan (default 20); the plan "
+    max_stations: Annotated[Optional[int], typer.Option(callback=count(1, 500), help="optimal: most stations to plan (default 20); the plan "
                                                              "stops earlier when the goals are met.")] = None,
 ) -> None:
     """Plan robot stations (flange poses) for camera, hand-eye, TCP or kinematic calibration, or for goals.
@@ -516,20 +518,22 @@ def simulate(
     truth: Annotated[Optional[Path], typer.Option("--truth", help="Write the ground truth here (JSON).")] = None,
     robot: Annotated[Optional[str], typer.Option(help="Robot preset (default: the cell's robot.model).")] = None,
     image_size: Annotated[Optional[str], typer.Option(help="WxH of cameras without intrinsics.")] = None,
-    time_scale: Annotated[float, typer.Option(help="Motion-time scale (0: instantaneous moves).")] = 1.0,
-    seed: Annotated[int, typer.Option(help="Noise seed.")] = 0,
+    time_scale: Annotated[float, typer.Option(callback=number(0, 1000, "", lo_open=False),
+                                              help="Motion-time scale (0: instantaneous moves).")] = 1.0,
+    seed: Annotated[int, typer.Option(callback=SEED, help="Noise seed.")] = 0,
     noise: Annotated[
         str, typer.Option(help="Image noise: clean (bright, sharp) or realistic (dim, defocused, ~0.1 px corners).")
     ] = "clean",
     kinematic_errors: Annotated[
         Optional[int],
-        typer.Option("--kinematic-errors", metavar="SEED",
+        typer.Option("--kinematic-errors", metavar="SEED", callback=SEED,
                      help="Hide seeded realistic kinematic errors (joint offsets, link lengths, twists) in the robot: "
                           "the controller reports its preset's kinematics, the cameras see the true arm; --truth "
                           "then holds the true parameters."),
     ] = None,
     kinematic_error_scale: Annotated[
-        float, typer.Option(help="--kinematic-errors: factor on their σ (1: ~0.05 deg, 0.5 mm).")
+        float, typer.Option(callback=number(0, 1000, "", lo_open=False),
+                            help="--kinematic-errors: factor on their σ (1: ~0.05 deg, 0.5 mm).")
     ] = 1.0,
     fast_noise: Annotated[
         bool, typer.Option("--fast-noise", help="Draw sensor noise by its normal approximation (float32): a frame "
@@ -568,7 +572,8 @@ def capture(
     plan: Annotated[Optional[Path], typer.Option("--plan", help="Station plan (jcalib.plan/1); or --goal.")] = None,
     cell: Annotated[Optional[Path], typer.Option("--cell", help="Cell spec, stored in the session.")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the session in --out.")] = False,
-    packet_size: Annotated[Optional[int], typer.Option(help="GigE packet size, bytes (jumbo: 8000+).")] = None,
+    packet_size: Annotated[Optional[int], typer.Option(callback=count(576, 16384, "bytes"),
+                                                       help="GigE packet size, bytes (jumbo: 8000+).")] = None,
     setting: Annotated[
         Optional[list[str]],
         typer.Option("--setting", help="CAMERA.FEATURE=VALUE, a GenICam feature set before capturing (e.g. "
@@ -584,10 +589,12 @@ def capture(
                      "instead of --plan, choose each station as the capture goes, calibrate after each, stop when "
                      "every goal is achieved (needs --cell; without --plan and --goal, the cell's goals: are used).")
     ] = None,
-    max_stations: Annotated[Optional[int], typer.Option(help="--goal: most stations to capture [30].")] = None,
+    max_stations: Annotated[Optional[int], typer.Option(callback=count(1, 500),
+                                                        help="--goal: most stations to capture [30].")] = None,
     image_size: Annotated[Optional[str], typer.Option(help="--goal: WxH of cameras without intrinsics.")] = None,
-    seed: Annotated[int, typer.Option(help="--goal: random seed of the candidate stations.")] = 0,
-    candidates: Annotated[Optional[int], typer.Option(help="--goal: candidate stations to choose from [400].")] = None,
+    seed: Annotated[int, typer.Option(callback=SEED, help="--goal: random seed of the candidate stations.")] = 0,
+    candidates: Annotated[Optional[int], typer.Option(callback=count(1, 100_000),
+                                                      help="--goal: candidate stations to choose from [400].")] = None,
 ) -> None:
     """Drive the robot through a plan (--plan), or adaptively until accuracy goals are met (--goal), grab every
     camera at every station, write a session."""

@@ -13,10 +13,14 @@ from typing import Annotated, Optional
 
 import typer
 
+from jcalib.app.checks import SEED, grid, number
+
 _GRID_HELP = "Grid points across the image, WxH (edges and corners included)."
 _DISTANCE_HELP = ("Range of the compared points, m (default: infinity). Central lens models and a rotation-only "
                   "fit: the difference is the same at every range.")
 _ROTATION_HELP = "Fit the rotation between the two camera frames (a frame rotation is not a lens difference)."
+_GRID = grid(2, 400)
+_DISTANCE = number(0, float("inf"), "m", allow_inf=True)
 
 
 def _grid(text: str) -> tuple[int, int]:
@@ -37,8 +41,8 @@ def compare_command(
     b: Annotated[Path, typer.Argument(help="Second result (jcalib.result/1 JSON) of the same cameras.")],
     camera: Annotated[Optional[list[str]], typer.Option("--camera", help="Camera to compare (repeatable; default: "
                                                                           "every camera estimated in both).")] = None,
-    grid: Annotated[str, typer.Option("--grid", help=_GRID_HELP)] = "24x18",
-    distance: Annotated[Optional[float], typer.Option("--distance", help=_DISTANCE_HELP)] = None,
+    grid: Annotated[str, typer.Option("--grid", callback=_GRID, help=_GRID_HELP)] = "24x18",
+    distance: Annotated[Optional[float], typer.Option("--distance", callback=_DISTANCE, help=_DISTANCE_HELP)] = None,
     fit_rotation: Annotated[bool, typer.Option("--fit-rotation/--no-fit-rotation", help=_ROTATION_HELP)] = True,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the comparison (per-point differences, "
                                                                     "covariances, χ²) to this JSON file.")] = None,
@@ -77,15 +81,17 @@ def cross_validate_command(
     observations: Annotated[Path, typer.Argument(help="Observations (jcalib.observations/1 JSON).")],
     split: Annotated[str, typer.Option("--split", help="interleaved (even / odd stations in file order) or random "
                                                        "(--seed).")] = "interleaved",
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the random split.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", callback=SEED, help="Seed of the random split.")] = 0,
     camera: Annotated[Optional[list[str]], typer.Option("--camera", help="Camera to compare (repeatable; default: "
                                                                           "every camera with estimated intrinsics).")] = None,
-    grid: Annotated[str, typer.Option("--grid", help=_GRID_HELP)] = "24x18",
-    distance: Annotated[Optional[float], typer.Option("--distance", help=_DISTANCE_HELP)] = None,
+    grid: Annotated[str, typer.Option("--grid", callback=_GRID, help=_GRID_HELP)] = "24x18",
+    distance: Annotated[Optional[float], typer.Option("--distance", callback=_DISTANCE, help=_DISTANCE_HELP)] = None,
     fit_rotation: Annotated[bool, typer.Option("--fit-rotation/--no-fit-rotation", help=_ROTATION_HELP)] = True,
-    sigma_px: Annotated[Optional[float], typer.Option(help="Target-corner noise σ, pixels [0.25].")] = None,
+    sigma_px: Annotated[Optional[float], typer.Option(callback=number(0, 100, "px"),
+                                                      help="Target-corner noise σ, pixels [0.25].")] = None,
     noise: Annotated[Optional[str], typer.Option(help="Covariance scale: a_posteriori or stated [a_posteriori].")] = None,
-    outlier_threshold: Annotated[Optional[float], typer.Option(help="Reject measurements beyond this many σ (0 keeps "
+    outlier_threshold: Annotated[Optional[float], typer.Option(callback=number(0, 1e6, "σ", lo_open=False),
+                                                               help="Reject measurements beyond this many σ (0 keeps "
                                                                     "every measurement) [5].")] = None,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the comparison (and the halves' station "
                                                                     "ids) to this JSON file.")] = None,

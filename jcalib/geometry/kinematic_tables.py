@@ -93,6 +93,59 @@ def to_spec(model: Kinematics, params) -> dict:
 # ----------------------------------------------------------------------------------------------
 
 
+#: Lengths (m) beyond this are refused even where the caller states no reach limit (no overflow downstream).
+HARD_LENGTH_LIMIT_M = 1e6
+#: The largest angle (deg) of a table (alpha, theta, beta, a UR delta; revolute limits): ten turns. A
+#: controller's offsets can pass a whole turn (a UR's delta_theta of 6.47 rad), nothing sane passes ten.
+MAX_TABLE_ANGLE_DEG = 3600.0
+#: The largest prismatic joint limit (m): a track or a gantry lies within a cell (the reach limit bounds
+#: the links, not the travel of an external axis).
+MAX_TRAVEL_M = 100.0
+
+
+def _check_reach(model: Kinematics, where: str, limit_m: float | None, lengths: list[tuple[str, float]]) -> None:
+    """Refuse a chain whose flange lies beyond the reach limit (at zero joints, at the revolute joints' limits):
+    in a kinematic table that is a unit error (mm as m). Single lengths are not bounded: a calibrated UR's
+    link offsets reach hundreds of metres that cancel along parallel axes; its flange does not.
+
+    ``lengths``: ``(label, value m)`` of the table's lengths, the largest of which the message names.
+    """
+    if limit_m is None:
+        return
+    lo, hi = np.asarray(model.lower, np.float64), np.asarray(model.upper, np.float64)
+    revolute = np.array([t == "revolute" for t in model.joint_types])
+    # revolute axes within their limits (one turn at most), prismatic ones (tracks) at their zero
+    lo, hi = np.where(revolute, np.maximum(lo, -np.pi), 0.0), np.where(revolute, np.minimum(hi, np.pi), 0.0)
+    q = np.stack([np.zeros_like(lo), lo, hi, 0.5 * (lo + hi)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        T = np.asarray(forward(model, model.nominal, jnp.asarray(q)), np.float64)
+        dist = np.linalg.norm(T[:, :3, 3], axis=1)
+    worst = float(np.max(np.where(np.isfinite(dist), dist, np.inf)))
+    if worst <= limit_m:
+        return
+    label, value = max(lengths, key=lambda lv: abs(lv[1]), default=("", 0.0))
+    largest = f"; its largest length is {label} = {value:.4g} m" if label else ""
+    raise BadInputError(f"{where}: the flange lies up to {worst:.4g} m from the base (at zero joints and at the joint "
+                        f"limits), beyond the reach limit of {limit_m:g} m{largest}: kinematic tables are in metres; "
+                        "are these millimetres? (divide by 1000; a genuinely larger machine, e.g. on a long track: "
+                        "raise JCALIB_MAX_REACH_M)")
+
+
+def _check_length(value_m: float, key: str, where: str, limit_m: float | None) -> None:
+    """Refuse a length (m) beyond the reach limit: in kinematic tables that is a unit error (mm as m)."""
+    limit = HARD_LENGTH_LIMIT_M if limit_m is None else limit_m
+    if not abs(value_m) <= limit:
+        raise BadInputError(f"{where}: {key}: {value_m:.4g} m is beyond the reach limit of {limit:g} m: kinematic "
+                            "tables are in metres; are these millimetres? (divide by 1000; a genuinely larger "
+                            "machine, e.g. a long track: raise JCALIB_MAX_REACH_M)")
+
+
+def _check_angle(value_deg: float, key: str, where: str) -> None:
+    if not abs(value_deg) <= MAX_TABLE_ANGLE_DEG:
+        raise BadInputError(f"{where}: {key}: {value_deg:.4g} deg is beyond ±{MAX_TABLE_ANGLE_DEG:g} deg (ten turns); "
+                            "write the angle in degrees")
+
+
 _KEY_HINTS = {"beta_deg": " (beta_deg belongs to the mdh convention: write convention: mdh, or drop it)"}
 
 
@@ -111,7 +164,11 @@ def _number(d: dict, key: str, where: str, hint: str, default: float | None = No
             return default
         raise BadInputError(f"{where}: missing field {key!r}; write {key}: <number> ({hint})")
     v = d[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+    try:
+        finite = not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
+    except OverflowError:  # an integer beyond float
+        finite = False
+    if not finite:
         raise BadInputError(f"{where}: {key}: expected a finite number ({hint}), got {v!r}")
     return float(v)
 
@@ -130,7 +187,8 @@ def _array(d: dict, key: str, shape: tuple, where: str, hint: str) -> np.ndarray
     return arr
 
 
-def _transform(d: dict, key: str, where: str, default_identity: bool = True) -> np.ndarray:
+def _transform(d: dict, key: str, where: str, default_identity: bool = True,
+               limit_m: float | None = None) -> np.ndarray:
     hint = "[[4x4]], a rigid transform [[R, t], [0, 0, 0, 1]] in metres with orthonormal R, det +1"
     if key not in d and default_identity:
         return np.eye(4)
@@ -139,6 +197,7 @@ def _transform(d: dict, key: str, where: str, default_identity: bool = True) -> 
     if (np.max(np.abs(R.T @ R - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0.0
             or np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])) > 0.0):
         raise BadInputError(f"{where}: {key}: not a rigid transform: {np.round(T, 6).tolist()}; write {key}: {hint}")
+    _check_length(float(np.linalg.norm(T[:3, 3])), f"{key} (its translation)", where, limit_m)
     u, _, vt = np.linalg.svd(R)  # the nearest rotation: printed matrices are rounded to ~1e-6
     T[:3, :3] = u @ vt
     return T
@@ -178,6 +237,11 @@ def apply_delta_dh(model: Kinematics, delta: Any, where: str) -> Kinematics:
     for col, key in ((0, "theta"), (1, "d"), (2, "a"), (3, "alpha")):
         if key in delta:
             rows[:, col] = _array(delta, key, (n,), f"{where}: delta_dh", f"[{n} numbers] ({'rad' if key in ('theta', 'alpha') else 'm'})")
+            for x in rows[:, col]:
+                if key in ("theta", "alpha"):
+                    _check_angle(math.degrees(x), f"delta_dh.{key} ({x:.4g} rad)", where)
+                else:  # a UR's delta_d reach hundreds of metres that cancel along parallel axes: no reach limit
+                    _check_length(x, f"delta_dh.{key}", where, None)
     nominal = np.asarray(model.nominal, dtype=np.float64).copy()
     nominal[: 4 * n] += rows.reshape(-1)
     return dataclasses.replace(model, nominal=jnp.asarray(nominal))
@@ -219,6 +283,12 @@ def _joint_common(js: Any, i: int, where: str, allowed: set) -> tuple:
     if lo >= hi:
         raise BadInputError(f"{jwhere}: {key}: lower {lo:g} >= upper {hi:g}; write {key}: [lower, upper] "
                             f"with lower < upper ({unit})")
+    for x in (lo, hi):
+        if joint_type == "revolute":
+            _check_angle(x, key, jwhere)
+        elif not abs(x) * 1e-3 <= MAX_TRAVEL_M:
+            raise BadInputError(f"{jwhere}: {key}: {x:.4g} mm is beyond ±{MAX_TRAVEL_M * 1e3:g} mm; prismatic "
+                                "limits are in millimetres (are these micrometres?)")
     return js["name"], joint_type, sign, lo * scale, hi * scale, jwhere
 
 
@@ -230,23 +300,32 @@ def _joints_list(spec: dict, where: str) -> list:
     return joints
 
 
-def _dh_table(spec: dict, robot: str, convention: str, where: str) -> Kinematics:
+def _dh_table(spec: dict, robot: str, convention: str, where: str, limit_m: float | None) -> Kinematics:
     _check_keys(spec, {"convention", "joints", "base", "flange"}, where, f"the {convention} table")
     allowed = {"name", "type", "a_m", "alpha_deg", "d_m", "theta_deg", "sign", "limits_deg", "limits_mm"}
     allowed |= {"beta_deg"} if convention == "mdh" else set()
-    names, types, signs, lower, upper, rows = [], [], [], [], [], []
+    names, types, signs, lower, upper, rows, lengths = [], [], [], [], [], [], []
     for i, js in enumerate(_joints_list(spec, where)):
         name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed)
         a = _number(js, "a_m", jwhere, "link length, m")
-        alpha = math.radians(_number(js, "alpha_deg", jwhere, "link twist, deg"))
         d = _number(js, "d_m", jwhere, "link offset, m")
-        theta = math.radians(_number(js, "theta_deg", jwhere, "joint angle offset, deg", 0.0))
-        beta = math.radians(_number(js, "beta_deg", jwhere, "Hayati tilt, deg", 0.0))
+        for key, v in (("a_m", a), ("d_m", d)):
+            _check_length(v, key, jwhere, None)
+            lengths.append((f"joint {i + 1} ({name!r}) {key}", v))
+        angles = {k: _number(js, k, jwhere, hint, default) for k, hint, default in (
+            ("alpha_deg", "link twist, deg", None), ("theta_deg", "joint angle offset, deg", 0.0),
+            ("beta_deg", "Hayati tilt, deg", 0.0))}
+        for key, v in angles.items():
+            _check_angle(v, key, jwhere)
+        alpha, theta, beta = (math.radians(angles[k]) for k in ("alpha_deg", "theta_deg", "beta_deg"))
         rows.append([theta, d, a, alpha] if convention == "dh" else [alpha, a, theta, d, beta])
         names.append(name), types.append(joint_type), signs.append(sign), lower.append(lo), upper.append(hi)
-    return make_model(name=robot, convention=convention, joint_types=tuple(types), joint_names=names,
-                 per_joint=rows, sign=signs, lower=lower, upper=upper,
-                 base=_transform(spec, "base", where), flange=_transform(spec, "flange", where), where=where)
+    model = make_model(name=robot, convention=convention, joint_types=tuple(types), joint_names=names,
+                       per_joint=rows, sign=signs, lower=lower, upper=upper,
+                       base=_transform(spec, "base", where, limit_m=limit_m),
+                       flange=_transform(spec, "flange", where, limit_m=limit_m), where=where)
+    _check_reach(model, where, limit_m, lengths)
+    return model
 
 
 def _min_rotation(R_prev: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -260,10 +339,10 @@ def _min_rotation(R_prev: np.ndarray, z: np.ndarray) -> np.ndarray:
     return (np.eye(3) + W + W @ W / (1.0 + c)) @ R_prev
 
 
-def _poe_table(spec: dict, robot: str, where: str) -> Kinematics:
+def _poe_table(spec: dict, robot: str, where: str, limit_m: float | None) -> Kinematics:
     _check_keys(spec, {"convention", "joints", "home"}, where, "the poe table")
     allowed = {"name", "type", "axis", "point_m", "sign", "limits_deg", "limits_mm"}
-    names, types, signs, lower, upper, frames = [], [], [], [], [], []
+    names, types, signs, lower, upper, frames, lengths = [], [], [], [], [], [], []
     R = np.eye(3)
     for i, js in enumerate(_joints_list(spec, where)):
         name, joint_type, sign, lo, hi, jwhere = _joint_common(js, i, where, allowed)
@@ -274,6 +353,8 @@ def _poe_table(spec: dict, robot: str, where: str) -> Kinematics:
             raise BadInputError(f"{jwhere}: axis: expected a unit vector, got {axis.tolist()} (norm {norm:.6g}); "
                                 f"write axis: {fix}")
         point = _array(js, "point_m", (3,), jwhere, "[x, y, z], a point on the axis, base frame at zero joints, m")
+        _check_length(float(np.linalg.norm(point)), "point_m (its distance from the base)", jwhere, None)
+        lengths.append((f"joint {i + 1} ({name!r}) point_m (its distance from the base)", float(np.linalg.norm(point))))
         R = _min_rotation(R, axis / norm)
         F = np.eye(4)
         F[:3, :3], F[:3, 3] = R, point
@@ -284,10 +365,12 @@ def _poe_table(spec: dict, robot: str, where: str) -> Kinematics:
                             f"frame at zero joints (m)")
     like = {"name": robot, "joint_types": tuple(types), "joint_names": names, "sign": signs, "lower": lower,
             "upper": upper, "where": where}
-    return poe_from_frames(like, np.eye(4), np.stack(frames), _transform(spec, "home", where, False))
+    model = poe_from_frames(like, np.eye(4), np.stack(frames), _transform(spec, "home", where, False, limit_m))
+    _check_reach(model, where, limit_m, lengths)
+    return model
 
 
-def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
+def from_spec(spec, robot: str, source: str = "cell", max_length_m: float | None = None) -> Kinematics:
     """Build the kinematics of a cell-spec ``kinematics:`` entry.
 
     Accepts a preset name; ``{"preset": NAME}`` with optional ``"delta_dh": {theta, a, d, alpha}`` (lists of
@@ -301,6 +384,11 @@ def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
     "limits_deg" | "limits_mm"}], "home": [[4x4]]}`` (flange pose at zero joints). ``type`` defaults
     to revolute; a joint moves by ``sign * q`` about/along its axis. A :class:`Kinematics` passes
     through. Tables are named ``robot``, presets ``"<robot> (<model>)"``.
+
+    ``max_length_m`` (m), the reach limit of cell specs (:func:`jcalib.io.schema.common.max_reach_m`), bounds
+    the flange's distance from the base (at zero joints and at the revolute joints' limits) and the base,
+    flange and home translations; None: no reach check. Single lengths are bounded by
+    :data:`HARD_LENGTH_LIMIT_M`, prismatic limits by :data:`MAX_TRAVEL_M`, angles by ten turns.
 
     Raises:
         BadInputError: naming ``source``, the robot, the joint and the field, and what to write.
@@ -319,7 +407,7 @@ def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
         if "delta_dh" in spec:
             model = apply_delta_dh(model, spec["delta_dh"], where)
         if "base" in spec:
-            base = jnp.asarray(_transform(spec, "base", where), dtype=jnp.float64)
+            base = jnp.asarray(_transform(spec, "base", where, limit_m=max_length_m), dtype=jnp.float64)
             model = dataclasses.replace(model, T_base_link0=base @ model.T_base_link0)
         return convert(model, _convention(spec, where)) if "convention" in spec else model
     if "joints" not in spec:
@@ -327,5 +415,5 @@ def from_spec(spec, robot: str, source: str = "cell") -> Kinematics:
                             f"<name> ({', '.join(PRESETS)}) or a dh/mdh/poe table with joints: [...]")
     convention = _convention(spec, where)
     if convention == "poe":
-        return _poe_table(spec, robot, where)
-    return _dh_table(spec, robot, convention, where)
+        return _poe_table(spec, robot, where, max_length_m)
+    return _dh_table(spec, robot, convention, where, max_length_m)

@@ -372,7 +372,9 @@ def _parse_kinematics(entry: dict, where: str, robot: str, base_dir: Path | None
             raise _fail(where + ".calibrate_kinematics", "calibrating kinematics needs the robot's nominal model: "
                                                          "add kinematics: <preset> (or a DH / MDH / POE table)")
         return None, (), None
-    model = kinematic_tables.from_spec(spec, robot, source=where + ".kinematics")
+    from jcalib.io.schema.common import max_reach_m
+
+    model = kinematic_tables.from_spec(spec, robot, source=where + ".kinematics", max_length_m=max_reach_m())
     if which:
         kinematic_models.select(model, list(which), source=where + ".calibrate_kinematics")
     return model, tuple(which or ()), spec

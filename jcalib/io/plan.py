@@ -157,10 +157,11 @@ def save_plan(plan: Plan, path: str | Path) -> Path:
 
 def plan_goals(plan: str | Path | Mapping) -> tuple[tuple[Goal, ...], dict[str, float]]:
     """``(goals, predicted σ per goal text)`` of a goal-driven plan (``jcalib plan --kind optimal``): its
-    ``planner.goals`` and ``planner.predicted``.
+    ``planner.goals`` and ``planner.predicted``. The whole plan is validated (a plan with a bad station is
+    refused here too, not only when a capture reads it).
 
     Raises:
-        BadInputError: unreadable plan, or a plan without goals (made by another planner kind).
+        BadInputError: unreadable or invalid plan, or a plan without goals (made by another planner kind).
     """
     where = "--plan"
     if isinstance(plan, Mapping):
@@ -168,6 +169,7 @@ def plan_goals(plan: str | Path | Mapping) -> tuple[tuple[Goal, ...], dict[str, 
     else:
         where = f"--plan {plan}"
         data = read_document(plan, "plan file", fmt="json")
+    plan_from_json(data, where)
     planner = data.get("planner") if isinstance(data, Mapping) else None
     texts = planner.get("goals") if isinstance(planner, Mapping) else None
     if not isinstance(texts, list) or not texts:
@@ -176,7 +178,11 @@ def plan_goals(plan: str | Path | Mapping) -> tuple[tuple[Goal, ...], dict[str, 
                             "made with `jcalib plan --kind optimal --goal ...`")
     goals = parse_goals(texts, f"{where}: planner.goals")
     predicted: dict[str, float] = {}
-    for text, value in (planner.get("predicted") or {}).items():
+    given = planner.get("predicted") or {}
+    if not isinstance(given, Mapping):
+        raise BadInputError(f"{where}: planner.predicted: expected a mapping of goal -> predicted σ, got "
+                            f"{type(given).__name__}; write the plan again with `jcalib plan --kind optimal`")
+    for text, value in given.items():
         if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
             predicted[str(text)] = float(value)
     return goals, predicted

@@ -65,7 +65,7 @@ from jcalib.io.result_fields import (
     short_repr,
 )
 from jcalib.io.result_entries import KinematicsResult, PointResult, TargetResult, TransformResult
-from jcalib.io.schema.lens import LENS_DIST_NAMES
+from jcalib.io.schema.lens import LENS_DIST_NAMES, dist_problem
 
 __all__ = [
     "CAMERA_MODEL_DIST_NAMES",
@@ -158,6 +158,9 @@ class CameraResult:
         set_(self, "K", K)
         n_dist = len(CAMERA_MODEL_DIST_NAMES[self.model])
         set_(self, "dist", field_array(self.dist, (n_dist,), f"dist (model {self.model!r})"))
+        why = dist_problem(self.model, self.dist)
+        if why:
+            raise field_fail("dist", why)
         if self.skew is None:
             set_(self, "skew", bool(K[0, 1] != 0.0))
         elif not isinstance(self.skew, bool):

@@ -19,6 +19,7 @@ from jcalib.problems.kinematics import forward_batch
 from jcalib.geometry.cameras import AbstractCameraModel
 from jcalib.problems.build import CORNER_KINDS, Built, kinematic_prior_sigma, se3_matrix
 from jcalib.problems.graph import FREE, Graph
+from jcalib.problems.outcome import outcome_warnings
 from jcalib.problems.refine import Refined, residuals
 from jcalib.problems.start import Start
 from jcalib.geometry.se3 import rotation_z_to
@@ -320,6 +321,10 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
                 "(jcalib plan --kind kinematics)")
     warnings += [f"{g.label(rb)} has no observations; its base ({g.base_name(rb)}) is not estimated"
                  for rb in g.robot_names if g.multi and rb not in g.used_robots]
+    measured = int(sum(sol.count.get(gr.name, 0) for gr in built.groups))
+    warnings += outcome_warnings(sol.status.name.lower(), int(sol.iterations), rms, built.sigma,
+                                 max_iterations=int(sol.options.max_iterations), num_measurements=measured,
+                                 num_free=int(sol.num_free))
     num_res = int(sum(np.sum(r.weights[gr.name] > 0) * res[gr.name].shape[1] for gr in built.groups))
     return Calibration(
         cameras=cameras, intrinsics_covariance=intr_cov, transforms=transforms, transform_covariance=tcov,

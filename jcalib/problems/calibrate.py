@@ -369,13 +369,7 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         stats["unobservable_fixed"] = cal.unobservable_fixed
     if cal.priors:
         stats["priors"] = list(cal.priors)
-    warnings = list(cal.warnings)
-    if cal.rms_px == cal.rms_px and cal.rms_px > 5.0 * options.sigma_px:
-        warnings.append(
-            f"reprojection RMS {cal.rms_px:.3g} px is over 5x the stated corner noise ({options.sigma_px:g} px): the "
-            "lens model is probably too simple for this lens (try a model with more distortion terms, or fisheye), "
-            "detections are wrong, or the robot poses are worse than stated; the reported σ describe noise only, "
-            "not this model error")
+    warnings = list(cal.warnings)  # with the solve's outcome (jcalib.problems.outcome), for every kind of cell
     for tool, how in cal.tool_orientation.items():
         if how == "not calibrated":
             warnings.append(f"tool '{tool}': only its tip (the TCP translation) is calibrated; its orientation is not "

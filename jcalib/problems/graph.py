@@ -24,6 +24,7 @@ import numpy as np
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import kinematic_models
 from jcalib.problems.kinematics import Selection, forward_batch, repeatability_sqrt_info, select_parameters
+from jcalib.problems.joint_check import check_joint_units, check_joints_against_poses
 from jcalib.io.cell import CellSpec
 from jcalib.io.observations import Observations
 
@@ -344,6 +345,7 @@ class Graph:
                 if mask[k]:
                     T[k] = np.asarray(self.station_pose(station, r), np.float64)
             self.flange[r], self.need[r] = T, mask
+            self._check_recorded_joints(r, stations, mask)
             if self.robot_specs[r].calibrate_kinematics:
                 q = [self.station_joints(station, r) if mask[k] else None for k, station in enumerate(stations)]
                 missing = [self.station_ids[k] for k in range(n) if mask[k] and q[k] is None]
@@ -363,6 +365,31 @@ class Graph:
             hc, ht = self.holder(cell.cameras[p.camera]), self.holder(cell.targets[p.target])
             if hc == ht and hc != FREE and len(p.views) > 1:
                 self.pairs[key] = _static_view(p)
+
+    def _check_recorded_joints(self, robot: str, stations: list, mask: np.ndarray) -> None:
+        """Stations that record both joints and a flange pose of ``robot`` agree with its nominal kinematics
+        (:mod:`jcalib.problems.joint_check`); a kinematic calibration's joints are not radians."""
+        kin = self.robot_specs[robot].kinematics if robot in self.robot_specs else None
+        if kin is None:
+            return
+        calibrated = bool(self.robot_specs[robot].calibrate_kinematics)
+        ids, qs, Ts = [], [], []
+        for k, station in enumerate(stations):
+            given = station.flange_poses.get(robot) if self.multi or station.flange_poses else station.T_base_flange
+            try:
+                q = self.station_joints(station, robot) if mask[k] else None
+            except BadInputError:
+                if calibrated:  # the joints are used: their error stands
+                    raise
+                q = None  # joints the solve does not use (e.g. another axis count): not checked here
+            if q is not None:
+                ids.append(self.station_ids[k]), qs.append(q), Ts.append(given)
+        have_pose = [i for i, T in enumerate(Ts) if T is not None]
+        check_joints_against_poses(kin, self.label(robot), [ids[i] for i in have_pose],
+                                   np.reshape([qs[i] for i in have_pose], (len(have_pose), kin.num_joints)),
+                                   np.reshape([Ts[i] for i in have_pose], (len(have_pose), 4, 4)), self.obs.source)
+        if calibrated and ids:
+            check_joint_units(kin, self.label(robot), ids, np.stack(qs), self.obs.source)
 
     def _check_station_poses(self, station, need: set) -> None:
         src = self.obs.source

@@ -250,8 +250,6 @@ def calibrate_hand_eye_pairs(
                 f"the residuals contradict the stated noise (variance factor {chi2_stated / dof:.3g}, outside "
                 f"[{lo / dof:.3g}, {hi / dof:.3g}] at 99.9 %): estimated σ {est.rotation_deg:.3g} deg / "
                 f"{est.translation_m:.3g} m vs stated {sig_r_deg:.3g} deg / {sig_t:.3g} m")
-    if cal.status == "max_iterations":
-        warnings.append(f"the solver stopped at its iteration limit ({max_iterations}) before converging")
     motion = analyse_motion(T_bf, frame=mount, pairs="all", rotation_noise_deg=used.rotation_deg)
     check_observable(motion, x_name)
     warnings.extend(w for w in motion.warnings if w not in warnings)

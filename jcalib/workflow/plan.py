@@ -57,9 +57,9 @@ def run_plan(
 
         wanted = parse_goals(goals) if goals else layout.cell.goals
         options = CalibrationOptions() if sigma_px is None else CalibrationOptions(sigma_px=check_sigma_px(sigma_px))
-        planned = plan_optimal(layout, wanted, max_stations or DEFAULT_MAX_STATIONS, options=options,
-                               num_candidates=num_candidates or DEFAULT_CANDIDATES, seed=seed,
-                               amplitude_deg=amplitude_deg)  # fmt: skip
+        planned = plan_optimal(layout, wanted, DEFAULT_MAX_STATIONS if max_stations is None else max_stations,
+                               options=options, seed=seed, amplitude_deg=amplitude_deg,
+                               num_candidates=DEFAULT_CANDIDATES if num_candidates is None else num_candidates)
         write_json_atomic(out, planned.to_json(layout))
         return planned
     planned = plan_cell(layout, kind, num_stations=num_stations, camera=camera, target=target, tool=tool,

@@ -61,9 +61,9 @@ def test_differing_results_exit_1(files, run_cli):
     (("{pinhole}",), "camera models differ"),
     (("{small}",), "image sizes differ"),
     (("{dir}/missing.json",), "missing.json"),
-    (("{a2}", "--grid", "12by9"), "--grid: expected WxH"),
+    (("{a2}", "--grid", "12by9"), "Invalid value for '--grid': expected WxH"),
     (("{a2}", "--camera", "cam9"), "no camera 'cam9'"),
-    (("{a2}", "--distance", "-2"), "distance_m must be a positive"),
+    (("{a2}", "--distance", "-2"), "Invalid value for '--distance'"),
     (("{a2}", "--gird", "12x9"), "No such option"),
     (("{a2}", "--distance", "far"), "Invalid value"),
 ])

@@ -42,6 +42,7 @@ from jcalib.io.export._common import (
     provenance_lines,
 )
 from jcalib.io.result import KinematicsResult, ResultFile, load_result
+from jcalib.io.schema.common import max_reach_m
 
 __all__ = ["CONTROLLER_OFFSET_CONVENTION", "calibrated_model", "kinematics_spec", "kinematics_urdf", "kinematics_yaml",
            "pick_robot", "rpy_from_matrix", "write_kinematics_yaml", "write_urdf"]
@@ -127,7 +128,7 @@ def calibrated_model(k: KinematicsResult, robot: str) -> km.Kinematics:
         BadInputError: as :func:`kinematics_spec`, or an entry whose table does not match its values.
     """
     where = f"result: kinematics.{robot}"
-    model = kt.from_spec(kinematics_spec(k, robot), robot, source="result")
+    model = kt.from_spec(kinematics_spec(k, robot), robot, source="result", max_length_m=max_reach_m())
     n_joint = model.num_params - 12
     if model.convention != k.convention or tuple(model.param_names) != tuple(k.names):
         raise BadInputError(f"{where}: its table describes the parameters {list(model.param_names)} "

@@ -34,7 +34,7 @@ from jcalib.io.schema.common import (
     pose_problem,
     rotation_problem,
 )
-from jcalib.io.schema.lens import LENS_DIST_NAMES
+from jcalib.io.schema.lens import LENS_DIST_NAMES, dist_problem
 
 __all__ = ["CAMERA_MODELS", "DIST_NAMES", "CellDocument", "fixable_names", "validate_cell_document"]
 
@@ -244,6 +244,8 @@ def _check_camera(name: str, cam: dict, problems: list) -> None:
             problems.append((f"{where}.intrinsics.dist", f"model {model} has {n} distortion coefficients "
                              f"({', '.join(DIST_NAMES[model]) or 'none'}), got {len(dist)}; give all of them "
                              "(0.0 where unknown) or choose the model that matches (jcalib never pads or cuts dist)"))
+        elif dist and dist_problem(model, dist):
+            problems.append((f"{where}.intrinsics.dist", dist_problem(model, dist)))
     if cam.get("pose") is not None:
         why = pose_problem(cam["pose"], MAX_CELL_EXTENT_M, "camera position")
         if why:

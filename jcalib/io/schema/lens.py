@@ -6,7 +6,10 @@ checks that the two agree).
 
 from __future__ import annotations
 
-__all__ = ["LENS_DIST_NAMES"]
+import math
+from collections.abc import Sequence
+
+__all__ = ["FOV_X_DEG_RANGE", "LENS_DIST_NAMES", "dist_problem"]
 
 _OPENCV = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
 
@@ -22,3 +25,20 @@ LENS_DIST_NAMES: dict[str, tuple[str, ...]] = {
     "fisheye": ("k1", "k2", "k3", "k4"),
     "splined": ("fov_x_deg",) + tuple(f"s{ax}{j}_{i}" for j in range(13) for i in range(16) for ax in ("u", "v")),
 }
+
+#: A splined camera's ``fov_x_deg`` (the spline's horizontal extent): a real lens's field of view, above 0
+#: and at most the 350° that :func:`jcalib.geometry.cameras.splined.fov_covering` gives the widest fisheye
+#: (the stereographic plane ends at 360°).
+FOV_X_DEG_RANGE = (0.0, 350.0)
+
+
+def dist_problem(model: str, dist: Sequence[float]) -> str | None:
+    """Why ``dist`` of a ``model`` camera is not physical (None if it is): a ``splined`` camera's ``fov_x_deg``
+    (``dist[0]``) outside :data:`FOV_X_DEG_RANGE`."""
+    if model == "splined" and len(dist) > 0:
+        lo, hi = FOV_X_DEG_RANGE
+        fov = float(dist[0])
+        if not (math.isfinite(fov) and lo < fov <= hi):
+            return (f"fov_x_deg (dist[0] of a splined camera) is {fov:g}; expected a horizontal field of view in "
+                    f"({lo:g}, {hi:g}] degrees")
+    return None
