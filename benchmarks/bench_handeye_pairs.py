@@ -39,7 +39,7 @@ RAD2DEG = np.degrees(1.0)
 
 
 def load_camodocal():
-    from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
+    from jcalib.io.importers.opencv_pairs import read_calibrated_transform, read_transform_pairs
 
     T1, T2 = read_transform_pairs(REAL / "TransformPairsInput.yml")
     return T1, T2, read_calibrated_transform(REAL / "CalibratedTransform.yml")

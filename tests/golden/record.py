@@ -297,7 +297,7 @@ def preset_cases() -> dict:
             "p_flange_tip": res.p_flange_tip, "p_base_pivot": res.p_base_pivot, "covariance": res.covariance,
             "rms": res.rms, "status": res.status}}
 
-    from jcalib.io.camodocal import read_transform_pairs
+    from jcalib.io.importers.opencv_pairs import read_transform_pairs
     from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 
     T1, T2 = read_transform_pairs(REAL / "handeye_camodocal_example" / "TransformPairsInput.yml")

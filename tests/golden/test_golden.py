@@ -163,7 +163,7 @@ def test_pivot_matches_golden(serial):
 
 
 def test_pose_pairs_match_golden():
-    from jcalib.io.camodocal import read_transform_pairs
+    from jcalib.io.importers.opencv_pairs import read_transform_pairs
     from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 
     g = _case("pairs_camodocal")["outputs"]

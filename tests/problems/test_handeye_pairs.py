@@ -8,7 +8,7 @@ from scipy.stats import chi2
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry import lie
-from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
+from jcalib.io.importers.opencv_pairs import read_calibrated_transform, read_transform_pairs
 from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 
 N_STATIONS = 12

@@ -1,8 +1,9 @@
 """OpenCV ``FileStorage`` pose-pair files (camodocal's ``TransformPairsInput.yml``) -> session of pose pairs.
 
-Layout (``jhu-lcsr/handeye_calib_camodocal``, as :mod:`jcalib.io.camodocal` describes it): ``frameCount``
-and, per pair ``i``, ``T1_i`` and ``T2_i`` (4x4 ``!!opencv-matrix``, metres). A ``CalibratedTransform.yml``
-beside it (the tool's answer) is recorded in ``session.json`` (``imported_from.reference``), not used.
+Layout (``jhu-lcsr/handeye_calib_camodocal``): ``frameCount`` and, per pair ``i``, ``T1_i`` and ``T2_i`` (4x4
+``!!opencv-matrix``, metres). A ``CalibratedTransform.yml`` beside it (the tool's answer, e.g.
+``ArmTipToMarkerTagTransform``) is recorded in ``session.json`` (``imported_from.reference``), not used.
+:func:`read_transform_pairs` and :func:`read_calibrated_transform` give the arrays to scripts and tests.
 
 Conventions (camodocal's ROS node): ``T1_i`` is the pose of the robot's end effector in its base
 (``p_base = T1 p_ee``) = ``T_base_flange``; ``T2_i`` is the pose of the tracked marker in the camera
@@ -139,6 +140,28 @@ def read_pairs(folder: SourceFolder, path: Path) -> tuple[list[np.ndarray], list
     finally:
         fs.release()
     return T1, T2
+
+
+def read_transform_pairs(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """``(T1 (N, 4, 4), T2 (N, 4, 4))`` of a camodocal ``TransformPairsInput.yml`` (metres), read with every
+    check of :func:`read_pairs` (the one reader of the format; for scripts and tests that want the arrays)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInputError(f"{path}: no such file (expected a camodocal TransformPairsInput.yml)")
+    T1, T2 = read_pairs(SourceFolder(path.parent, FORMAT), path)
+    return np.stack(T1), np.stack(T2)
+
+
+def read_calibrated_transform(path: str | os.PathLike, key: str = "ArmTipToMarkerTagTransform") -> np.ndarray:
+    """The ``(4, 4)`` transform ``key`` of a camodocal ``CalibratedTransform.yml`` (metres)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInputError(f"{path}: no such file (expected a camodocal CalibratedTransform.yml)")
+    fs = _storage(SourceFolder(path.parent, FORMAT), path, f"{FORMAT}: calibrated transform")
+    try:
+        return _matrix(fs, key, path)
+    finally:
+        fs.release()
 
 
 def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: str | None = None, **options: Any):
