@@ -22,7 +22,7 @@ from jcalib.errors import BadInputError
 
 def test_device_urls_are_checked():
     with pytest.raises(BadInputError, match="kuka://"):
-        open_robot("ur://10.0.0.1")
+        open_robot("fanuc://127.0.0.1")
     with pytest.raises(BadInputError, match="port must be a number"):
         open_robot("abb://127.0.0.1:x")
     with pytest.raises(BadInputError, match="gige://"):

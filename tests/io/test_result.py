@@ -135,6 +135,8 @@ def _results(draw) -> dict:
             "K": [[fx, skew, draw(_finite)], [0.0, fy, draw(_finite)], [0.0, 0.0, 1.0]],
             "dist": draw(st.lists(st.floats(-10, 10, allow_nan=False), min_size=n, max_size=n)),
         }
+        if model == "splined":  # dist[0] is its horizontal field of view, in (0, 350] degrees
+            cam["dist"][0] = draw(st.floats(1.0, 350.0))
         if skew != 0.0:
             cam["skew"] = True
         p = 4 + (skew != 0.0) + n
