@@ -690,6 +690,18 @@ def ui(
         raise typer.Exit(code)
 
 
+@app.command()
+def schema(
+    name: Annotated[str, typer.Argument(help="cell, observations, result, session, station (a stations.jsonl line), "
+                                             "plan or exclusions.")],
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Write it to FILE instead of stdout.")] = None,
+) -> None:
+    """Print the JSON Schema (draft 2020-12) of a file format, for editors and validators."""
+    from jcalib.io.schema.export import schema_command
+
+    schema_command(name, out)
+
+
 def _register_study() -> None:
     from jcalib.app.study import study_command
 

@@ -27,7 +27,7 @@ import unicodedata
 from collections.abc import Iterable
 from typing import Annotated, Any
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstraints, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
 from jcalib.errors import BadInputError
@@ -36,10 +36,15 @@ __all__ = [
     "FORBIDDEN_NAME_CHARACTERS",
     "Closed",
     "Int",
+    "NAME_PATTERN",
+    "NUMERIC_TEXT_PATTERN",
     "Name",
+    "NameText",
     "Num",
+    "NumericText",
     "Open",
     "SchemaError",
+    "StationId",
     "YNum",
     "check_name",
     "did_you_mean",
@@ -148,10 +153,15 @@ def _station_id(value: Any) -> Any:
     return _name(value)
 
 
+#: What a JSON Schema can say of a name (the published schemas, :mod:`jcalib.io.schema.export`): 1 to 64
+#: characters, no control characters or :data:`FORBIDDEN_NAME_CHARACTERS`, no spaces around it, not starting
+#: with '.' (:func:`check_name` also refuses other Unicode separators and format characters).
+NAME_PATTERN = r"""^(?![.\s])(?!.*\s$)[^\x00-\x1f\x7f/\\\[\]"'`]+$"""
+NameText = Annotated[str, StringConstraints(min_length=1, max_length=_MAX_NAME, pattern=NAME_PATTERN)]
 #: A name (camera, target, tool, point, robot id): see the module docstring.
-Name = Annotated[str, BeforeValidator(_name)]
+Name = Annotated[str, BeforeValidator(_name, json_schema_input_type=NameText)]
 #: A station id: a name, or an integer (read as its decimal text).
-StationId = Annotated[str, BeforeValidator(_station_id)]
+StationId = Annotated[str, BeforeValidator(_station_id, json_schema_input_type=NameText | int)]
 
 # ---------------------------------------------------------------------------------------- numbers
 
@@ -166,8 +176,12 @@ def yaml_number(value: Any) -> Any:
     return value
 
 
+#: A number written as text in a YAML file (what :func:`yaml_number` reads), for the published schemas.
+NUMERIC_TEXT_PATTERN = r"^\s*" + _NUMERIC_TEXT.pattern + r"\s*$"
+NumericText = Annotated[str, StringConstraints(pattern=NUMERIC_TEXT_PATTERN)]
 #: A finite number in a YAML file: also a number written as text (``1e-4`` is a string in YAML 1.1).
-YNum = Annotated[float, BeforeValidator(yaml_number), Field(strict=True, allow_inf_nan=False)]
+YNum = Annotated[float, BeforeValidator(yaml_number, json_schema_input_type=float | NumericText),
+                 Field(strict=True, allow_inf_nan=False)]
 #: An integer (not bool, not float).
 Int = Annotated[int, Field(strict=True)]
 

@@ -20,10 +20,12 @@ import re
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BeforeValidator, Field, model_validator
+from pydantic import BeforeValidator, Field, StringConstraints, model_validator
 from pydantic_core import PydanticCustomError
 
-from jcalib.io.schema.base import Closed, Int, Name, SchemaError, YNum, did_you_mean, format_value, validate
+from jcalib.io.schema.base import (
+    Closed, Int, Name, NumericText, SchemaError, YNum, did_you_mean, format_value, validate,
+)
 from jcalib.io.schema.common import (
     MAX_CELL_EXTENT_M,
     MAX_TARGET_PITCH_M,
@@ -105,54 +107,81 @@ def _kinematics(value: Any) -> Any:
                   f"got {format_value(value)}")
 
 
-Setting = Annotated[Any, BeforeValidator(_setting)]
-GenICamName = Annotated[str, BeforeValidator(_genicam_name)]
-PositiveOrVec3 = Annotated[Any, BeforeValidator(_positive_or_vec3)]
-Kinematics = Annotated[Any, BeforeValidator(_kinematics)]
+#: What the published JSON Schema says of a kinematics table or a GenICam value (the validators check more).
+_KinematicsInput = Annotated[str, StringConstraints(min_length=1)] | dict[str, Any]
+_PositiveInput = Annotated[float, Field(gt=0)] | NumericText
+Setting = Annotated[Any, BeforeValidator(_setting, json_schema_input_type=float | Annotated[str, StringConstraints(
+    max_length=256)] | bool)]
+GenICamName = Annotated[str, BeforeValidator(_genicam_name, json_schema_input_type=Annotated[
+    str, StringConstraints(pattern="^" + _GENICAM.pattern + "$")])]
+PositiveOrVec3 = Annotated[Any, BeforeValidator(_positive_or_vec3, json_schema_input_type=_PositiveInput | Annotated[
+    list[_PositiveInput], Field(min_length=3, max_length=3)])]
+Kinematics = Annotated[Any, BeforeValidator(_kinematics, json_schema_input_type=_KinematicsInput)]
 Positive = Annotated[YNum, Field(gt=0)]
 GridCount = Annotated[Int, Field(ge=1, le=_MAX_GRID)]
+_POSE = "a 4x4 homogeneous transform, rows of [R | t], translation in m"
+
+
+def _d(text: str, default: Any = ...) -> Any:
+    """A field's description (and default) for the published schema."""
+    return Field(default, description=text)
 
 
 class Intrinsics(Closed):
-    K: YMat3
-    dist: list[YNum] | None = None
+    """Initial (or, with ``fix``, held) intrinsics in OpenCV form, as in the result file."""
+
+    K: YMat3 = _d("camera matrix [[fx, skew, cx], [0, fy, cy], [0, 0, 1]], px")
+    dist: list[YNum] | None = _d("distortion coefficients in OpenCV's order, as many as the model has (never padded)",
+                                 None)
 
 
 class Camera(Closed):
-    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined"]
-    mount: Mount = "free"
-    skew: bool = False
-    fix: list[str] | None = None
-    intrinsics: Intrinsics | None = None
-    pose: YMat4 | None = None
-    robot: Name | None = None
-    settings: dict[GenICamName, Setting] | None = None
+    """A camera: its lens model, where it is mounted, what of it is known."""
+
+    model: Literal["pinhole", "opencv4", "opencv5", "opencv8", "opencv12", "opencv14", "fisheye", "splined"] = _d(
+        "lens model; dist has its coefficients in OpenCV's order")
+    mount: Mount = _d("flange: moves with the robot (unknown T_flange_<camera>); base / world: fixed (unknown "
+                      "T_base_<camera>); free: one unknown pose per view (no robot)", "free")
+    skew: bool = _d("estimate a skew (alpha for fisheye) intrinsic", False)
+    fix: list[str] | None = _d("intrinsic names held at their value in intrinsics (e.g. [p1, p2]), or aspect (fx/fy "
+                               "held)", None)
+    intrinsics: Intrinsics | None = _d("initial values of the intrinsics (held where named in fix)", None)
+    pose: YMat4 | None = _d(f"known pose of a fixed camera ({_POSE}); list the camera in fixed to hold it", None)
+    robot: Name | None = _d("the robot whose flange carries the camera (cells with several robots)", None)
+    settings: dict[GenICamName, Setting] | None = _d("GenICam features applied at capture, e.g. {ExposureTime: 5000}",
+                                                      None)
 
 
 class Target(Closed):
-    type: Literal["checkerboard", "charuco", "circles", "aprilgrid", "apriltag", "points"]
-    mount: Mount = "free"
-    pose: YMat4 | None = None
-    robot: Name | None = None
-    warp: bool = False
-    cols: GridCount | None = None
-    rows: GridCount | None = None
-    square: Positive | None = None
-    squares_x: GridCount | None = None
-    squares_y: GridCount | None = None
-    marker: Positive | None = None
-    dictionary: str | None = None
-    legacy: bool | None = None
-    spacing: Positive | None = None
-    asymmetric: bool | None = None
-    diameter: Positive | None = None
-    origin_dot: Literal["top_left", "top_right", "bottom_left", "bottom_right"] | None = None
-    family: Literal["tag16h5", "tag25h9", "tag36h11"] | None = None
-    tag_size: Positive | None = None
-    tag_spacing: Annotated[YNum, Field(gt=0, le=1)] | None = None
-    id: Annotated[Int, Field(ge=0)] | None = None
-    size: Positive | None = None
-    border_bits: Literal[1, 2] | None = None
+    """A calibration target; the grid fields it takes depend on its type (see the reference)."""
+
+    type: Literal["checkerboard", "charuco", "circles", "aprilgrid", "apriltag", "points"] = _d(
+        "kind of target; points: its points come with the observations (observations.targets.<id>.points)")
+    mount: Mount = _d("flange / base / world / free, as for cameras (unknown T_base_<target>, ...)", "free")
+    pose: YMat4 | None = _d(f"known pose of a fixed target ({_POSE}); list it in fixed to hold it", None)
+    robot: Name | None = _d("the robot whose flange carries the target (cells with several robots)", None)
+    warp: bool = _d("estimate the board's non-flatness", False)
+    cols: GridCount | None = _d("inner corners (checkerboard), circles (circles) or tags (aprilgrid) along x", None)
+    rows: GridCount | None = _d("inner corners, circles or tags along y", None)
+    square: Positive | None = _d("square side, m (checkerboard, charuco)", None)
+    squares_x: GridCount | None = _d("squares along x (charuco)", None)
+    squares_y: GridCount | None = _d("squares along y (charuco)", None)
+    marker: Positive | None = _d("ArUco marker side, m (charuco; smaller than square)", None)
+    dictionary: str | None = _d("ArUco dictionary name, e.g. DICT_5X5_100 (charuco)", None)
+    legacy: bool | None = _d("OpenCV's legacy ChArUco layout (charuco)", None)
+    spacing: Positive | None = _d("distance between neighbouring circle centres, m (circles; asymmetric: between "
+                                   "rows)", None)
+    asymmetric: bool | None = _d("an asymmetric circle grid (circles)", None)
+    diameter: Positive | None = _d("circle diameter, m (circles)", None)
+    origin_dot: Literal["top_left", "top_right", "bottom_left", "bottom_right"] | None = _d(
+        "the corner whose circle is printed larger (a modified symmetric circle grid)", None)
+    family: Literal["tag16h5", "tag25h9", "tag36h11"] | None = _d("AprilTag family (aprilgrid, apriltag)", None)
+    tag_size: Positive | None = _d("outer black square of a tag, m (aprilgrid)", None)
+    tag_spacing: Annotated[YNum, Field(gt=0, le=1)] | None = _d("gap between tags / tag_size (aprilgrid, as Kalibr)",
+                                                                None)
+    id: Annotated[Int, Field(ge=0)] | None = _d("tag id (apriltag)", None)
+    size: Positive | None = _d("tag side, m (apriltag; origin at its centre)", None)
+    border_bits: Literal[1, 2] | None = _d("black border width in bits (apriltag)", None)
 
     @model_validator(mode="after")
     def _fields_of_type(self) -> "Target":
@@ -170,39 +199,55 @@ class Target(Closed):
 
 
 class Tool(Closed):
-    observed_by: list[Name] | None = None
-    robot: Name | None = None
-    orientation: YMat3 | None = None
-    axis: YVec3 | None = None
+    """A tool on a robot's flange: its tip is unknown (T_flange_<tool>, the TCP)."""
+
+    observed_by: list[Name] | None = _d("cameras that see the tool tip (tool-tip detections)", None)
+    robot: Name | None = _d("the robot that holds the tool (cells with several robots)", None)
+    orientation: YMat3 | None = _d("known tool orientation (3x3 rotation, flange frame); or axis", None)
+    axis: YVec3 | None = _d("known tool axis direction [x, y, z] in the flange frame; or orientation", None)
 
 
 class Point(Closed):
-    position: YVec3 | None = None
+    """A fixed point of the cell (a divot a tool touches): unknown unless its position is given."""
+
+    position: YVec3 | None = _d("known position [x, y, z], m, in the base frame (world with several robots)", None)
 
 
 class PoseNoise(Closed):
-    translation_m: PositiveOrVec3
-    rotation_deg: PositiveOrVec3
+    """The flange-pose error prior: σ of the robot's reported flange pose."""
+
+    translation_m: PositiveOrVec3 = _d("translation σ, m: one number or [x, y, z]")
+    rotation_deg: PositiveOrVec3 = _d("rotation σ, degrees: one number or [rx, ry, rz]")
 
 
 class Robot(Closed):
-    model: str | None = None
-    pose_noise: PoseNoise | None = None
-    base: YMat4 | None = None
-    kinematics: Kinematics | None = None
-    calibrate_kinematics: list[str] | None = None
+    """A robot: its kinematics preset, pose noise, base pose and kinematic model."""
+
+    model: str | None = _d("kinematics preset name (jcalib.geometry.ROBOT_PRESETS), for planning and simulation",
+                           None)
+    pose_noise: PoseNoise | None = _d("flange-pose error prior; omitted: flange poses are exact", None)
+    base: YMat4 | None = _d(f"known T_world_<robot> ({_POSE}; cells with several robots)", None)
+    kinematics: Kinematics | None = _d("kinematic model: a preset name or a DH / MDH / POE table", None)
+    calibrate_kinematics: list[str] | None = _d("kinematic parameters or groups to estimate, e.g. [joint_offsets, "
+                                                "link_lengths]", None)
 
 
 class CellDocument(Closed):
-    schema_: Literal["jcalib.cell/1"] = Field(alias="schema")
-    cameras: dict[Name, Camera] | None = None
-    targets: dict[Name, Target] | None = None
-    tools: dict[Name, Tool | None] | None = None
-    points: dict[Name, Point | None] | None = None
-    robot: Robot | None = None
-    robots: dict[Name, Robot | None] | None = None
-    fixed: list[str] | None = None
-    goals: list[str] | None = None
+    """A robot cell: what is in it, where it is mounted, what is unknown (cell.yaml)."""
+
+    schema_: Literal["jcalib.cell/1"] = Field(alias="schema", description="format and version: jcalib.cell/1")
+    cameras: dict[Name, Camera] | None = _d("cameras by name", None)
+    targets: dict[Name, Target] | None = _d("calibration targets by name", None)
+    tools: dict[Name, Tool | None] | None = _d("tools by name (unknown TCP T_flange_<tool>); {} for a tool with no "
+                                               "options", None)
+    points: dict[Name, Point | None] | None = _d("fixed cell points by name (e.g. a pivot divot); {} for an unknown "
+                                                 "point", None)
+    robot: Robot | None = _d("the one robot of the cell; or robots", None)
+    robots: dict[Name, Robot | None] | None = _d("several robots by name (the cell's frame is then world); or robot",
+                                                 None)
+    fixed: list[str] | None = _d("names held at their prior value: entities (cam1) or transforms (T_base_cam1)", None)
+    goals: list[str] | None = _d("accuracy goals NAME:QUANTITY<=VALUE (e.g. T_flange_cam0:translation_mm<=0.05) for "
+                                 "station planning and adaptive capture; they do not change a calibration", None)
 
 
 def intrinsic_names(model: str, skew: bool) -> tuple[str, ...]:

@@ -57,23 +57,36 @@ def _joints(value: Any) -> Any:
                f"robot -> list; got {format_value(value)}"})
 
 
+_POSE = "4x4 homogeneous transform, translation in m"
+
+
 class CameraEntry(Closed):
-    image_size: Annotated[list[ImageSide], Field(min_length=2, max_length=2)]
+    """A camera of the observations."""
+
+    image_size: Annotated[list[ImageSide], Field(min_length=2, max_length=2)] = Field(
+        description="[width, height] of the camera's images, px")
 
 
 class TargetEntry(Closed):
-    points: Annotated[list[Vec3], Field(min_length=1)]
+    """A target's points as detected (the target frame)."""
+
+    points: Annotated[list[Vec3], Field(min_length=1)] = Field(
+        description="target points [x, y, z], m, in the target frame; point_index counts into this list")
 
 
 class Detection(Closed):
-    camera: Name
-    target: Name | None = None
-    tool: Name | None = None
-    point_index: list[Int] | None = None
-    pixels: list[Pixel] | None = None
-    pixel: Pixel | None = None
-    axis: Annotated[list[Pixel], Field(min_length=1)] | None = None
-    orientation_ambiguous: bool = False
+    """What one camera saw at one station: target points (target, point_index, pixels) or a tool tip (tool, pixel)."""
+
+    camera: Name = Field(description="the camera")
+    target: Name | None = Field(None, description="the target seen (a target detection)")
+    tool: Name | None = Field(None, description="the tool whose tip is seen (a tool-tip detection)")
+    point_index: list[Int] | None = Field(None, description="indices into the target's points, one per pixel")
+    pixels: list[Pixel] | None = Field(None, description="[u, v] of each detected point, px (OpenCV convention)")
+    pixel: Pixel | None = Field(None, description="[u, v] of the tool tip, px (a tool-tip detection)")
+    axis: Annotated[list[Pixel], Field(min_length=1)] | None = Field(
+        None, description="pixels on the imaged tool axis (a tool-tip detection)")
+    orientation_ambiguous: bool = Field(False, description="the labelling is one of those the board's symmetry "
+                                                           "allows")
 
     @model_validator(mode="after")
     def _kind(self) -> "Detection":
@@ -105,31 +118,48 @@ class Detection(Closed):
 
 
 class Contact(Closed):
-    tool: Name
-    point: Name
+    """The tool tip touches a cell point at this station."""
+
+    tool: Name = Field(description="the tool")
+    point: Name = Field(description="the cell point it touches")
 
 
 class PoseMeasurement(Closed):
-    camera: Name
-    target: Name
-    T_cam_target: Mat4
+    """A 6-DOF pose of a target measured by a camera (or pose sensor)."""
+
+    camera: Name = Field(description="the camera")
+    target: Name = Field(description="the target")
+    T_cam_target: Mat4 = Field(description=f"the target's pose in the camera frame ({_POSE})")
+
+
+#: Joint values as sessions record them, for the published schema (the validator checks finiteness).
+JointValues = list[float] | dict[str, list[float]] | None
 
 
 class Station(Closed):
-    id: StationId
-    T_base_flange: Mat4 | None = None
-    flange_poses: dict[Name, Mat4] | None = None
-    joints_deg: Annotated[Any, BeforeValidator(_joints)] = None
-    detections: list[Detection] | None = None
-    contacts: list[Contact] | None = None
-    poses: list[PoseMeasurement] | None = None
+    """One robot station (or one view without a robot) and what was measured there."""
+
+    id: StationId = Field(description="station id (unique in the file)")
+    T_base_flange: Mat4 | None = Field(None, description=f"the robot's flange pose in its base frame ({_POSE}); "
+                                                         "present when a robot is in the cell")
+    flange_poses: dict[Name, Mat4] | None = Field(None, description="flange pose of each robot by name (cells with "
+                                                                    "several robots)")
+    joints_deg: Annotated[Any, BeforeValidator(_joints, json_schema_input_type=JointValues)] = Field(
+        None, description="joint values, degrees (prismatic axes mm): a list, or robot -> list")
+    detections: list[Detection] | None = Field(None, description="what the cameras detected")
+    contacts: list[Contact] | None = Field(None, description="tool-tip contacts with cell points")
+    poses: list[PoseMeasurement] | None = Field(None, description="6-DOF pose measurements")
 
 
 class ObservationsDocument(Closed):
-    schema_: Literal["jcalib.observations/1"] = Field(alias="schema")
-    cameras: dict[Name, CameraEntry] | None = None
-    targets: dict[Name, TargetEntry] | None = None
-    stations: list[Station] | None = None
+    """What the vision layer produces and the calibration consumes (observations.json); metres, pixels in
+    OpenCV convention."""
+
+    schema_: Literal["jcalib.observations/1"] = Field(alias="schema",
+                                                      description="format and version: jcalib.observations/1")
+    cameras: dict[Name, CameraEntry] | None = Field(None, description="cameras by name, with their image size")
+    targets: dict[Name, TargetEntry] | None = Field(None, description="targets by name, with their points")
+    stations: list[Station] | None = Field(None, description="the stations, in capture order")
 
 
 def station_label(data: Any, path: str) -> str:

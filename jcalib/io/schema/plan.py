@@ -16,17 +16,24 @@ PlanId = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
 
 
 class PlanStation(Closed):
-    id: PlanId | None = None
-    T_base_flange: YMat4
-    move: Literal["joint", "linear"] = "joint"
-    joints_deg: Annotated[list[YNum], Field(min_length=1, max_length=32)] | None = None  # controller units (deg, mm)
+    """One station to visit."""
+
+    id: PlanId | None = Field(None, description="station id (letters, digits, '_', '.', '-')")
+    T_base_flange: YMat4 = Field(description="the flange pose to reach, in the robot's base frame (4x4 homogeneous "
+                                             "transform, translation in m)")
+    move: Literal["joint", "linear"] = Field("joint", description="how the robot moves there")
+    joints_deg: Annotated[list[YNum], Field(min_length=1, max_length=32)] | None = Field(
+        None, description="joint values in controller units (degrees; prismatic axes mm)")
 
 
 class PlanDocument(Closed):
-    schema_: Literal["jcalib.plan/1"] = Field(alias="schema")
-    stations: Annotated[list[PlanStation], Field(min_length=1)]
-    digest: str | None = None  # a session's copy of its plan
-    planner: Any = None  # what jcalib plan planned for (kind, robot, camera, ...; a list when plans are joined)
+    """A station plan (jcalib plan -o PLAN, jcalib capture --plan PLAN): flange poses to visit, in order."""
+
+    schema_: Literal["jcalib.plan/1"] = Field(alias="schema", description="format and version: jcalib.plan/1")
+    stations: Annotated[list[PlanStation], Field(min_length=1)] = Field(description="the stations, in visiting order")
+    digest: str | None = Field(None, description="digest of the plan (a session's copy of its plan)")
+    planner: Any = Field(None, description="what jcalib plan planned for (kind, robot, camera, ...; a list when "
+                                           "plans are joined)")
 
 
 def _station_label(data: Any, path: str) -> str:

@@ -12,7 +12,7 @@ from pathlib import PurePosixPath
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BeforeValidator, Field
+from pydantic import BeforeValidator, Field, StringConstraints
 from pydantic_core import PydanticCustomError
 
 from jcalib.io.schema.base import Name, Open, SchemaError, StationId, format_value, validate
@@ -46,26 +46,37 @@ def _joints(value: Any) -> Any:
         "why": f"expected joint values (a list of finite numbers, or robot -> list), got {format_value(value)}"})
 
 
-RelativePath = Annotated[str, BeforeValidator(_relative_path)]
+RelativePath = Annotated[str, BeforeValidator(_relative_path, json_schema_input_type=Annotated[
+    str, StringConstraints(min_length=1, pattern=r"^(?!/)(?!.*(^|/)\.\.(/|$))[^\\\x00-\x1f]+$")])]
+#: Joint values as sessions record them, for the published schema (the validator checks finiteness).
+JointValues = list[float] | dict[str, list[float]] | None
+_POSE = "4x4 homogeneous transform, translation in m"
 
 
 class StationRecord(Open):
-    id: StationId
-    T_base_flange: Mat4 | None = None
-    flange_poses: dict[Name, Mat4] | None = None
-    joints_deg: Annotated[Any, BeforeValidator(_joints)] = None
-    time: str | None = None
-    images: dict[Name, RelativePath] | None = None
-    status: str = "ok"
+    """One finished station of a capture session (a line of stations.jsonl)."""
+
+    id: StationId = Field(description="station id")
+    T_base_flange: Mat4 | None = Field(None, description=f"the flange pose in the robot's base frame ({_POSE})")
+    flange_poses: dict[Name, Mat4] | None = Field(None, description="flange pose of each robot by name (several "
+                                                                    "robots)")
+    joints_deg: Annotated[Any, BeforeValidator(_joints, json_schema_input_type=JointValues)] = Field(
+        None, description="joint values, degrees (prismatic axes mm): a list, or robot -> list")
+    time: str | None = Field(None, description="when the station was captured, ISO 8601 UTC")
+    images: dict[Name, RelativePath] | None = Field(None, description="image of each camera, a path inside the "
+                                                                      "session folder (images/<camera>/<station>.png)")
+    status: str = Field("ok", description="ok, or 'skipped: <reason>'")
 
 
 class SessionMeta(Open):
-    schema_: Literal["jcalib.session/1"] = Field(alias="schema")
-    jcalib_version: str | None = None
-    created: str | None = None
-    cell: dict | None = None
-    devices: dict | None = None
-    plan: dict | None = None
+    """A capture session's session.json: what was captured, with what, when."""
+
+    schema_: Literal["jcalib.session/1"] = Field(alias="schema", description="format and version: jcalib.session/1")
+    jcalib_version: str | None = Field(None, description="the jcalib that wrote the session")
+    created: str | None = Field(None, description="creation time, ISO 8601 UTC")
+    cell: dict | None = Field(None, description="the cell spec (jcalib.cell/1) as loaded from cell.yaml")
+    devices: dict | None = Field(None, description="device addresses and settings (robot, cameras)")
+    plan: dict | None = Field(None, description="the station plan (jcalib.plan/1) the capture ran")
 
 
 def validate_session_meta(data: Any, source: str) -> SessionMeta:
