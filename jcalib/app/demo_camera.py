@@ -96,7 +96,8 @@ def run_demo(out_dir: Path, num_views: int = 20, seed: int = 0, console: Console
     z = np.array([(e - t) / s for t, e, s in rows.values()])
     stats = result.file.stats
     console.print(
-        f"reprojection RMS {stats['rms_px']:.3f} px, a-posteriori σ {stats['sigma_px']:.3f} px, "
+        f"reprojection RMS {stats['rms_px']:.3f} px per point ({stats['rms_px_per_coordinate']:.3f} px per coordinate), "
+        f"a-posteriori σ {stats['sigma_px']:.3f} px, "
         f"{stats['iterations']} iterations; max |error/σ| = {np.max(np.abs(z)):.2f} "
         f"(errors consistent with the reported σ when most are below 2)",
         highlight=False,

@@ -352,7 +352,7 @@ def pose_error_table(result, nominal, truth: dict) -> Table:
                 text += f", {np.linalg.norm(r[:, 1]):.4f} deg"
             cells.append(text + (f" (max {max(z):.1f} σ)" if z else ""))
         table.add_row(key, *cells)
-    table.add_row("rms reprojection", *(f"{r.stats.get('rms_px', float('nan')):.3f} px" for r in (result, nominal)))
+    table.add_row("rms reprojection per point", *(f"{r.stats.get('rms_px', float('nan')):.3f} px" for r in (result, nominal)))
     return table
 
 

@@ -124,8 +124,9 @@ class RobotSpec:
     ``name``: the key under ``robots:`` (None for ``robot:``); ``base``: optional known
     ``T_world_<name>`` (4, 4), m (several robots only). ``kinematics``: the robot's kinematic model
     (:class:`jcalib.geometry.kinematic_models.Kinematics`, from the spec's ``kinematics:`` preset or
-    table) or None; ``calibrate_kinematics``: the parameter names or groups to estimate (empty: the
-    kinematics is taken as exact)."""
+    table, else from the ``model`` preset when that names a kinematics preset) or None;
+    ``calibrate_kinematics``: the parameter names or groups to estimate (empty: the kinematics is taken as
+    exact); ``kinematics_from_model``: the kinematics is the ``model`` preset (the spec has no ``kinematics:``)."""
 
     model: str | None = None
     pose_noise_translation_m: np.ndarray | None = None  # (3,) per axis
@@ -135,6 +136,7 @@ class RobotSpec:
     kinematics: Any = None
     calibrate_kinematics: tuple[str, ...] = ()
     kinematics_spec: Any = None  # the spec's kinematics: entry as written (preset name or table)
+    kinematics_from_model: bool = False
 
 
 @dataclass(frozen=True)
@@ -321,10 +323,11 @@ def _parse_robot(entry: Any, where: str, name: str | None = None, base_dir: Path
         raise _fail(where + ".model", f"expected a robot preset name, got {model!r}")
     base = _pose(entry["base"], where + ".base") if entry.get("base") is not None else None
     kin, which, kin_spec = _parse_kinematics(entry, where, name or "robot", base_dir)
+    from_model = kin is not None and entry.get("kinematics") is None
     noise = entry.get("pose_noise")
     if noise is None:
         return RobotSpec(model=model, name=name, base=base, kinematics=kin, calibrate_kinematics=which,
-                         kinematics_spec=kin_spec)
+                         kinematics_spec=kin_spec, kinematics_from_model=from_model)
     _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
     if "translation_m" not in noise or "rotation_deg" not in noise:
         raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
@@ -337,6 +340,7 @@ def _parse_robot(entry: Any, where: str, name: str | None = None, base_dir: Path
         kinematics=kin,
         calibrate_kinematics=which,
         kinematics_spec=kin_spec,
+        kinematics_from_model=from_model,
     )
 
 
@@ -360,17 +364,24 @@ def _ur_calibration(spec: Any, where: str, base_dir: Path | None) -> Any:
 
 def _parse_kinematics(entry: dict, where: str, robot: str, base_dir: Path | None = None):
     """``(model or None, names to calibrate, the kinematics entry)`` of a robot entry's ``kinematics:`` and
-    ``calibrate_kinematics:`` (a ``ur_calibration`` file is read into the entry's ``delta_dh``)."""
+    ``calibrate_kinematics:`` (a ``ur_calibration`` file is read into the entry's ``delta_dh``). Without
+    ``kinematics:``, a ``model:`` that names a kinematics preset is the nominal kinematics."""
     from jcalib.geometry import kinematic_models, kinematic_tables
 
     spec, which = _ur_calibration(entry.get("kinematics"), where, base_dir), entry.get("calibrate_kinematics")
     if which is not None and (not isinstance(which, list) or not all(isinstance(n, str) and n for n in which)):
         raise _fail(where + ".calibrate_kinematics", "expected a list of parameter names or groups (e.g. "
                                                      f"[joint_offsets, link_lengths]), got {which!r}")
+    preset = entry.get("model")
+    if spec is None and isinstance(preset, str) and preset in kinematic_models.PRESETS:
+        spec = preset  # the robot's model preset is its nominal kinematics
     if spec is None:
         if which:
-            raise _fail(where + ".calibrate_kinematics", "calibrating kinematics needs the robot's nominal model: "
-                                                         "add kinematics: <preset> (or a DH / MDH / POE table)")
+            named = (f"; its model {preset!r} is not a kinematics preset ({', '.join(kinematic_models.PRESETS)})"
+                     if preset is not None else "")
+            raise _fail(where + ".calibrate_kinematics", "calibrating kinematics needs the robot's nominal model"
+                                                         f"{named}: add kinematics: <preset> (or a DH / MDH / POE "
+                                                         "table), or model: <preset>")
         return None, (), None
     from jcalib.io.schema.common import max_reach_m
 
@@ -608,7 +619,7 @@ def _robot_to_dict(r: RobotSpec) -> dict:
         }
     if r.base is not None:
         robot["base"] = r.base.tolist()
-    if r.kinematics_spec is not None:
+    if r.kinematics_spec is not None and not r.kinematics_from_model:
         robot["kinematics"] = r.kinematics_spec
     if r.calibrate_kinematics:
         robot["calibrate_kinematics"] = list(r.calibrate_kinematics)

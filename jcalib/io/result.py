@@ -24,7 +24,8 @@ Units and conventions (the file states them, readers rely on them):
   them, ``held`` (name -> why it was held), ``controller_offsets`` (joint -> zero offset in the
   controller's units), ``table`` (the model in the cell spec's table form). Only robots whose
   kinematics was calibrated are listed.
-- stats: ``rms_px``, ``num_residuals``, ``sigma_px`` and any further finite JSON values.
+- stats: ``rms_px`` (per point: RMS of the corners' error norms, as OpenCV prints), ``rms_px_per_coordinate``
+  (RMS of the x and y errors, as mrcal prints), ``num_residuals``, ``sigma_px`` and any further finite JSON values.
 - provenance: ``input_hash``, ``jcalib_version``, ``options``, ``created`` (ISO 8601).
 
 Uncertainties are what the solver reports: sampling noise of the observations propagated to the
@@ -370,6 +371,7 @@ def hash_inputs(*inputs: str | os.PathLike | bytes) -> str:
 
 _STAT_CHECKS = {
     "rms_px": lambda v, w: field_float(v, w, minimum=0.0),
+    "rms_px_per_coordinate": lambda v, w: field_float(v, w, minimum=0.0),
     "sigma_px": lambda v, w: field_float(v, w, minimum=0.0),
     "num_residuals": field_count,
 }
@@ -400,7 +402,8 @@ class ResultFile:
         points: point name -> :class:`PointResult`.
         targets: target id -> :class:`TargetResult` (targets whose warp was estimated).
         kinematics: robot name -> :class:`KinematicsResult` (robots whose kinematics was calibrated).
-        stats: ``rms_px`` (pixels), ``num_residuals``, ``sigma_px`` (a-posteriori noise, pixels),
+        stats: ``rms_px`` (pixels, per point), ``rms_px_per_coordinate`` (pixels), ``num_residuals``,
+            ``sigma_px`` (a-posteriori noise per coordinate, pixels),
             and any further JSON values (all finite).
         provenance: :class:`Provenance`, or None when unknown.
         extra: further top-level JSON keys, kept as they are.

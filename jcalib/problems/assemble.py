@@ -45,12 +45,15 @@ class Calibration:
         station_ids: the used stations; ``flange_poses``: robot -> ``{"station_ids", "measured"
             (n, 4, 4), "estimated" (n, 4, 4)}``.
         T_cam_target: station id -> camera id -> ``(4, 4)`` target pose at the estimate, for every view.
-        view_rms_px: ``(camera, station id)`` -> RMS of the view's inlier corners; view_noise: ``(camera,
+        view_rms_px: ``(camera, station id)`` -> RMS of the view's inlier corners (per point);
+            ``view_rms_px_per_coordinate``: the same per coordinate; view_noise: ``(camera,
             station id)`` -> the view's noise factor on its kind's σ² (:mod:`jcalib.problems.refine`).
         residuals: factor group -> ``(n, m)`` final residuals of its observations (kind's unit);
             weights: factor group -> ``(n,)`` (0 = rejected).
         rms: kind (``corner``, ``tip``, ``axis``, ``contact``, ``pose_rotation``, ``pose_translation``)
-            -> root mean square of its inlier residuals' norms (per point, as OpenCV's RMS); ``sigma_px``:
+            -> root mean square of its inlier residuals' norms (per point, as OpenCV's RMS);
+            ``rms_per_coordinate``: the same kinds, RMS of the residuals' coordinates (per coordinate, as mrcal
+            prints: ``per point / √2`` for 2-D residuals when x and y errors are alike); ``sigma_px``:
             a-posteriori corner noise per coordinate.
         outliers, reseeded_views, variance_components, robot (robot -> accuracy statistics with the
             pose model), warnings, start (transform -> closed-form start), start_method, inits and
@@ -107,11 +110,20 @@ class Calibration:
     covariance_noise: str = "a_posteriori"
     kinematics: dict[str, dict] = field(default_factory=dict)
     prediction: dict | None = None
+    rms_per_coordinate: dict[str, float] = field(default_factory=dict)
+    view_rms_px_per_coordinate: dict[tuple[str, str], float] = field(default_factory=dict)
 
     @property
     def rms_px(self) -> float:
         """RMS of the inlier corners' reprojection error norms (pixels, OpenCV's RMS), nan without corners."""
         return self.rms.get("corner", self.rms.get("corner_mean", float("nan")))
+
+    @property
+    def rms_px_per_coordinate(self) -> float:
+        """RMS of the inlier corners' reprojection error coordinates (pixels, mrcal's RMS: over x and y
+        separately, from the residuals), nan without corners."""
+        c = self.rms_per_coordinate
+        return c.get("corner", c.get("corner_mean", float("nan")))
 
     @property
     def reference_camera(self) -> str:
@@ -275,10 +287,15 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
     view_rms: dict[tuple[str, str], float] = {}
     view_noise: dict[tuple[str, str], float] = {}
     rms: dict[str, float] = {}
+    rms_coordinate: dict[str, float] = {}
+    view_rms_coordinate: dict[tuple[str, str], float] = {}
     sq: dict[str, list] = {}
     for gr in built.groups:
         w = r.weights[gr.name] > 0
         sq.setdefault(gr.kind, []).append(np.sum(res[gr.name][w] ** 2, axis=1))
+        coordinates = res[gr.name][w].size
+        rms_coordinate[gr.kind] = rms_coordinate.get(gr.kind, 0.0) + float(np.sum(res[gr.name][w] ** 2))
+        rms_coordinate[f"{gr.kind}#"] = rms_coordinate.get(f"{gr.kind}#", 0.0) + coordinates
         if gr.name in r.views:
             for k, f in zip(gr.stations, r.views[gr.name]):
                 view_noise[(gr.key[0], g.station_ids[int(k)])] = float(f)
@@ -294,10 +311,14 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         for k, T in zip(ks, T_ct):
             sid = g.station_ids[k]
             view_rms[(c, sid)] = float(np.sqrt(total[k] / max(count[k], 1.0))) if count[k] else 0.0
+            view_rms_coordinate[(c, sid)] = (float(np.sqrt(total[k] / (count[k] * res[gr.name].shape[1])))
+                                             if count[k] else 0.0)
             T_cam_target.setdefault(sid, {})[c] = T
     for kind, parts in sq.items():
         a = np.concatenate([p.reshape(-1) for p in parts])
         rms[kind] = float(np.sqrt(np.mean(a))) if a.size else float("nan")
+    rms_coordinate = {k: float(np.sqrt(v / rms_coordinate[f"{k}#"])) if rms_coordinate[f"{k}#"] else float("nan")
+                      for k, v in rms_coordinate.items() if not k.endswith("#")}
     corner_factor = r.components.get("corner", sol.sigma2 if r.cov_noise == "a_posteriori" else 1.0)
     if r.cov_noise == "stated" and "corner" not in r.components and g.pairs:
         corner_factor = 1.0
@@ -332,7 +353,7 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         point_covariance=point_cov, warps=warps, warp_covariance=warp_cov, frame=g.frame,
         station_ids=list(g.station_ids), flange_poses=flange,
         T_cam_target=T_cam_target, view_rms_px=view_rms, view_noise=view_noise, residuals=res, weights=r.weights,
-        rms=rms,
+        rms=rms, rms_per_coordinate=rms_coordinate, view_rms_px_per_coordinate=view_rms_coordinate,
         sigma_px=float(np.sqrt(corner_factor)) * built.sigma["corner"], outliers=r.outliers,
         reseeded_views=r.reseeded, variance_components=r.components, robot=robot, warnings=warnings,
         start={n: start.known[n] for n in built.transforms if n in start.known},

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.io.cell import CellSpec, cell_to_dict
+from jcalib.io.cell import CellSpec, RobotSpec, cell_to_dict
 from jcalib.io.observations import Observations
 from jcalib.geometry import kinematic_models, kinematic_tables
 from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Provenance, ResultFile, TargetResult,
@@ -107,6 +107,16 @@ def options_and_given(options) -> tuple[CalibrationOptions, set[str]]:
     raise BadInputError(f"options: got {type(options).__name__}, expected CalibrationOptions or a dict of its fields")
 
 
+def tracked_tools(cell: CellSpec) -> CellSpec:
+    """A cell with tools and no robot as the cell with ``robot: {}``: each tool is a tracked tool (a pointer
+    with a marker body, e.g. for pivot calibration with an optical tracker), its "flange" the tracked
+    body, whose pose in the tracker ("base") frame every station gives as ``T_base_flange`` (taken as
+    exact, as a robot without ``pose_noise``). Other cells unchanged."""
+    if cell.tools and cell.robot is None and not cell.robots:
+        return replace(cell, robot=RobotSpec())
+    return cell
+
+
 def _priors(prior, names, graph: Graph, start: Start) -> dict:
     """Gaussian priors (mean, sqrt information) from an old result on the unknowns ``names`` (all: None)."""
     out = {}
@@ -138,8 +148,7 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
-    if cell.tools and cell.robot is None and not cell.robots:  # before the graph, which puts tools on a flange
-        raise BadInputError(f"{cell.source}: tools need a robot (their TCP is on its flange); add robot: {{}}")
+    cell = tracked_tools(cell)
     g = Graph(cell, obs, options.reference_camera)
     check_applicable(options, g, set(given or ()))
     pose_model = {r: g.has_noise(r) if options.pose_model is None else bool(options.pose_model) for r in g.used_robots}
@@ -340,18 +349,22 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         "num_outliers": len(cal.outliers),
     }
     if cal.rms_px == cal.rms_px:  # cells calibrated by contacts or poses alone have no corners
-        stats.update(rms_px=cal.rms_px, sigma_px=cal.sigma_px)
+        stats.update(rms_px=cal.rms_px, rms_px_per_coordinate=cal.rms_px_per_coordinate, sigma_px=cal.sigma_px)
     for kind, key, scale in (("tip", "tip_rms_px", 1.0), ("axis", "axis_rms_px", 1.0), ("contact", "contact_rms_m", 1.0),
                              ("pose_rotation", "pose_rms_deg", float(np.degrees(1.0))),
                              ("pose_translation", "pose_rms_m", 1.0)):
         if kind in cal.rms and cal.rms[kind] == cal.rms[kind]:
             stats[key] = cal.rms[kind] * scale
+    tip = cal.rms_per_coordinate.get("tip")
+    if tip is not None and np.isfinite(tip):
+        stats["tip_rms_px_per_coordinate"] = tip
     if cal.sigma2 == cal.sigma2:
         stats["variance_factor"] = cal.sigma2
     if cal.variance_components:
         stats["variance_components"] = {k: float(v) for k, v in cal.variance_components.items()}
     if cal.view_rms_px:
         stats["view_rms_px"] = {f"{c}/{s}": v for (c, s), v in cal.view_rms_px.items()}
+        stats["view_rms_px_per_coordinate"] = {f"{c}/{s}": v for (c, s), v in cal.view_rms_px_per_coordinate.items()}
     if cal.view_noise:
         stats["view_noise_factor"] = {f"{c}/{s}": v for (c, s), v in cal.view_noise.items()}
     if cal.graph is not None and cal.graph.has_robot:
@@ -377,6 +390,9 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
                             "exporting the tool to a controller")
     if warnings:
         stats["warnings"] = warnings
+    notes = kinematics_notes(cal.graph)
+    if notes:
+        stats["notes"] = notes
     stats.update(extra_stats or {})
     extra: dict[str, Any] = {}
     jc = cal.joint_covariance
@@ -391,6 +407,24 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
     kinematics = {r: kinematics_result(k) for r, k in cal.kinematics.items()}
     return ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
                       provenance=provenance, extra=extra, kinematics=kinematics)
+
+
+def kinematics_notes(g: Graph | None) -> list[str]:
+    """One note per used robot whose nominal kinematics is its ``model`` preset (no ``kinematics:`` in the
+    cell) where the solve used it: kinematics calibrated, or a station's flange pose from its joints."""
+    if g is None:
+        return []
+    notes = []
+    for r in g.used_robots:
+        spec = g.robot_specs[r]
+        if spec is None or not spec.kinematics_from_model:
+            continue
+        from_joints = any((st.flange_poses.get(r) if g.multi or st.flange_poses else st.T_base_flange) is None
+                          for st in g.obs.stations)
+        if spec.calibrate_kinematics or from_joints:
+            notes.append(f"nominal kinematics: {g.label(r)}'s model preset {spec.model} (the cell has no "
+                         "kinematics:; write kinematics: <preset or table> to use another)")
+    return notes
 
 
 def kinematics_result(k: dict) -> KinematicsResult:

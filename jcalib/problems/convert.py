@@ -26,6 +26,8 @@ import numpy as np
 
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import camera_model_from_name
+from jcalib.geometry.cameras.splined import GRID as SPLINE_GRID
+from jcalib.problems.build import SPLINE_PRIOR_SIGMA
 from jcalib.solve import Euclidean, FactorGroup, Problem, SolveOptions, Variable, solve
 
 __all__ = ["Conversion", "convert_camera"]
@@ -86,12 +88,31 @@ def _region(source, region) -> tuple[float, float, float, float]:
     return (x0, y0, x1, y1)
 
 
-def _start(source, target_name: str, skew: bool):
+def _start(source, target_name: str, skew: bool, rays: np.ndarray):
+    """The target's parameter names and start: the source's ``fx, fy, cx, cy``, no distortion; a splined
+    target's extent (``fov_x_deg``) covers the stereographic image of ``rays`` ``(n, 3)`` with a margin."""
     K = np.asarray(source.K, np.float64)
     names = camera_model_from_name(target_name, source.image_size, skew=skew).param_names
     start = np.zeros(len(names))
     start[:4] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
+    if "fov_x_deg" in names:
+        u = 2.0 * rays[:, :2] / (np.linalg.norm(rays, axis=1) + rays[:, 2])[:, None]
+        U = 1.25 * max(np.max(np.abs(u[:, 0])), np.max(np.abs(u[:, 1])) * (SPLINE_GRID[0] - 3) / (SPLINE_GRID[1] - 3))
+        start[names.index("fov_x_deg")] = min(np.degrees(4.0 * np.arctan(U / 2.0)), 350.0)
     return names, start
+
+
+def _spline_prior(names, start) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A splined target's prior (the calibration's, :data:`~jcalib.problems.build.SPLINE_PRIOR_SIGMA` on
+    each spline value, towards 0) as ``(mean (p,), sqrt_info (p, p), held (p,))``: it decides the control
+    points no sample ray reaches and the spline's trade-off with the core; ``fov_x_deg`` (configuration)
+    is held. Without a spline: no prior, nothing held."""
+    p = len(names)
+    if "fov_x_deg" not in names:
+        return start, np.zeros((p, p)), np.zeros(p, bool)
+    spline = np.arange(p) > names.index("fov_x_deg")
+    return np.where(spline, 0.0, start), np.diag(np.where(spline, 1.0 / SPLINE_PRIOR_SIGMA, 0.0)), \
+        np.arange(p) == names.index("fov_x_deg")
 
 
 def convert_camera(source, to: str, covariance: np.ndarray | None = None, region=None,
@@ -117,14 +138,16 @@ def convert_camera(source, to: str, covariance: np.ndarray | None = None, region
     if nx < 2 or ny < 2:
         raise BadInputError(f"grid: got {grid!r}; expected at least 2 x 2 sample pixels")
     skew = bool(source.has_skew)
-    names, start = _start(source, to, skew)
-    target = camera_model_from_name(to, source.image_size, start, skew=skew)
+    camera_model_from_name(to, source.image_size, skew=skew)  # an unknown model is refused first
     u, v = np.meshgrid(np.linspace(x0, x1, nx), np.linspace(y0, y1, ny))
     pixels = np.stack([u.ravel(), v.ravel()], axis=1)
     rays, ok = source.unproject_valid(jnp.asarray(pixels))
     rays, ok = np.array(rays), np.array(ok)
-    if target.name != "fisheye":
+    if to not in ("fisheye", "splined"):
         ok &= rays[:, 2] > np.cos(np.radians(MAX_PERSPECTIVE_ANGLE_DEG)) * np.linalg.norm(rays, axis=1)
+    names, start = _start(source, to, skew, rays[ok] if ok.any() else np.array([[0.0, 0.0, 1.0]]))
+    target = camera_model_from_name(to, source.image_size, start, skew=skew)
+    prior_mean, prior_S, config = _spline_prior(names, start)
     n = int(ok.sum())
     if n < 2 * len(names):
         raise BadInputError(
@@ -142,10 +165,11 @@ def convert_camera(source, to: str, covariance: np.ndarray | None = None, region
     if unknown:
         raise BadInputError(f"fix: {', '.join(unknown)} are not coefficients of {to} (its coefficients: "
                             f"{', '.join(names[4:]) or 'none'})")
-    held = np.array([n in set(fix) for n in names])
+    held = np.array([n in set(fix) for n in names]) | config
+    prior = {"prior_mean": prior_mean[None, :], "prior_sqrt_info": prior_S} if prior_S.any() else {}
     problem = Problem(
         [Variable("intrinsics", Euclidean(len(names)), start[None, :], fixed=held[None, :], coord_names=list(names),
-                  entry_label=to)],
+                  entry_label=to, **prior)],
         [FactorGroup(f"rays of {source.name}", residual, ("intrinsics",), (np.zeros(n, np.int32),),
                      (rays[ok], pixels[ok]))])
     try:
@@ -174,9 +198,10 @@ def convert_camera(source, to: str, covariance: np.ndarray | None = None, region
             d = src.unproject(jnp.asarray(pixels[ok]))
             return (jax.vmap(model_cls.from_params(size, theta, skew=skew).project)(d) - pixels[ok]).ravel()
 
-        def cost(theta, psi):
+        def cost(theta, psi):  # the fit's cost, with a splined target's prior
             r = fit_residuals(theta, psi)
-            return 0.5 * jnp.dot(r, r)
+            e = jnp.asarray(prior_S) @ (theta - jnp.asarray(prior_mean))
+            return 0.5 * jnp.dot(r, r) + 0.5 * jnp.dot(e, e)
 
         psi = jnp.asarray(source.params)
         # the fit's stationarity ∇θ c(θ*, ψ) = 0, differentiated: the exact Hessian (not Gauss–Newton's

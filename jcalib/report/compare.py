@@ -145,10 +145,6 @@ def _camera(cam: Any, which: str) -> _Camera:
 
 
 def _check_pair(a: _Camera, b: _Camera) -> None:
-    if a.name != b.name:
-        raise BadInputError(
-            f"compare: the camera models differ: A is {a.name!r}, B is {b.name!r}; compare two calibrations "
-            "with the same lens model")
     if a.image_size != b.image_size:
         raise BadInputError(
             f"compare: the image sizes differ: A is {a.image_size[0]}x{a.image_size[1]} px, B is "
@@ -188,7 +184,8 @@ def _check_region(region: Any) -> tuple[float, float, float, float] | None:
 
 
 @functools.cache
-def _difference_jacobian(cls: type, image_size: tuple[int, int], skew_a: bool, skew_b: bool, fit_rotation: bool):
+def _difference_jacobian(cls_a: type, cls_b: type, image_size: tuple[int, int], skew_a: bool, skew_b: bool,
+                         fit_rotation: bool):
     """Compiled ``(θ_a, θ_b, pixels (n, 2), use (n,)) -> (J_a (n,2,p_a), J_b (n,2,p_b)), (d (n,2), valid (n,),
     R_b_a (3,3))``: the difference and its Jacobians w.r.t. both intrinsic vectors."""
     import jax
@@ -200,13 +197,13 @@ def _difference_jacobian(cls: type, image_size: tuple[int, int], skew_a: bool, s
         return so3_to_matrix(so3_exp(omega)) @ R0
 
     def difference(theta_a, theta_b, pixels, use):
-        cam_a = cls.from_params(image_size, theta_a, skew=skew_a)
-        cam_b = cls.from_params(image_size, theta_b, skew=skew_b)
+        cam_a = cls_a.from_params(image_size, theta_a, skew=skew_a)
+        cam_b = cls_b.from_params(image_size, theta_b, skew=skew_b)
         v_a, ok_a = cam_a.unproject_valid(pixels)
         if fit_rotation:
             # Closed-form start (not differentiated): the rotation aligning A's rays with B's (Kabsch).
             v_a0 = jax.lax.stop_gradient(v_a)
-            cam_b0 = cls.from_params(image_size, jax.lax.stop_gradient(theta_b), skew=skew_b)
+            cam_b0 = cls_b.from_params(image_size, jax.lax.stop_gradient(theta_b), skew=skew_b)
             v_b0, ok_b0 = cam_b0.unproject_valid(pixels)
             w0 = (use & ok_a & ok_b0).astype(jnp.float64)
             H = jnp.einsum("n,ni,nj->ij", w0, v_b0, v_a0)
@@ -313,7 +310,8 @@ class Comparison:
 
     Attributes:
         camera: the camera's name (or ``None``).
-        model: lens model name; ``image_size``: ``(width, height)``, px.
+        model: A's lens model name; ``model_b``: B's (another model: compared across lens models);
+        ``image_size``: ``(width, height)``, px.
         grid: ``(nx, ny)`` grid points across the image, edges included.
         pixels: ``(m, 2)`` the compared grid pixels ``q`` (OpenCV convention), px.
         grid_index: ``(m, 2)`` ``(ix, iy)`` of each compared pixel in the grid.
@@ -352,6 +350,12 @@ class Comparison:
     chi2_mean_std: float
     p_local: float
     p_global: float
+    model_b: str | None = None
+
+    @property
+    def models(self) -> str:
+        """``"opencv5"``, or ``"opencv5 → fisheye"`` when A's and B's lens models differ."""
+        return self.model if self.model_b in (None, self.model) else f"{self.model} → {self.model_b}"
 
     # ---------------------------------------------------------------- summary numbers
 
@@ -417,12 +421,15 @@ class Comparison:
         return (f"differ: the difference is larger than the two covariances predict, {kind} ({size}; "
                 f"{self.fraction_flagged:.0%} of the points above the 99 % quantile, largest χ² {self.chi2[k]:.3g} at "
                 f"({qk[0]:.0f}, {qk[1]:.0f}) in the {where_chi2}; p local {self.p_local:.2g}, global "
-                f"{self.p_global:.2g}): model error, a camera that changed, or σ reported too small")
+                f"{self.p_global:.2g}): model error, a camera that changed, or σ reported too small"
+                + (f"; across lens models ({self.models}) this includes what one model cannot represent of the other"
+                   if self.models != self.model else ""))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary and per-point values (px, px², degrees)."""
         return {
-            "camera": self.camera, "model": self.model, "image_size": list(self.image_size),
+            "camera": self.camera, "model": self.model, "model_b": self.model_b or self.model,
+            "image_size": list(self.image_size),
             "grid": list(self.grid), "distance_m": self.distance_m, "fit_rotation": self.fit_rotation,
             "verdict": self.verdict, "message": self.message, "where": self.where,
             "num_points": self.num_points, "num_skipped": self.num_skipped,
@@ -450,7 +457,9 @@ def compare_cameras(a: Any, b: Any, *, grid: tuple[int, int] = DEFAULT_GRID, dis
         a, b: each a :class:`~jcalib.io.result.CameraResult` with a covariance, or a pair ``(model,
             covariance)`` of a :mod:`jcalib.geometry.cameras` model and its ``(p, p)`` intrinsics
             covariance (order ``model.param_names``; None: the model is known exactly, e.g. a ground
-            truth). The same lens model and image size; at least one covariance.
+            truth). The same image size; at least one covariance. The lens models may differ (e.g. an
+            opencv5 and a fisheye calibration of one lens): the difference then includes what one model
+            cannot represent of the other, which no σ predicts.
         grid: ``(nx, ny)`` grid points across the image, edges and corners included.
         distance_m: range of the compared points, m (None: at infinity). Recorded only: with a
             rotation-only fit of central models the comparison is the same at every range.
@@ -464,7 +473,7 @@ def compare_cameras(a: Any, b: Any, *, grid: tuple[int, int] = DEFAULT_GRID, dis
         :class:`Comparison`.
 
     Raises:
-        BadInputError: different lens models or image sizes (naming both), no covariance, a bad grid,
+        BadInputError: different image sizes (naming both), no covariance, a bad grid,
             distance or region, or fewer than 4 grid points where both models are valid.
     """
     import jax.numpy as jnp
@@ -484,7 +493,7 @@ def compare_cameras(a: Any, b: Any, *, grid: tuple[int, int] = DEFAULT_GRID, dis
     if box is not None:
         use = ((pixels[:, 0] >= box[0]) & (pixels[:, 0] <= box[2]) & (pixels[:, 1] >= box[1])
                & (pixels[:, 1] <= box[3]))
-    fn = _difference_jacobian(ca.cls, ca.image_size, ca.skew, cb.skew, bool(fit_rotation))
+    fn = _difference_jacobian(ca.cls, cb.cls, ca.image_size, ca.skew, cb.skew, bool(fit_rotation))
     (Ja, Jb), (d, valid, R) = fn(jnp.asarray(ca.params), jnp.asarray(cb.params), jnp.asarray(pixels),
                                             jnp.asarray(use))
     valid = np.asarray(valid)
@@ -521,7 +530,7 @@ def compare_cameras(a: Any, b: Any, *, grid: tuple[int, int] = DEFAULT_GRID, dis
     angle = float(np.degrees(math.atan2(0.5 * np.linalg.norm(axis), 0.5 * (np.trace(R) - 1.0))))
     grid_index = np.stack([ix.ravel(), iy.ravel()], -1)[valid]
     return Comparison(
-        camera=camera, model=ca.name, image_size=ca.image_size, grid=(nx, ny), pixels=pixels[valid],
+        camera=camera, model=ca.name, model_b=cb.name, image_size=ca.image_size, grid=(nx, ny), pixels=pixels[valid],
         grid_index=grid_index, diff_px=d, covariance_px2=cov, sigma_px=np.sqrt(np.maximum(lam_max, 0.0)),
         chi2=chi2, R_b_a=R, rotation_deg=angle, num_skipped=int(len(pixels) - m),
         distance_m=None if distance_m is None else float(distance_m), fit_rotation=bool(fit_rotation),
@@ -649,7 +658,7 @@ def comparison_table(comparisons: dict[str, Comparison], title: str = "Projectio
         table.add_column(col, justify="left" if col in ("camera", "where", "verdict") else "right")
     for name, c in comparisons.items():
         table.add_row(
-            name, f"{c.num_points}" + (f" (+{c.num_skipped} skipped)" if c.num_skipped else ""),
+            name if c.models == c.model else f"{name} ({c.models})", f"{c.num_points}" + (f" (+{c.num_skipped} skipped)" if c.num_skipped else ""),
             f"{c.rms_px:.3g}", f"{c.max_px:.3g}", c.where, f"{c.sigma_rms_px:.3g}",
             f"{c.chi2_mean:.2f} ({c.chi2_mean_expected:.2f} ± {c.chi2_mean_std:.2f})", f"{c.fraction_flagged:.0%}",
             f"{c.p_local:.2g}", f"{c.p_global:.2g}", f"{c.rotation_deg:.4f}",

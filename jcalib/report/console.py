@@ -132,17 +132,30 @@ def print_result(result: ResultFile, console: Console | None = None, truth=None)
     s = result.stats
     parts = []
     if "rms_px" in s:
-        parts.append(f"RMS {s['rms_px']:.4f} px · a-posteriori σ {s.get('sigma_px', float('nan')):.4f} px")
+        parts.append(f"{rms_text(s)} · a-posteriori σ {s.get('sigma_px', float('nan')):.4f} px per coordinate")
     if "contact_rms_m" in s:
         parts.append(f"contact RMS {s['contact_rms_m'] * 1e3:.4f} mm")
     parts.append(f"{s.get('num_residuals', 0)} residuals · {s.get('iterations', '?')} iterations · "
                  f"status {s.get('status', '?')} · {s.get('num_outliers', 0)} outliers rejected")
     console.print(" · ".join(parts), highlight=False)
+    for label, text in robot_lines(s):
+        console.print(f"{label}: {text}", highlight=False)
     line = prediction_line(s.get("prediction"))
     if line:
         console.print(line, highlight=False)
+    for note in s.get("notes", []):
+        console.print(f"note: {note}", highlight=False)
     for warning in s.get("warnings", []):
         console.print(f"[bold yellow]warning:[/] {warning}", highlight=False)
+
+
+def rms_text(stats: dict, key: str = "rms_px") -> str:
+    """``"RMS 0.2828 px per point (0.2000 px per coordinate)"``: ``stats[key]`` is the RMS of the error norms
+    (per point, as OpenCV prints), ``stats[key + "_per_coordinate"]`` that of the x and y errors (as mrcal
+    prints), when the result holds it."""
+    text = f"RMS {stats[key]:.4f} px per point"
+    per = stats.get(f"{key}_per_coordinate")
+    return text + (f" ({per:.4f} px per coordinate)" if per is not None else "")
 
 
 def prediction_line(pred: dict | None) -> str | None:
@@ -155,3 +168,31 @@ def prediction_line(pred: dict | None) -> str | None:
     at_board = f", {mm:.2f} mm at the target" if mm == mm else ""
     return (f"predicted from the robot's pose, a held-out station's corners land within {pred['rms_px']:.2f} px RMS "
             f"per point{at_board} ({pred['method']}, {pred['stations']} stations)")
+
+
+def robot_lines(stats: dict) -> list[tuple[str, str]]:
+    """``(label, text)`` per robot of ``stats.robot`` (:func:`jcalib.problems.assemble.robot_statistics`): the
+    flange-pose σ the calibration estimated (a posteriori, from the stations' flange corrections) beside the
+    one the cell stated (``pose_noise``); empty without robot statistics."""
+    robots = stats.get("robot") or {}
+    if "prior_sigma_translation_m" in robots:
+        robots = {"": robots}
+
+    def triple(values, scale: float, digits: str) -> str:
+        return " ".join(format(float(v) * scale, digits) for v in np.atleast_1d(np.asarray(values, np.float64)))
+
+    out = []
+    for name, r in robots.items():
+        if not isinstance(r, dict) or "prior_sigma_translation_m" not in r:
+            continue
+        t, rot = r.get("a_posteriori_sigma_translation_m"), r.get("a_posteriori_sigma_rotation_deg")
+        if t is not None and np.all(np.isfinite(np.asarray(t, np.float64))):
+            est = f"x y z {triple(t, 1e3, '.4f')} mm, {triple(rot, 1.0, '.5f')} deg"
+        else:
+            est = "not estimated (no redundancy)"
+        stated = (f"{triple(r['prior_sigma_translation_m'], 1e3, '.4f')} mm, "
+                  f"{triple(r.get('prior_sigma_rotation_deg', [0.0]), 1.0, '.5f')} deg")
+        text = (f"flange-pose σ estimated {est} (a posteriori, from the stations' flange corrections); stated "
+                f"(pose_noise) {stated}")
+        out.append((f"robot accuracy{f' ({name})' if name else ''}", text))
+    return out

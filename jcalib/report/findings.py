@@ -146,13 +146,18 @@ def residual_section(file: ResultFile, cal, diags: Mapping, groups: list, observ
     rows = []
     for name, d in diags.items():
         worst = max(d.view_rms_px.items(), key=lambda kv: kv[1]) if d.view_rms_px else ("–", 0.0)
-        rows.append([f"<code>{esc(name)}</code>", fmt(d.rms_px, 3), f"{esc(worst[0])}: {worst[1]:.3g}",
+        inl = d.residuals[d.inlier]
+        per_coordinate = float(np.sqrt(np.mean(inl**2))) if inl.size else float("nan")
+        rows.append([f"<code>{esc(name)}</code>", fmt(d.rms_px, 3), fmt(per_coordinate, 3),
+                     f"{esc(worst[0])}: {worst[1]:.3g}",
                      esc(len(d.outliers)), f"{d.radial.correlation:+.3f}", f"{d.radial.p_value:.2g}",
                      fmt(d.radial.amplitude_px, 3), "yes" if d.radial.flagged else "no"])
     if rows:
-        out.append(table(["camera", "RMS [px]", "worst view RMS [px]", "rejected", "corr(radial, r)", "radial trend p",
-                          "trend amplitude [px]", "model too simple?"], rows, {1, 3, 4, 5, 6})
-                   + note("RMS of the residual norms per corner (OpenCV's RMS), rejected corners left out. Radial test: "
+        out.append(table(["camera", "RMS per point [px]", "RMS per coordinate [px]", "worst view RMS [px]", "rejected",
+                          "corr(radial, r)", "radial trend p", "trend amplitude [px]", "model too simple?"], rows,
+                         {1, 2, 4, 5, 6, 7})
+                   + note("RMS per point: of the residual norms per corner (OpenCV's RMS); per coordinate: of their x "
+                          "and y components (mrcal's RMS); rejected corners left out. Radial test: "
                           "a cubic in the radius fitted to the radial residuals; p is the F-test p-value against no "
                           "trend. A significant trend larger than half the noise hints at a too-simple lens model."))
     grows = [[f"<code>{esc(s.name)}</code>", esc(s.kind), esc(s.count), esc(s.rejected), fmt(s.rms, 3), fmt(s.max, 3),
@@ -170,7 +175,7 @@ def residual_section(file: ResultFile, cal, diags: Mapping, groups: list, observ
         png, scale = plots.residual_vectors_png(name, cam.image_size, d.pixels, d.residuals)
         out.append(figure(png, f"residual vectors of {name}",
                           f"<code>{esc(name)}</code>: {len(d.pixels)} corners of {len(d.view_rms_px)} views, arrows "
-                          f"magnified {scale:.0f}x, RMS {d.rms_px:.3g} px (rejected corners left out of the RMS, drawn "
+                          f"magnified {scale:.0f}x, RMS {d.rms_px:.3g} px per point (rejected corners left out of the RMS, drawn "
                           "too). Noise looks random; a pattern (swirls, radial flow) is model error."))
         K = np.asarray(cam.K)
         png = plots.radial_residuals_png(name, d.pixels[d.inlier], d.residuals[d.inlier], np.array([K[0, 2], K[1, 2]]))

@@ -70,7 +70,7 @@ def view_rms_png(view_rms_px: Mapping[str, float], sigma_px: float | None = None
         ax.axhline(sigma_px, color="#555", ls="--", lw=1, label=f"a-posteriori σ = {sigma_px:.3g} px")
         ax.legend(loc="upper right", fontsize=8)
     ax.set_ylim(0.0, 1.3 * max(float(values.max()) if values.size else 0.0, sigma_px or 0.0, 1e-9))
-    ax.set_ylabel("RMS [px]")
+    ax.set_ylabel("RMS per point [px]")
     ax.set_title("Reprojection RMS per view (red: over 2x the median)")
     step = max(1, len(names) // 40)
     ax.set_xticks(x[::step])

@@ -41,8 +41,11 @@ def warnings(items: list) -> str:
 
 
 def statistics(stats: Mapping[str, Any]) -> str:
-    labels = [("rms_px", "reprojection RMS", "px"), ("sigma_px", "a-posteriori σ", "px"),
-              ("tip_rms_px", "tool-tip RMS", "px"), ("axis_rms_px", "tool-axis RMS", "px"),
+    labels = [("rms_px", "reprojection RMS per point (error norms, as OpenCV)", "px"),
+              ("rms_px_per_coordinate", "reprojection RMS per coordinate (x and y errors, as mrcal)", "px"),
+              ("sigma_px", "a-posteriori σ per coordinate", "px"),
+              ("tip_rms_px", "tool-tip RMS per point", "px"),
+              ("tip_rms_px_per_coordinate", "tool-tip RMS per coordinate", "px"), ("axis_rms_px", "tool-axis RMS", "px"),
               ("contact_rms_m", "contact RMS", "m"), ("num_residuals", "residuals", ""),
               ("num_outliers", "outliers rejected", ""), ("iterations", "iterations", ""),
               ("status", "solver status", "")]
@@ -62,6 +65,9 @@ def statistics(stats: Mapping[str, Any]) -> str:
         worst = max(views, key=views.get)
         rows.append([esc("view noise σ / kind σ (min – max, noisiest view)"),
                      esc(f"{min(views.values()) ** 0.5:.2f} – {views[worst] ** 0.5:.2f} ({worst})"), ""])
+    from jcalib.report.console import robot_lines
+
+    rows += [[esc(label), esc(text), ""] for label, text in robot_lines(stats)]
     return table(["statistic", "value", "unit"], rows, {1})
 
 
@@ -173,7 +179,8 @@ def view_rms(stats: Mapping[str, Any]) -> str:
     if not stats.get("view_rms_px"):
         return note("The result has no per-view reprojection errors (no target corners).")
     return figure(plots.view_rms_png(stats["view_rms_px"], stats.get("sigma_px")), "per-view RMS",
-                  "RMS of the reprojection residuals of every view (<code>camera/station</code>). A view far "
+                  "RMS per point (of the residual norms) of every view (<code>camera/station</code>); per coordinate "
+                  "it is the same divided by about √2 (<code>stats.view_rms_px_per_coordinate</code>). A view far "
                   "above the rest is a bad detection or a wrong pose start.")
 
 
@@ -255,14 +262,18 @@ def tcps(file: ResultFile, reference: Mapping[str, np.ndarray] | None = None,
     rows = []
     for name in names:
         tr = file.transforms[name]
-        robot = T.robot_covariance(file, (robot_of or {}).get(name))
+        robots = {"": None, " + robot repeatability (stated)": T.robot_covariance(file, (robot_of or {}).get(name)),
+                  " + robot accuracy (a-posteriori estimate)": T.robot_covariance(file, (robot_of or {}).get(name),
+                                                                                  estimate=True)}
         B = np.asarray((reference or {}).get(name, np.eye(4) if ref is None else ref), np.float64)
         rot_known = bool(np.any(np.diag(np.asarray(tr.covariance))[:3] > 0.0))
         for label, p in (("tool tip", np.zeros(3)), (f"gripped point {1e3 * grip[2]:.0f} mm along the tool z", grip)):
-            for with_robot in ((False, True) if robot is not None else (False,)):
-                C = T.gripped_point_covariance(tr, B, p, robot if with_robot else None)
+            for extra, robot in robots.items():
+                if extra and robot is None:
+                    continue
+                C = T.gripped_point_covariance(tr, B, p, robot)
                 s = 1e3 * np.sqrt(np.maximum(np.diag(C), 0.0))
-                what = label + (" + robot repeatability" if with_robot else "")
+                what = label + extra
                 if not rot_known and p.any():
                     what += " (orientation error of the TCP not included: not estimated)"
                 rows.append([f"<code>{esc(name)}</code>", esc(what), vec(s, ".4f"), fmt(float(np.sqrt(np.sum(s**2))), 3)])
@@ -272,7 +283,8 @@ def tcps(file: ResultFile, reference: Mapping[str, np.ndarray] | None = None,
              "at the flange pose <code>" + T.GRIP_REFERENCE_KEY + "</code> of the result" if ref is not None
              else "with the flange axes parallel to the base axes (the result names no reference pose)")
     out.append(note(f"σ per base axis {where}; the total does not depend on the flange orientation. Includes the "
-                    "TCP's calibration uncertainty (and, where named, the robot's stated repeatability at that pose); "
+                    "TCP's calibration uncertainty (and, where named, the robot's flange-pose σ at that pose: as stated "
+                    "in the cell, and as the calibration estimated it from the stations' flange corrections); "
                     "excludes model error (tip-detection bias, robot absolute-accuracy error)."))
     return "<h3>TCP</h3>" + "".join(out)
 

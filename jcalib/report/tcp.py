@@ -143,19 +143,21 @@ def gripped_point_covariance(
     return 0.5 * (C + C.T)
 
 
-def robot_covariance(file: ResultFile, name: str | None = None) -> np.ndarray | None:
+def robot_covariance(file: ResultFile, name: str | None = None, estimate: bool = False) -> np.ndarray | None:
     """``(6, 6)`` flange-pose covariance from the file's robot prior (``stats.robot.prior_sigma_*``; with
     several robots ``stats.robot.<name>``, the only one when ``name`` is None), or None when the file
-    states none."""
+    states none. ``estimate``: from the a-posteriori σ the calibration estimated instead
+    (``stats.robot.a_posteriori_sigma_*``; None when it has none or could not estimate it)."""
     robot = file.stats.get("robot") or {}
     if "prior_sigma_translation_m" not in robot and robot:  # several robots: robot name -> statistics
         if name is None and len(robot) == 1:
             name = next(iter(robot))
         robot = robot.get(name) or {}
-    t = robot.get("prior_sigma_translation_m")
-    if t is None:
+    key = "a_posteriori_sigma" if estimate else "prior_sigma"
+    t = robot.get(f"{key}_translation_m")
+    if t is None or not np.all(np.isfinite(np.asarray(t, np.float64))):
         return None
-    r = robot.get("prior_sigma_rotation_deg")
+    r = robot.get(f"{key}_rotation_deg")
     rot = np.radians(np.asarray(0.0 if r is None else r, np.float64)) * np.ones(3)
     return np.diag(np.concatenate([rot, np.asarray(t, np.float64) * np.ones(3)]) ** 2)
 

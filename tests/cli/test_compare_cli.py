@@ -58,7 +58,6 @@ def test_differing_results_exit_1(files, run_cli):
 
 
 @pytest.mark.parametrize("args, message", [
-    (("{pinhole}",), "camera models differ"),
     (("{small}",), "image sizes differ"),
     (("{dir}/missing.json",), "missing.json"),
     (("{a2}", "--grid", "12by9"), "Invalid value for '--grid': expected WxH"),
@@ -103,3 +102,36 @@ def test_cross_validate_exit_statuses(tmp_path, run_cli):
     assert code == 2 and "7 views" in text and "Traceback" not in text, text
     code, text = run_cli("cross-validate", tmp_path / "cell.yaml", tmp_path / "obs.json", "--split", "thirds")
     assert code == 2 and "split" in text and "Traceback" not in text, text
+
+
+def test_results_of_different_lens_models_are_compared(files, run_cli):
+    """opencv5 against a pinhole of the same K: compared across lens models (the distortion is the difference)."""
+    code, text = run_cli("compare", files["a"], files["pinhole"], "--grid", "12x9")
+    assert code == 1, text
+    flat = " ".join(text.split())  # the console wraps the message
+    assert "opencv5 → pinhole" in flat and "cannot represent" in flat and "Traceback" not in text
+
+
+def test_a_real_camera_against_its_exact_conversion_to_another_model(tmp_path, run_cli):
+    """The bundled OpenCV sample camera (golden case camera_opencv_left: opencv5 with its covariance) and the
+    same lens written as opencv8 (``jcalib convert`` with k4, k5, k6 held at 0: exact): compared across the
+    two lens models, they agree to numerical precision."""
+    from pathlib import Path
+
+    from jcalib.geometry.cameras import camera_model_from_name
+
+    case = json.loads((Path(__file__).parents[1] / "golden" / "cases" / "camera_opencv_left.json").read_text())
+    cam = case["outputs"]["cameras"]["left"]
+    model = camera_model_from_name(cam["model"], case["observations"]["cameras"]["left"]["image_size"],
+                                   np.asarray(cam["params"]))
+    ResultFile(cameras={"left": CameraResult.from_model(model, covariance=np.asarray(cam["covariance"]))}).save(
+        tmp_path / "opencv5.json")
+    code, text = run_cli("convert", tmp_path / "opencv5.json", "--to", "opencv8", "--fix", "k4,k5,k6",
+                         "-o", tmp_path / "opencv8.json")
+    assert code == 0, text
+    code, text = run_cli("compare", tmp_path / "opencv5.json", tmp_path / "opencv8.json", "--grid", "12x9",
+                         "--json", tmp_path / "c.json")
+    assert code == 0, text
+    doc = json.loads((tmp_path / "c.json").read_text())["cameras"]["left"]
+    assert (doc["model"], doc["model_b"]) == ("opencv5", "opencv8") and doc["verdict"] == "consistent"
+    assert doc["max_px"] < 1e-6 and doc["num_skipped"] == 0  # the same projection, two parameterisations

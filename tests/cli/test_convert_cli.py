@@ -54,3 +54,44 @@ def test_refusals_exit_2_with_a_message(fisheye_result, tmp_path, args, expected
     assert code == 2, text
     assert expected in text and "Traceback" not in text
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.fixture(scope="module")
+def opencv_left_result(tmp_path_factory):
+    """The bundled OpenCV sample camera (tests/data/real/opencv_left_right_chessboard, left), as calibrated in the
+    golden case ``camera_opencv_left``: opencv5 with its covariance."""
+    import json
+    from pathlib import Path
+
+    from jcalib.geometry.cameras import camera_model_from_name
+
+    case = json.loads((Path(__file__).parents[1] / "golden" / "cases" / "camera_opencv_left.json").read_text())
+    cam = case["outputs"]["cameras"]["left"]
+    model = camera_model_from_name(cam["model"], case["observations"]["cameras"]["left"]["image_size"],
+                                   np.asarray(cam["params"]))
+    file = ResultFile(cameras={"left": CameraResult.from_model(model, covariance=np.asarray(cam["covariance"]))},
+                      stats={"rms_px": 0.2, "num_residuals": 100, "sigma_px": 0.2})
+    path = tmp_path_factory.mktemp("convert_real") / "opencv5.json"
+    file.save(path)
+    return path, file.cameras["left"]
+
+
+def test_any_model_to_splined_and_back_with_finite_sigma(opencv_left_result, tmp_path, run_cli):
+    """README: any model to any model. A real opencv5 camera converted to splined (the spline's prior decides
+    what no ray reaches, so every σ is finite) and back to opencv5: the first camera again, to a fraction of its
+    σ, with about its σ (the source's noise propagated through two fits)."""
+    path, source = opencv_left_result
+    splined = tmp_path / "splined.json"
+    code, text = run_cli("convert", path, "--to", "splined", "-o", splined)
+    assert code == 0, text
+    cam = load_result(splined).cameras["left"]
+    assert cam.model == "splined" and cam.extra["converted"]["rms_px"] < 0.1
+    std = np.sqrt(np.diag(cam.covariance))
+    assert np.all(np.isfinite(std)) and std[0] > 0.0
+    back = tmp_path / "back.json"
+    code, text = run_cli("convert", splined, "--to", "opencv5", "-o", back)
+    assert code == 0, text
+    again = load_result(back).cameras["left"]
+    sigma = np.sqrt(np.diag(source.covariance))
+    assert np.all(np.abs(again.params - source.params) < 0.5 * sigma)
+    np.testing.assert_allclose(np.sqrt(np.diag(again.covariance)), sigma, rtol=0.2)

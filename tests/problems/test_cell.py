@@ -153,11 +153,18 @@ def test_pivot_cell_matches_the_pivot_problem():
     np.testing.assert_allclose(cal.point_covariance["divot"], ref.covariance[3:, 3:], rtol=1e-6)
 
 
-def test_tools_without_a_robot_are_refused():
-    cell, obs = _pivot_data(np.random.default_rng(5), n=6)
+def test_tools_without_a_robot_are_tracked_tools():
+    """A tracked pointer (an optical tracker's marker body, no robot): the cell without ``robot:`` is the
+    cell with ``robot: {}`` (the tracked body is the flange, its measured poses exact): the same numbers."""
+    cell, obs = _pivot_data(np.random.default_rng(5))
+    cell["robot"] = {}
+    with_robot = calibrate_cell(load_cell(cell), load_observations(obs))
     del cell["robot"]
-    with pytest.raises(BadInputError, match="tools need a robot"):
-        calibrate_cell(load_cell(cell), load_observations(obs))
+    tracked = calibrate_cell(load_cell(cell), load_observations(obs))
+    assert not tracked.pose_model
+    np.testing.assert_array_equal(tracked.transforms["T_flange_needle"], with_robot.transforms["T_flange_needle"])
+    np.testing.assert_array_equal(tracked.points["divot"], with_robot.points["divot"])
+    np.testing.assert_array_equal(tracked.point_covariance["divot"], with_robot.point_covariance["divot"])
 
 
 def test_contacts_about_one_axis_are_not_observable():

@@ -212,3 +212,36 @@ def test_barely_excited_parameters_lean_on_the_prior_and_are_named():
     free = k["free"]
     z = (k["params"] - truth["params"])[free] / np.sqrt(np.diag(k["covariance"]))[free]
     assert np.all(np.abs(z) < 5), z
+
+
+def test_the_robot_model_preset_is_the_nominal_kinematics_when_the_cell_has_no_kinematics():
+    """``robot: {model: kuka_kr10_r1100_sixx, calibrate_kinematics: [...]}`` needs no second ``kinematics:``
+    (docs/design.md): the preset is the nominal model, and writing the cell back does not add one."""
+    from jcalib.io.cell import cell_to_dict
+
+    cell = {"schema": "jcalib.cell/1", "cameras": {"cam0": {"model": "opencv5", "mount": "flange"}},
+            "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025, "mount": "base"}}}
+    spec = parse_cell({**cell, "robot": {"model": "kuka_kr10_r1100_sixx", "calibrate_kinematics": ["joint_offsets"]}})
+    model = kinematic_models.PRESETS["kuka_kr10_r1100_sixx"]()
+    assert spec.robot.kinematics_from_model
+    assert spec.robot.kinematics.param_names == model.param_names
+    assert np.array_equal(spec.robot.kinematics.nominal, model.nominal)
+    assert cell_to_dict(spec)["robot"] == {"model": "kuka_kr10_r1100_sixx", "calibrate_kinematics": ["joint_offsets"]}
+    with pytest.raises(BadInputError, match="model 'my_arm' is not a kinematics preset"):
+        parse_cell({**cell, "robot": {"model": "my_arm", "calibrate_kinematics": ["joint_offsets"]}})
+
+
+def test_a_model_preset_calibrates_as_the_same_kinematics_preset_and_says_so(positioner_noiseless):
+    """The noiseless positioner cell with ``model: positioner_2axis`` instead of ``kinematics:``: the same
+    numbers (same problem, same compiled solve), and the result notes where the nominal model came from."""
+    cell, obs, _, _, cal = positioner_noiseless
+    by_model = copy.deepcopy(cell)
+    by_model["robot"]["model"] = by_model["robot"].pop("kinematics")
+    mine = calibrate(by_model, obs)
+    assert np.array_equal(mine.kinematics["robot"]["params"], cal.kinematics["robot"]["params"])
+    for name, T in cal.transforms.items():
+        assert np.array_equal(mine.transforms[name], T)
+    notes = result_file(mine, CalibrationOptions(), "0" * 16).stats["notes"]
+    assert notes == [("nominal kinematics: the robot's model preset positioner_2axis (the cell has no kinematics:; "
+                      "write kinematics: <preset or table> to use another)")]
+    assert "notes" not in result_file(cal, CalibrationOptions(), "0" * 16).stats

@@ -79,7 +79,8 @@ def test_whole_cell_page_has_the_camera_and_handeye_analyses(pages, cell_case):
 
 def test_camera_page_tables_and_plots(pages, camera_case):
     html, result = pages["camera"], camera_case[2]
-    for label in ("reprojection RMS", "a-posteriori σ", "residuals", "outliers rejected"):
+    for label in ("reprojection RMS per point (error norms, as OpenCV)", "a-posteriori σ per coordinate", "residuals",
+                  "outliers rejected"):
         assert f"<td>{label}</td>" in html
     assert result.file.provenance.input_hash in html and f"jcalib {jcalib.__version__}" in html
     images = _images(html)
@@ -204,3 +205,56 @@ def test_chromium_renders_report_without_console_errors(tmp_path, pages):
 @pytest.mark.skipif(shutil.which("chromium") is None and not os.environ.get("CI"), reason="no chromium")
 def test_chromium_present_in_ci():
     assert Path(CHROMIUM).exists()
+
+
+def test_rms_is_said_per_point_and_per_coordinate(pages, camera_case, cases):
+    """``stats.rms_px`` is per point (OpenCV's RMS of the error norms), ``stats.rms_px_per_coordinate`` per
+    coordinate (mrcal's), both from OpenCV's own reprojection with the solve's view poses; the console and the
+    report print both, named."""
+    from rich.console import Console
+
+    from jcalib.report.console import print_result
+
+    html, (_, obs, result) = pages["camera"], camera_case
+    cam, stats = result.file.cameras["cam0"], result.file.stats
+    res = []
+    for st in obs["stations"]:
+        T = result.details.T_cam_target[st["id"]]["cam0"]
+        proj, _ = cv2.projectPoints(cases.BOARD.points, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], cam.K, cam.dist)
+        res.append(np.asarray(st["detections"][0]["pixels"]) - proj[:, 0, :])
+    res = np.concatenate(res)
+    np.testing.assert_allclose(stats["rms_px"], np.sqrt(np.mean(np.sum(res**2, axis=-1))), rtol=1e-6)
+    np.testing.assert_allclose(stats["rms_px_per_coordinate"], np.sqrt(np.mean(res**2)), rtol=1e-6)
+    assert set(stats["view_rms_px_per_coordinate"]) == set(stats["view_rms_px"])
+    for key, v in stats["view_rms_px"].items():  # 2-D residuals: per coordinate = per point / √2 exactly
+        np.testing.assert_allclose(stats["view_rms_px_per_coordinate"][key], v / np.sqrt(2.0), rtol=1e-12)
+    assert "<td>reprojection RMS per point (error norms, as OpenCV)</td>" in html
+    assert f"<td>reprojection RMS per coordinate (x and y errors, as mrcal)</td><td class=\"num\">" \
+           f"{stats['rms_px_per_coordinate']:.4g}" in html
+    console = Console(record=True, width=300)
+    print_result(result.file, console)
+    text = console.export_text()
+    assert (f"RMS {stats['rms_px']:.4f} px per point ({stats['rms_px_per_coordinate']:.4f} px per coordinate)"
+            in text)
+
+
+def test_robot_accuracy_estimate_is_shown_beside_the_stated_one(camera_case):
+    """``stats.robot`` (a whole cell with a pose model): the console and the report's summary show the
+    a-posteriori flange-pose σ and, beside it, the stated pose_noise."""
+    from rich.console import Console
+
+    from jcalib.report.console import print_result
+
+    f = camera_case[2].file
+    robot = {"prior_sigma_translation_m": [1e-4] * 3, "prior_sigma_rotation_deg": [0.01] * 3,
+             "a_posteriori_sigma_translation_m": [2.5e-4] * 3, "a_posteriori_sigma_rotation_deg": [0.03] * 3,
+             "correction_rms_translation_m": [2e-4] * 3, "correction_rms_rotation_deg": [0.02] * 3, "redundancy": 40.0}
+    file = ResultFile(cameras=f.cameras, stats={**f.stats, "robot": robot}, provenance=f.provenance)
+    line = ("flange-pose σ estimated x y z 0.2500 0.2500 0.2500 mm, 0.03000 0.03000 0.03000 deg (a posteriori, from "
+            "the stations' flange corrections); stated (pose_noise) 0.1000 0.1000 0.1000 mm, 0.01000 0.01000 "
+            "0.01000 deg")
+    console = Console(record=True, width=400)
+    print_result(file, console)
+    assert f"robot accuracy: {line}" in console.export_text()
+    html = render_report(file)
+    assert "<td>robot accuracy</td>" in html and line.replace("'", "&#x27;") in html
