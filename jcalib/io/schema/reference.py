@@ -132,7 +132,9 @@ def rows(schema: dict) -> list[Row]:
 
 
 def _cell(text: str) -> str:
-    return " ".join(text.split()).replace("|", "\\|")
+    """One table cell: one line, ``|`` escaped, and ``[`` ``]`` escaped (``K[0][1]`` is not a link)."""
+    parts = " ".join(text.split()).replace("|", "\\|").split("`")
+    return "`".join(p if i % 2 else p.replace("[", "\\[").replace("]", "\\]") for i, p in enumerate(parts))
 
 
 def _target_fields() -> list[str]:
