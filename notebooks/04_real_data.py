@@ -51,7 +51,7 @@ from jcalib.solve.cache import enable_compilation_cache
 from jcalib.init.pivot import pivot_calibration
 from jcalib.io.cell import parse_cell
 from jcalib.io.observations import parse_observations
-from jcalib.io.camodocal import read_calibrated_transform, read_transform_pairs
+from jcalib.io.importers.opencv_pairs import read_calibrated_transform, read_transform_pairs
 from jcalib.problems.handeye_pairs import calibrate_hand_eye_pairs
 from jcalib.problems.pivot import refine_pivot
 

@@ -365,7 +365,8 @@ def fuzz_compare(folder: Path, tally: Tally, num: int, seed: int, real_runs: int
             assert code == 2, (op, doc)
         ran += ok
         tally.add("compare (result files)", f"{op} ({'accepted' if ok else 'refused by the parser'})", code)
-    # two unrelated results: other cameras, another model, another image size, no camera in common
+    # another lens model of the same camera is compared (a verdict: consistent or "differ"); results that
+    # do not describe one camera (another image size, no camera in common) are refused
     other = estimated_result()
     other["cameras"]["cam_hand"]["model"] = "opencv5"
     other["cameras"]["cam_hand"]["dist"] = [-0.1, 0.02, 0.0, 0.0, 0.0]
@@ -375,7 +376,11 @@ def fuzz_compare(folder: Path, tally: Tally, num: int, seed: int, real_runs: int
     renamed = estimated_result()
     renamed["cameras"] = {"other_cam": renamed["cameras"].pop("cam_hand")}
     renamed["transforms"] = {}
-    for name, doc in (("another lens model", other), ("another image size", sized), ("no camera in common", renamed)):
+    path = write(folder / "cmp_other_model.json", other)
+    code = run_checked(["compare", a, path], [a, path], None, verdict=True)
+    assert code in (0, 1), "another lens model"
+    tally.add("compare (another lens model)", "opencv5 against the source's model", code)
+    for name, doc in (("another image size", sized), ("no camera in common", renamed)):
         path = write(folder / f"cmp_unrelated_{name.replace(' ', '_')}.json", doc)
         code = run_checked(["compare", a, path], [a, path], None)
         assert code == 2, name

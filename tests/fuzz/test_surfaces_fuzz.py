@@ -53,4 +53,5 @@ def test_mutated_results_and_options_of_convert(tmp_path, tally):
 
 def test_mutated_and_unrelated_results_of_compare(tmp_path, tally):
     sf.fuzz_compare(tmp_path, tally, num=40, seed=4, real_runs=1, cli_runs=8)
-    assert len(tally.rows["compare (two unrelated results)"]) == 3
+    assert len(tally.rows["compare (two unrelated results)"]) == 2
+    assert len(tally.rows["compare (another lens model)"]) == 1
