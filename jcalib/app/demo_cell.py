@@ -236,6 +236,11 @@ def run_cell_demo(
     )
     if nominal is not None:
         console.print(pose_error_table(result.file, nominal.file, truth))
+    from jcalib.report.console import prediction_line
+
+    line = prediction_line(result.file.stats.get("prediction"))
+    if line:
+        console.print(line, highlight=False, markup=False)
     from jcalib.report.goals import goals_table
 
     console.print(goals_table(rows_goals))

@@ -44,6 +44,10 @@ def test_demo_plans_toward_its_goals_and_its_estimates_agree_with_the_truth(arav
 
     result = load_result(out / "result.json")
     truth = json.loads((out / "truth.json").read_text())
+    # the cell says how well it predicts from the robot's poses (every board station held out in turn)
+    pred = result.stats["prediction"]
+    assert pred["method"] == "leave-one-station-out" and pred["stations"] >= 3 and 0.0 < pred["rms_px"] < 5.0
+    assert "predicted from the robot's pose, a held-out station's corners land within" in proc.stdout
     rows = compare_with_truth(result, truth)
     # every calibrated transform of the cell is there, with its σ
     for key in ("T_flange_cam_hand", "T_base_cam_fixed", "T_base_board", "T_flange_torch"):
