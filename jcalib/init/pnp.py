@@ -2,7 +2,7 @@
 
 A planar target seen from afar, nearly fronto-parallel, has two poses that explain the pixels
 almost equally well (the second one tilted the other way, "flipped"). Starting a refinement from
-the wrong one leaves it in the wrong minimum (see ``/work/shared/notes/calibration.md``), so the
+the wrong one leaves it in the wrong minimum (the joint solve does not cross the ridge between them), so the
 planar solver returns **both** candidates, sorted by reprojection error, and the caller can re-seed
 a suspect view with the other one.
 

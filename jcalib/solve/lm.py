@@ -19,7 +19,7 @@ named errors in one compiled function. ``jax.vmap`` of :func:`lm_solve` solves m
 shape at once. JAX's batching rule for
 ``while_loop`` keeps a finished member's state unchanged (``select`` on its own predicate), so each
 member reports its own iterations and stops moving once converged, but the batch runs until the
-slowest member finishes (see /work/shared/notes/calibration.md).
+slowest member finishes.
 """
 
 from __future__ import annotations

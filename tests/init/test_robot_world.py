@@ -83,7 +83,8 @@ def test_noisy_errors_small():
             d_rot, d_t = H.errors(solve_robot_world_hand_eye(T_bf, T_ct, method=method).T, X)
             rot[method].append(np.degrees(d_rot))
             tra[method].append(d_t)
-    # the AX = XB closed forms reach ~0.03 deg / 0.3-0.5 mm here (/work/shared/notes); bound at ~3x
+    # the AX = XB closed forms reach ~0.03 deg / 0.3-0.5 mm here (measured when this test was written);
+    # bound at ~3x
     for m in METHODS:
         assert np.median(rot[m]) < 0.1, (m, np.median(rot[m]))
         assert np.median(tra[m]) < 2e-3, (m, np.median(tra[m]))
