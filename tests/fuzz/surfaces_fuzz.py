@@ -227,6 +227,26 @@ def fuzz_kinematic_tables(folder: Path, tally: Tally, num: int, seed: int, cli_r
         tally.add("kinematic table", f"{op} (accepted: finite FK, round trip)", 0)
 
 
+def run_mutants(label: str, tally: Tally, mutants, accepts, run, real_runs: int, cli_runs: int) -> None:
+    """Each ``(i, doc, op)`` of ``mutants`` through the CLI (``run(i, doc) -> exit status``): a document the
+    parser refuses (``accepts(doc)`` false) must exit 2; only ``real_runs`` accepted ones and ``cli_runs``
+    refused ones run the CLI, the other refused ones are tallied as "parser only"."""
+    ran = 0
+    for i, doc, op in mutants:
+        ok = accepts(doc)
+        if ok and ran >= real_runs:
+            continue
+        if not ok and cli_runs <= 0:
+            tally.add(label, f"{op} (refused by the parser; parser only)", 2)
+            continue
+        cli_runs -= not ok
+        code = run(i, doc)
+        if not ok:
+            assert code == 2, (op, doc)
+        ran += ok
+        tally.add(label, f"{op} ({'accepted' if ok else 'refused by the parser'})", code)
+
+
 def fuzz_plan_files(folder: Path, tally: Tally, num: int, seed: int, golden: Path, result: Path,
                     real_runs: int = 2, cli_runs: int = 1000) -> None:
     """Mutated plan files: ``jcalib report RESULT --plan PLAN`` refuses what :func:`plan_goals` /
@@ -235,23 +255,15 @@ def fuzz_plan_files(folder: Path, tally: Tally, num: int, seed: int, golden: Pat
 
     rng = random.Random(seed)
     base = optimal_plan(golden)
-    ran = 0
-    for i in range(num):
-        doc, op = mutate(base, rng, ("planner",) if i % 2 else ())
-        ok = parses(plan_goals, doc) and parses(plan_from_json, doc, "plan.json")
-        if ok and ran >= real_runs:
-            continue
-        if not ok and cli_runs <= 0:
-            tally.add("plan file (report --plan)", f"{op} (refused by the parser; parser only)", 2)
-            continue
-        cli_runs -= not ok
-        path = write(folder / f"plan{i}.json", doc)
-        out = folder / f"report{i}.html"
-        code = run_checked(["report", result, "-o", out, "--plan", path], [path, result], out)
-        if not ok:
-            assert code == 2, (op, doc)
-        ran += ok
-        tally.add("plan file (report --plan)", f"{op} ({'accepted' if ok else 'refused by the parser'})", code)
+
+    def run(i, doc):
+        path, out = write(folder / f"plan{i}.json", doc), folder / f"report{i}.html"
+        return run_checked(["report", result, "-o", out, "--plan", path], [path, result], out)
+
+    mutants = ((i, *mutate(base, rng, ("planner",) if i % 2 else ())) for i in range(num))
+    run_mutants("plan file (report --plan)", tally, mutants,
+                lambda doc: parses(plan_goals, doc) and parses(plan_from_json, doc, "plan.json"), run, real_runs,
+                cli_runs)
 
 
 #: ``jcalib plan`` options and hostile values; every one must be refused at parse time (exit 2).
@@ -311,23 +323,14 @@ def fuzz_convert(folder: Path, tally: Tally, num: int, seed: int, real_runs: int
 
     rng = random.Random(seed)
     base = estimated_result()
-    ran = 0
-    for i in range(num):
-        doc, op = mutate(base, rng, ("cameras", "cam_hand") if i % 2 else ())
-        ok = parses(ResultFile.from_dict, doc, "result.json")
-        if ok and ran >= real_runs:
-            continue
-        if not ok and cli_runs <= 0:
-            tally.add("convert (result file)", f"{op} (refused by the parser; parser only)", 2)
-            continue
-        cli_runs -= not ok
-        path = write(folder / f"conv_in{i}.json", doc)
-        out = folder / f"conv_out{i}.json"
-        code = run_checked(["convert", path, "--to", "opencv5", "-o", out, "--camera", "cam_hand"], [path], out)
-        if not ok:
-            assert code == 2, (op, doc)
-        ran += ok
-        tally.add("convert (result file)", f"{op} ({'accepted' if ok else 'refused by the parser'})", code)
+
+    def run(i, doc):
+        path, out = write(folder / f"conv_in{i}.json", doc), folder / f"conv_out{i}.json"
+        return run_checked(["convert", path, "--to", "opencv5", "-o", out, "--camera", "cam_hand"], [path], out)
+
+    mutants = ((i, *mutate(base, rng, ("cameras", "cam_hand") if i % 2 else ())) for i in range(num))
+    run_mutants("convert (result file)", tally, mutants, lambda doc: parses(ResultFile.from_dict, doc, "result.json"),
+                run, real_runs, cli_runs)
     good = write(folder / "conv_good.json", base)
     out = folder / "conv_opt.json"
     for option, value in [("--to", "opencv99"), ("--to", ""), ("--region", "nan,0,10,10"), ("--region", "1,2,3"),
@@ -347,24 +350,16 @@ def fuzz_compare(folder: Path, tally: Tally, num: int, seed: int, real_runs: int
     a_doc, b_doc = estimated_result(), estimated_result(1.0005)
     a = write(folder / "cmp_a.json", a_doc)
     b = write(folder / "cmp_b.json", b_doc)
-    ran = 0
-    for i in range(num):
-        doc, op = mutate(b_doc if i % 2 else a_doc, rng, ("cameras",) if i % 3 else ())
-        ok = parses(ResultFile.from_dict, doc, "result.json")
-        if ok and ran >= real_runs:
-            continue
-        if not ok and cli_runs <= 0:
-            tally.add("compare (result files)", f"{op} (refused by the parser; parser only)", 2)
-            continue
-        cli_runs -= not ok
+
+    def run(i, doc):
         path = write(folder / f"cmp_m{i}.json", doc)
         pair = [a, path] if i % 2 else [path, b]
-        code = run_checked(["compare", *pair, "--json", folder / f"cmp{i}.json"], pair, folder / f"cmp{i}.json",
+        return run_checked(["compare", *pair, "--json", folder / f"cmp{i}.json"], pair, folder / f"cmp{i}.json",
                            verdict=True)
-        if not ok:
-            assert code == 2, (op, doc)
-        ran += ok
-        tally.add("compare (result files)", f"{op} ({'accepted' if ok else 'refused by the parser'})", code)
+
+    mutants = ((i, *mutate(b_doc if i % 2 else a_doc, rng, ("cameras",) if i % 3 else ())) for i in range(num))
+    run_mutants("compare (result files)", tally, mutants, lambda doc: parses(ResultFile.from_dict, doc, "result.json"),
+                run, real_runs, cli_runs)
     # another lens model of the same camera is compared (a verdict: consistent or "differ"); results that
     # do not describe one camera (another image size, no camera in common) are refused
     other = estimated_result()

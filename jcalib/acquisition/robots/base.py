@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -193,3 +194,15 @@ class Robot(abc.ABC):
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def recv_exact(sock: socket.socket, n: int) -> bytes:
+    """Read exactly ``n`` bytes of a controller protocol (KUKAVARPROXY, RTDE); ConnectionError when the
+    peer closes first."""
+    buf = bytearray()
+    while len(buf) < n:
+        chunk = sock.recv(n - len(buf))
+        if not chunk:
+            raise ConnectionError("connection closed by peer")
+        buf += chunk
+    return bytes(buf)

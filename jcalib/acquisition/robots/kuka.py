@@ -48,7 +48,7 @@ import time
 
 import numpy as np
 
-from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState
+from jcalib.acquisition.robots.base import MotionRefusedError, MotionStoppedError, Robot, RobotState, recv_exact
 from jcalib.geometry.se3 import pose_from_kuka, pose_to_kuka
 from jcalib.errors import DeviceError
 
@@ -85,17 +85,6 @@ def encode_reply(msg_id: int, mode: int, value: str, ok: bool) -> bytes:
     value_b = value.encode("ascii")
     body = struct.pack("!BH", mode, len(value_b)) + value_b + bytes([0, 1, 1 if ok else 0])
     return HEADER.pack(msg_id & 0xFFFF, len(body)) + body
-
-
-def recv_exact(sock: socket.socket, n: int) -> bytes:
-    """Read exactly ``n`` bytes; ConnectionError when the peer closes first."""
-    buf = bytearray()
-    while len(buf) < n:
-        chunk = sock.recv(n - len(buf))
-        if not chunk:
-            raise ConnectionError("connection closed by peer")
-        buf += chunk
-    return bytes(buf)
 
 
 def parse_krl_struct(text: str) -> dict[str, float]:

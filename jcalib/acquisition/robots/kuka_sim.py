@@ -33,7 +33,8 @@ import numpy as np
 
 from jcalib.acquisition.robots._server import ThreadedTcpServer
 from jcalib.acquisition.robots.base import MotionStoppedError
-from jcalib.acquisition.robots.kuka import HEADER, encode_reply, parse_krl_struct, recv_exact
+from jcalib.acquisition.robots.base import recv_exact
+from jcalib.acquisition.robots.kuka import HEADER, encode_reply, parse_krl_struct
 from jcalib.geometry.se3 import pose_from_kuka, pose_to_kuka
 from jcalib.acquisition.robots.simulated import SimulatedController, UnreachableError
 from jcalib.errors import BadInputError

@@ -34,6 +34,8 @@ import socket
 import struct
 from dataclasses import dataclass
 
+from jcalib.acquisition.robots.base import recv_exact
+
 RTDE_PORT = 30004
 #: The secondary client interface, which runs URScript sent to it.
 SCRIPT_PORT = 30002
@@ -140,17 +142,6 @@ def encode_package(command: int, payload: bytes = b"") -> bytes:
     if size > MAX_PACKAGE:
         raise ValueError(f"RTDE package of {size} bytes exceeds {MAX_PACKAGE}")
     return HEADER.pack(size, command & 0xFF) + payload
-
-
-def recv_exact(sock: socket.socket, n: int) -> bytes:
-    """Read exactly ``n`` bytes; ConnectionError when the peer closes first."""
-    buf = bytearray()
-    while len(buf) < n:
-        chunk = sock.recv(n - len(buf))
-        if not chunk:
-            raise ConnectionError("connection closed by peer")
-        buf += chunk
-    return bytes(buf)
 
 
 def read_package(sock: socket.socket) -> tuple[int, bytes]:
