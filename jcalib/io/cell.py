@@ -118,6 +118,27 @@ class PointSpec:
 
 
 @dataclass(frozen=True)
+class SensorSpec:
+    """A measuring sensor with no lens (``sensors:``): a laser tracker, a metrology or motion-capture system.
+
+    Attributes:
+        name: sensor id, e.g. ``"tracker"``.
+        kind: ``"pose"``: it measures targets' 6-DOF poses (stations' ``poses: [{sensor, target,
+            T_sensor_target}]``).
+        mount: ``"base"`` (fixed, one-robot cell: unknown ``T_base_<name>``), ``"world"`` (fixed, several
+            robots) or ``"flange"`` (on a robot: unknown ``T_flange_<name>``).
+        pose: optional (4, 4) known pose in its mount frame, m.
+        robot: the robot whose flange carries it (``mount: flange`` with named ``robots:``).
+    """
+
+    name: str
+    kind: str = "pose"
+    mount: str = "base"
+    pose: np.ndarray | None = None
+    robot: str | None = None
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """Robot settings. ``pose_noise`` is None when flange poses are taken as exact; ``model`` names a
     kinematics preset (:data:`jcalib.geometry.ROBOT_PRESETS`) for planning and simulation.
@@ -158,6 +179,7 @@ class CellSpec:
     source: str = "<dict>"
     robots: dict[str, RobotSpec] = field(default_factory=dict)
     goals: tuple[Goal, ...] = ()
+    sensors: dict[str, SensorSpec] = field(default_factory=dict)
 
     @property
     def multi_robot(self) -> bool:
@@ -416,12 +438,13 @@ def _parse_robots(data: dict, source: str, base_dir: Path | None = None) -> dict
 
 
 def _check_robot_refs(cameras: dict, targets: dict, tools: dict, points: dict, robots: dict[str, RobotSpec],
-                      source: str) -> tuple[dict, dict, dict]:
+                      source: str, sensors: dict) -> tuple[dict, dict, dict, dict]:
     """Check mounts and ``robot:`` references against the robots; fill the default robot (the only one)."""
     several = len(robots) > 1
     names = ", ".join(robots)
     for n in robots:
-        for kind, group in (("camera", cameras), ("target", targets), ("tool", tools), ("point", points)):
+        for kind, group in (("camera", cameras), ("target", targets), ("tool", tools), ("point", points),
+                            ("sensor", sensors)):
             if n in group:
                 raise _fail(f"{source}: robots.{n}", f"robot '{n}' has the name of a {kind}; give it another name "
                                                      "(transform names such as T_world_<name> must be unique)")
@@ -456,7 +479,8 @@ def _check_robot_refs(cameras: dict, targets: dict, tools: dict, points: dict, r
     cameras = {n: check("camera", c, c.mount == "flange") for n, c in cameras.items()}
     targets = {n: check("target", t, t.mount == "flange") for n, t in targets.items()}
     tools = {n: check("tool", t, True) for n, t in tools.items()}
-    return cameras, targets, tools
+    sensors = {n: check("sensor", t, t.mount == "flange") for n, t in sensors.items()}
+    return cameras, targets, tools, sensors
 
 
 def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | None = None) -> CellSpec:
@@ -476,14 +500,16 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     schema = data.get("schema")
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
-    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed", "goals"}, source)
+    _check_keys(data, {"schema", "cameras", "sensors", "targets", "tools", "points", "robot", "robots", "fixed",
+                       "goals"}, source)
     # files a cell names (a UR calibration) are relative to the cell file
     base_dir = Path(source).parent if source != "<dict>" and Path(source).is_file() else None
     robots = _parse_robots(data, source, base_dir)
     cameras_in = data.get("cameras") or {}
-    if not isinstance(cameras_in, dict) or not (cameras_in or data.get("tools") or data.get("points")):
+    if not isinstance(cameras_in, dict) or not (cameras_in or data.get("tools") or data.get("points")
+                                                or data.get("sensors")):
         raise _fail(source, "'cameras' must map camera ids to entries (at least one camera, unless the cell "
-                            "is calibrated by tool contacts alone: tools and points)")
+                            "is calibrated by pose sensors or tool contacts alone: sensors, or tools and points)")
     cameras = {str(n): _parse_camera(str(n), e, f"{source}: cameras.{n}") for n, e in cameras_in.items()}
     targets_in = data.get("targets") or {}
     if not isinstance(targets_in, dict):
@@ -517,8 +543,12 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
         e = e or {}
         pos = _matrix(e["position"], (3,), f"{source}: points.{n}.position") if "position" in e else None
         points[str(n)] = PointSpec(name=str(n), position=pos)
+    sensors = {str(n): SensorSpec(name=str(n), kind=e["kind"], mount=e.get("mount", "base"),
+                                  pose=_pose(e["pose"], f"{source}: sensors.{n}.pose") if e.get("pose") else None,
+                                  robot=_robot_ref(e, f"{source}: sensors.{n}"))
+               for n, e in (data.get("sensors") or {}).items()}  # (types and keys checked by the schema)
     robot = _parse_robot(data["robot"], f"{source}: robot", base_dir=base_dir) if "robot" in data else None
-    cameras, targets, tools = _check_robot_refs(cameras, targets, tools, points, robots, source)
+    cameras, targets, tools, sensors = _check_robot_refs(cameras, targets, tools, points, robots, source, sensors)
     if len(robots) == 1:
         robot = next(iter(robots.values()))
     fixed = data.get("fixed") or []
@@ -530,7 +560,7 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     goals = parse_goals(goals, f"{source}: goals")
     needs_robot = any(c.mount != "free" for c in cameras.values()) or any(
         t.mount != "free" for t in targets.values()
-    )
+    ) or bool(sensors)
     if needs_robot and robot is None and not robots:
         robot = RobotSpec()
     return CellSpec(
@@ -543,6 +573,7 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
         source=source,
         robots=robots,
         goals=goals,
+        sensors=sensors,
     )
 
 
@@ -577,6 +608,9 @@ def cell_to_dict(cell: CellSpec) -> dict:
         if c.settings:
             entry["settings"] = dict(c.settings)
         out["cameras"][c.name] = entry
+    if cell.sensors:
+        out["sensors"] = {n: {"kind": x.kind, "mount": x.mount, **({"pose": x.pose.tolist()} if x.pose is not None else {}),
+                              **({"robot": x.robot} if x.robot is not None else {})} for n, x in cell.sensors.items()}
     for t in cell.targets.values():
         entry = {"type": t.type, **t.params, "mount": t.mount}
         if t.pose is not None:

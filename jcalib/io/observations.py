@@ -73,12 +73,27 @@ class Contact:
 
 @dataclass(frozen=True)
 class PoseMeasurement:
-    """A 6-DOF pose of ``target`` measured by ``camera`` (or any sensor named as a camera of the cell):
-    ``T_cam_target`` (4, 4), m (a marker's pose from another tool, a laser tracker, a 3D camera)."""
+    """A 6-DOF pose of ``target`` measured by a pose sensor or a camera of the cell: ``T_cam_target``
+    (4, 4), m, the target's pose in the measuring frame (a laser tracker, a metrology or motion-capture
+    system, a marker's pose from another tool).
+
+    Attributes:
+        camera: the measuring sensor's or camera's id.
+        target: the target's id.
+        T_cam_target: (4, 4) the target in the measuring frame, m.
+        sensor_form: written as ``{"sensor", "target", "T_sensor_target"}`` (a pose sensor of the cell's
+            ``sensors:``) rather than ``{"camera", "target", "T_cam_target"}``.
+    """
 
     camera: str
     target: str
     T_cam_target: np.ndarray
+    sensor_form: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.sensor_form:
+            return {"sensor": self.camera, "target": self.target, "T_sensor_target": self.T_cam_target.tolist()}
+        return {"camera": self.camera, "target": self.target, "T_cam_target": self.T_cam_target.tolist()}
 
 
 @dataclass(frozen=True)
@@ -91,7 +106,8 @@ class Station:
             (and in cells with several robots, which use ``flange_poses``).
         detections: what the cameras saw.
         contacts: tool-tip contacts with cell points.
-        poses: 6-DOF pose measurements (``"poses": [{"camera", "target", "T_cam_target"}]``).
+        poses: 6-DOF pose measurements (``"poses": [{"sensor", "target", "T_sensor_target"}]`` or
+            ``[{"camera", "target", "T_cam_target"}]``).
         flange_poses: robot name -> (4, 4) measured flange pose of that robot in its own base
             (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
             the station gives ``T_base_flange``. Which robots a station must give is checked against
@@ -124,8 +140,7 @@ class Station:
         if self.contacts:
             out["contacts"] = [{"tool": c.tool, "point": c.point} for c in self.contacts]
         if self.poses:
-            out["poses"] = [{"camera": m.camera, "target": m.target, "T_cam_target": m.T_cam_target.tolist()}
-                            for m in self.poses]
+            out["poses"] = [m.to_dict() for m in self.poses]
         return out
 
 
@@ -289,10 +304,13 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
         poses = []
         for j, m in enumerate(s.get("poses") or []):
             w = f"{where}.poses[{j}]"
-            if not isinstance(m, dict) or not {"camera", "target", "T_cam_target"} <= set(m):
-                raise _fail(w, "a pose measurement is {camera: <id>, target: <id>, T_cam_target: [[4x4]]} (m)")
-            poses.append(PoseMeasurement(str(m["camera"]), str(m["target"]),
-                                         _flange_pose(m["T_cam_target"], w + ".T_cam_target")))
+            sensor = isinstance(m, dict) and {"sensor", "target", "T_sensor_target"} <= set(m)
+            if not sensor and (not isinstance(m, dict) or not {"camera", "target", "T_cam_target"} <= set(m)):
+                raise _fail(w, "a pose measurement is {sensor: <id>, target: <id>, T_sensor_target: [[4x4]]} or "
+                               "{camera: <id>, target: <id>, T_cam_target: [[4x4]]} (m)")
+            by, key = ("sensor", "T_sensor_target") if sensor else ("camera", "T_cam_target")
+            poses.append(PoseMeasurement(str(m[by]), str(m["target"]), _flange_pose(m[key], f"{w}.{key}"),
+                                         sensor_form=sensor))
         joints = s.get("joints_deg")
         if isinstance(joints, dict):
             joints = {str(r): _array(q, f"{where}.joints_deg.{r}", 1) for r, q in joints.items()}

@@ -333,7 +333,7 @@ class _Builder:
                 raise BadInputError(f"{cell.source}: fixed lists '{spec.name}' ({name}) but the cell gives it no pose; "
                                     "add pose: [[4x4]] (m) or remove it from fixed")
             if name not in s.known:  # nothing observes it and the cell gives no pose
-                what = "camera" if spec.name in cell.cameras else "target"
+                what = "sensor" if spec.name in cell.sensors else "camera" if spec.name in cell.cameras else "target"
                 raise NotObservableError(f"{cell.source}: {what} '{spec.name}' ({name}) is in the cell but no station "
                                          "observes it, so nothing determines its pose; remove it from the cell or add "
                                          "stations that show it", [name])

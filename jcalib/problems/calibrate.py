@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
-from jcalib.io.cell import CellSpec, RobotSpec, cell_to_dict
+from jcalib.io.cell import CameraSpec, CellSpec, RobotSpec, cell_to_dict
 from jcalib.io.observations import Observations
 from jcalib.geometry import kinematic_models, kinematic_tables
 from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Provenance, ResultFile, TargetResult,
@@ -117,6 +117,18 @@ def tracked_tools(cell: CellSpec) -> CellSpec:
     return cell
 
 
+def pose_sensors(cell: CellSpec) -> CellSpec:
+    """The cell with its pose sensors (``sensors:``) among the things that measure: for the builder a pose
+    sensor is a camera without a lens (its 6-DOF measurements are pose-measurement factors, its mount pose
+    ``T_<frame>_<sensor>`` / ``T_flange_<sensor>`` an unknown like a camera's; it has no intrinsics and no
+    image size). The sensors stay listed in ``cell.sensors``."""
+    if not cell.sensors:
+        return cell
+    as_cameras = {n: CameraSpec(name=n, model="pinhole", mount=x.mount, pose=x.pose, robot=x.robot)
+                  for n, x in cell.sensors.items()}
+    return replace(cell, cameras={**cell.cameras, **as_cameras})
+
+
 def _priors(prior, names, graph: Graph, start: Start) -> dict:
     """Gaussian priors (mean, sqrt information) from an old result on the unknowns ``names`` (all: None)."""
     out = {}
@@ -148,7 +160,7 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     Returns ``(graph, start, built)``.
     """
     options = options or CalibrationOptions()
-    cell = tracked_tools(cell)
+    cell = pose_sensors(tracked_tools(cell))
     g = Graph(cell, obs, options.reference_camera)
     check_applicable(options, g, set(given or ()))
     pose_model = {r: g.has_noise(r) if options.pose_model is None else bool(options.pose_model) for r in g.used_robots}

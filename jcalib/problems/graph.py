@@ -257,7 +257,7 @@ class Graph:
         cell, obs = self.cell, self.obs
         src = obs.source
         for c in cell.cameras.values():
-            if c.name not in obs.cameras:
+            if c.name not in obs.cameras and c.name not in cell.sensors:  # (a pose sensor has no image)
                 raise BadInputError(f"{src}: camera '{c.name}' of the cell has no image size in the observations")
             if self.has_robot and c.mount == "free":
                 raise BadInputError(

@@ -210,6 +210,8 @@ def start_intrinsics(g: Graph, start: Start, seed=None) -> None:
     """Fill ``start.models``, ``fixed_masks``, ``aspects`` and ``views`` (see :class:`Start`)."""
     cell = g.cell
     for cam in cell.cameras.values():
+        if cam.name in cell.sensors:
+            continue  # a pose sensor: no lens
         cam_pairs = [p for (c, _), p in g.pairs.items() if c == cam.name]
         if not cam_pairs and not any(c == cam.name for (c, _) in g.tips) and any(c == cam.name for (c, _) in g.poses):
             continue  # a pose sensor only (6-DOF measurements): no lens to calibrate

@@ -184,7 +184,8 @@ def synthetic_positioner_cell(seed: int = 0, num_stations: int = 30, num_heldout
                               sigma_deg: float = 0.005, sigma_m: float = 2e-5, error_mask=None,
                               error_scale: float = 1.0, repeatability_m: float = 1e-5,
                               repeatability_deg: float = 0.001, scatter: bool = True, tilt_range_deg: float = 80.0,
-                              calibrate: tuple[str, ...] = ("joint_offsets", "link_lengths", "twists")):
+                              calibrate: tuple[str, ...] = ("joint_offsets", "link_lengths", "twists"),
+                              form: str = "camera"):
     """A 2-axis tilt-rotate positioner carrying a target, whose pose a fixed 6-DOF sensor measures.
 
     Args:
@@ -193,6 +194,9 @@ def synthetic_positioner_cell(seed: int = 0, num_stations: int = 30, num_heldout
             0 for noiseless data.
         repeatability_m, repeatability_deg: the positioner's scatter about its true kinematics (none
             when ``scatter`` is False) and the cell's ``pose_noise``.
+        form: ``"sensor"``: the tracker is a pose sensor of the cell (``sensors:``, measurements
+            ``{sensor, target, T_sensor_target}``, no lens, no image size); ``"camera"``: the same data in the
+            camera form (a ``pinhole`` camera with an image size, ``{camera, target, T_cam_target}``).
 
     Returns:
         ``(cell dict, observations dict, truth dict)``; truth as :func:`synthetic_arm_cell` with
@@ -219,17 +223,21 @@ def synthetic_positioner_cell(seed: int = 0, num_stations: int = 30, num_heldout
                                  sigma_m * rng.normal(size=(num_stations, 3))], axis=1))
     for i in range(num_stations):
         T = invert(T_base_tracker) @ T_true[i] @ T_flange_part @ noise[i]
+        pose = ({"sensor": "tracker", "target": "part", "T_sensor_target": T.tolist()} if form == "sensor" else
+                {"camera": "tracker", "target": "part", "T_cam_target": T.tolist()})
         stations.append({"id": f"s{i:03d}", "T_base_flange": T_nominal[i].tolist(), "joints_deg": joints[i].tolist(),
-                         "poses": [{"camera": "tracker", "target": "part", "T_cam_target": T.tolist()}]})
+                         "poses": [pose]})
     cell = {
         "schema": "jcalib.cell/1",
-        "cameras": {"tracker": {"model": "pinhole", "mount": "base"}},
+        **({"sensors": {"tracker": {"kind": "pose", "mount": "base"}}} if form == "sensor" else
+           {"cameras": {"tracker": {"model": "pinhole", "mount": "base"}}}),
         "targets": {"part": {"type": "points", "mount": "flange"}},
         "robot": {"kinematics": "positioner_2axis", "calibrate_kinematics": list(calibrate),
                   "pose_noise": {"translation_m": repeatability_m, "rotation_deg": repeatability_deg}},
     }
-    obs = {"schema": "jcalib.observations/1", "cameras": {"tracker": {"image_size": [640, 480]}},
-           "targets": {"part": {"points": [[0.0, 0.0, 0.0]]}}, "stations": stations}
+    obs = {"schema": "jcalib.observations/1", "targets": {"part": {"points": [[0.0, 0.0, 0.0]]}}, "stations": stations}
+    if form != "sensor":
+        obs["cameras"] = {"tracker": {"image_size": [640, 480]}}
     truth = {"params": true_params, "nominal": np.asarray(model.nominal, np.float64), "names": list(model.param_names),
              "T_base_tracker": T_base_tracker, "T_flange_part": T_flange_part,
              "fitted": {"q": q_all[:num_stations], "T_base_flange": T_true[:num_stations]},

@@ -11,7 +11,8 @@ come with the observations; no grid fields), ``type: aprilgrid`` / ``type: april
 (:mod:`jcalib.geometry.apriltags`; a ``file:`` entry is expanded before this check,
 :mod:`jcalib.io.target_files`) and ``warp: true``; tools ``orientation: [[3x3]]`` or
 ``axis: [x, y, z]``; cameras ``settings: {GenICamName: number | text | bool}``; robots
-``kinematics:`` (a preset name or a table mapping) and ``calibrate_kinematics: [names]``.
+``kinematics:`` (a preset name or a table mapping) and ``calibrate_kinematics: [names]``; ``sensors:``
+(6-DOF pose sensors with no lens: laser trackers, metrology and motion-capture systems).
 """
 
 from __future__ import annotations
@@ -220,6 +221,19 @@ class PoseNoise(Closed):
     rotation_deg: PositiveOrVec3 = _d("rotation σ, degrees: one number or [rx, ry, rz]")
 
 
+class Sensor(Closed):
+    """A measuring sensor with no lens (a laser tracker, a metrology or motion-capture system): it measures
+    6-DOF target poses (``kind: pose``; stations' ``poses: [{sensor, target, T_sensor_target}]``)."""
+
+    kind: Literal["pose"] = _d("pose: it measures a target's 6-DOF pose T_sensor_target (m); no lens model and no "
+                               "image size")
+    mount: Literal["flange", "base", "world"] = _d("base / world: fixed (unknown T_base_<sensor>, T_world_<sensor> "
+                                                   "with several robots); flange: moves with the robot (unknown "
+                                                   "T_flange_<sensor>)", "base")
+    pose: YMat4 | None = _d(f"known pose of a fixed sensor ({_POSE}); list the sensor in fixed to hold it", None)
+    robot: Name | None = _d("the robot whose flange carries the sensor (cells with several robots)", None)
+
+
 class Robot(Closed):
     """A robot: its kinematics preset, pose noise, base pose and kinematic model."""
 
@@ -237,6 +251,8 @@ class CellDocument(Closed):
 
     schema_: Literal["jcalib.cell/1"] = Field(alias="schema", description="format and version: jcalib.cell/1")
     cameras: dict[Name, Camera] | None = _d("cameras by name", None)
+    sensors: dict[Name, Sensor] | None = _d("pose sensors with no lens (laser tracker, metrology or motion-capture "
+                                            "system) by name", None)
     targets: dict[Name, Target] | None = _d("calibration targets by name", None)
     tools: dict[Name, Tool | None] | None = _d("tools by name (unknown TCP T_flange_<tool>); {} for a tool with no "
                                                "options", None)
@@ -259,7 +275,7 @@ def intrinsic_names(model: str, skew: bool) -> tuple[str, ...]:
 def fixable_names(data: dict) -> list[str]:
     """What ``fixed:`` may list in a (schema-valid) cell document: entity names and their transforms."""
     names: list[str] = []
-    for group in ("cameras", "targets", "tools", "points", "robots"):
+    for group in ("cameras", "sensors", "targets", "tools", "points", "robots"):
         names += list(data.get(group) or {})
     out = list(names)
     for n in names:
@@ -344,11 +360,11 @@ def _check_tools_points(data: dict, problems: list) -> None:
 
 def _check_names_unique(data: dict, problems: list) -> None:
     owner: dict[str, str] = {}
-    for group in ("cameras", "targets", "tools", "points", "robots"):
+    for group in ("cameras", "sensors", "targets", "tools", "points", "robots"):
         for name in data.get(group) or {}:
             if name in owner and owner[name] != group:
                 problems.append((f"{group}.{name}", f"{name!r} has the name of a {owner[name][:-1]}; give each camera, "
-                                                    "target, tool, point and robot its own name (transform names such "
+                                                    "sensor, target, tool, point and robot its own name (transform names such "
                                                     f"as T_base_{name} must be unique)"))
             owner.setdefault(name, group)
 
@@ -384,6 +400,10 @@ def validate_cell_document(data: Any, source: str = "<dict>") -> dict:
         _check_camera(name, cam, problems)
     for name, tgt in (data.get("targets") or {}).items():
         _check_target(name, tgt, problems)
+    for name, sensor in (data.get("sensors") or {}).items():
+        why = pose_problem(sensor["pose"], MAX_CELL_EXTENT_M, "sensor position") if sensor.get("pose") else None
+        if why:
+            problems.append((f"sensors.{name}.pose", why))
     _check_tools_points(data, problems)
     _check_names_unique(data, problems)
     _check_robots(data, problems)
@@ -391,7 +411,7 @@ def validate_cell_document(data: Any, source: str = "<dict>") -> dict:
     for i, f in enumerate(data.get("fixed") or []):
         if f not in allowed:
             problems.append((f"fixed[{i}]", f"{f!r} names nothing in the cell{did_you_mean(f, allowed)} (fixed lists "
-                                            "camera, target, tool, point or robot names, or their transforms "
+                                            "camera, sensor, target, tool, point or robot names, or their transforms "
                                             "T_base_<name>, T_flange_<name>, T_world_<name>)"))
     if problems:
         raise SchemaError(source, problems)

@@ -72,7 +72,11 @@ def check_cell_observations(cell: Any, obs: Any) -> None:
         where = f"station {st.id!r}"
         for j, det in enumerate(st.detections):
             at = f"{where}.detections[{j}]"
-            if det.camera not in cell.cameras:
+            if det.camera in getattr(cell, "sensors", {}):
+                problems.append((f"{at}.camera", f"{det.camera!r} is a pose sensor of the cell (sensors:), which has no "
+                                                 "images: it gives poses ([{sensor, target, T_sensor_target}]), not "
+                                                 "detections; list it under cameras: if it is a camera"))
+            elif det.camera not in cell.cameras:
                 problems.append((f"{at}.camera", _unknown("camera", det.camera, cell.cameras, src)))
             if det.target is not None and det.target not in cell.targets:
                 problems.append((f"{at}.target", _unknown("target", det.target, cell.targets, src)))
@@ -84,9 +88,16 @@ def check_cell_observations(cell: Any, obs: Any) -> None:
             if c.point not in cell.points:
                 problems.append((f"{where}.contacts[{j}].point", _unknown("point", c.point, cell.points, src)))
         for j, pm in enumerate(getattr(st, "poses", ()) or ()):
-            cam, tgt = (pm.get("camera"), pm.get("target")) if isinstance(pm, dict) else (pm.camera, pm.target)
-            if cam not in cell.cameras:
-                problems.append((f"{where}.poses[{j}].camera", _unknown("camera", cam, cell.cameras, src)))
+            if isinstance(pm, dict):
+                sensor = "sensor" in pm
+                cam, tgt = pm.get("sensor" if sensor else "camera"), pm.get("target")
+            else:
+                sensor, cam, tgt = getattr(pm, "sensor_form", False), pm.camera, pm.target
+            measuring = {**cell.cameras, **getattr(cell, "sensors", {})}  # either form may name either
+            if cam not in measuring:
+                kind = "sensor" if sensor else "camera"
+                problems.append((f"{where}.poses[{j}].{kind}", _unknown(kind, cam, measuring, src).replace(
+                    f"its {kind}s:", "its cameras and sensors:")))
             if tgt not in cell.targets:
                 problems.append((f"{where}.poses[{j}].target", _unknown("target", tgt, cell.targets, src)))
         if len(problems) >= 20:

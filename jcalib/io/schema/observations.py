@@ -10,8 +10,9 @@ outside its image, or any pixel farther than an image size beyond it: ``1e300``,
 pixel); a few pixels just outside give an :class:`~jcalib.errors.InputWarning` naming the first.
 
 Extensions accepted here (their meaning is the calibration code's): stations ``joints_deg`` (a list,
-or a mapping robot -> list, as sessions record them) and ``poses: [{camera, target, T_cam_target}]``
-(6-DOF pose measurements, m); target detections ``orientation_ambiguous: true`` (the labelling is one of
+or a mapping robot -> list, as sessions record them) and ``poses: [{sensor, target, T_sensor_target}]``
+(6-DOF pose measurements by a pose sensor of the cell, m; the camera form ``{camera, target, T_cam_target}``
+stays valid); target detections ``orientation_ambiguous: true`` (the labelling is one of
 those the board's symmetry allows).
 """
 
@@ -125,11 +126,27 @@ class Contact(Closed):
 
 
 class PoseMeasurement(Closed):
-    """A 6-DOF pose of a target measured by a camera (or pose sensor)."""
+    """A 6-DOF pose of a target measured by a pose sensor (``sensor``, ``T_sensor_target``) or by a camera
+    (``camera``, ``T_cam_target``)."""
 
-    camera: Name = Field(description="the camera")
+    sensor: Name | None = Field(None, description="the pose sensor (cell sensors); or camera")
+    camera: Name | None = Field(None, description="the camera; or sensor")
     target: Name = Field(description="the target")
-    T_cam_target: Mat4 = Field(description=f"the target's pose in the camera frame ({_POSE})")
+    T_sensor_target: Mat4 | None = Field(None, description=f"the target's pose in the sensor frame ({_POSE})")
+    T_cam_target: Mat4 | None = Field(None, description=f"the target's pose in the camera frame ({_POSE})")
+
+    @model_validator(mode="after")
+    def _form(self) -> "PoseMeasurement":
+        sensor_form = self.sensor is not None or self.T_sensor_target is not None
+        camera_form = self.camera is not None or self.T_cam_target is not None
+        if sensor_form == camera_form:
+            raise PydanticCustomError("jcalib_check", "{why}", {
+                "why": "a pose measurement is {sensor, target, T_sensor_target} (a pose sensor) or {camera, target, "
+                       "T_cam_target} (a camera), one of the two forms"})
+        for key in (("sensor", "T_sensor_target") if sensor_form else ("camera", "T_cam_target")):
+            if getattr(self, key) is None:
+                raise PydanticCustomError("jcalib_check", "{why}", {"key": key, "why": "missing (required)"})
+        return self
 
 
 #: Joint values as sessions record them, for the published schema (the validator checks finiteness).
@@ -216,9 +233,10 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
             problems.append((f"{where}.{key}", why + ("" if "millimetres" not in why else
                              "; a robot on a track or a gantry: set JCALIB_MAX_REACH_M")))
     for j, pm in enumerate(st.get("poses") or []):
-        why = pose_problem(pm["T_cam_target"], MAX_CELL_EXTENT_M, "target position")
+        key = "T_sensor_target" if "T_sensor_target" in pm else "T_cam_target"
+        why = pose_problem(pm[key], MAX_CELL_EXTENT_M, "target position")
         if why:
-            problems.append((f"{where}.poses[{j}].T_cam_target", why))
+            problems.append((f"{where}.poses[{j}].{key}", why))
     for j, det in enumerate(st.get("detections") or []):
         at = f"{where}.detections[{j}]"
         cam = det["camera"]
