@@ -10,8 +10,11 @@ format, the source path and the conventions the importer assumed.
 
 Sources that hold pose pairs without images (hand-eye samples of easy_handeye, MoveIt, camodocal) give
 stations without images and an ``observations.json`` whose stations carry 6-DOF target poses measured
-by the camera: ``"poses": [{"camera": c, "target": t, "T_cam_target": [[4x4]]}]`` (metres). The cell
-then names the marker as a ``type: points`` target (docs/design.md: points known from the observations).
+by the camera, which the cell names as a pose sensor (``sensors: {cam0: {kind: pose, mount: ...}}``: its
+images were processed by the other tool, so no lens and no image size are known or needed):
+``"poses": [{"sensor": c, "target": t, "T_sensor_target": [[4x4]]}]`` (metres), the marker a
+``type: points`` target. ``jcalib calibrate SESSION/cell.yaml SESSION/observations.json`` solves them
+(pose-measurement factors, hand-eye from pose pairs) with no detection step.
 """
 
 from __future__ import annotations
@@ -421,7 +424,7 @@ def write_session(
                 w.append_station(rec)
         write_bytes_atomic(tmp / "cell.yaml", yaml.safe_dump(cell, sort_keys=False).encode("utf-8"))
         if any(st.poses for st in stations):
-            write_json_atomic(tmp / "observations.json", _pose_observations(stations))
+            write_json_atomic(tmp / "observations.json", _pose_observations(stations, set(cell.get("sensors") or {})))
     steps = [f"jcalib calibrate {out / 'cell.yaml'} {out / 'observations.json'} -o result.json"]
     if not any(st.poses for st in stations):
         steps.insert(0, f"jcalib detect --session {out}")
@@ -430,7 +433,15 @@ def write_session(
                          next_steps=tuple(steps))
 
 
-def _pose_observations(stations: list[ImportedStation]) -> dict:
+def _pose_measurement(p: dict, sensors: set[str]) -> dict:
+    """A station's pose measurement in the observations' form: the sensor form for a pose sensor of the cell."""
+    T = np.asarray(p["T_cam_target"]).tolist()
+    if p["camera"] in sensors:
+        return {"sensor": p["camera"], "target": p["target"], "T_sensor_target": T}
+    return {**p, "T_cam_target": T}
+
+
+def _pose_observations(stations: list[ImportedStation], sensors: set[str]) -> dict:
     return {
         "schema": "jcalib.observations/1",
         "cameras": {},
@@ -440,7 +451,7 @@ def _pose_observations(stations: list[ImportedStation]) -> dict:
                 "id": st.id,
                 **({} if st.T_base_flange is None else {"T_base_flange": np.asarray(st.T_base_flange).tolist()}),
                 "detections": [],
-                "poses": [{**p, "T_cam_target": np.asarray(p["T_cam_target"]).tolist()} for p in st.poses],
+                "poses": [_pose_measurement(p, sensors) for p in st.poses],
             }
             for st in stations
         ],
@@ -463,14 +474,16 @@ def pose_pair_session(
 ) -> ImportSummary:
     """Write a session of hand-eye pose pairs ``(T_base_flange, T_cam_target)`` (m) without images.
 
-    The cell has one camera (``mount``) and one marker (the other mount) of ``type: points``; every
-    station carries its flange pose and the camera's measurement of the marker pose (module docstring).
+    The cell has one camera as a pose sensor (``sensors: {camera: {kind: pose, mount}}``: the other tool
+    measured the marker in its images, so no lens and no image size) and one marker (the other mount) of
+    ``type: points``; every station carries its flange pose and the camera's measurement of the marker pose
+    (module docstring).
     A pair repeated exactly (a sample saved twice) is kept once, with a note naming it.
     """
     cam_mount, tgt_mount = cell_entries_for_mount(mount, fmt, "")
     cell = {
         "schema": "jcalib.cell/1",
-        "cameras": {camera: {"model": "pinhole", "mount": cam_mount}},
+        "sensors": {camera: {"kind": "pose", "mount": cam_mount}},
         "targets": {target: {"type": "points", "mount": tgt_mount}},
         "robot": {},
     }
@@ -491,8 +504,9 @@ def pose_pair_session(
         for k, (i, Tb, Tc) in enumerate(kept)
     ]
     notes = notes + (
-        ("pose pairs without images: observations.json holds each station's 6-DOF T_cam_target ('poses'); "
-         "calibrate needs the problem builder's pose-measurement factors and a 'points' target type"),
+        (f"pose pairs without images: the camera is the cell's pose sensor {camera!r} (no lens, no image size) and "
+         "observations.json holds each station's 6-DOF T_sensor_target ('poses'); jcalib calibrate solves them "
+         "directly (no detect step)"),
     )
     return write_session(out, cell, stations, fmt=fmt, source=source, conventions=conventions, extra=extra,
                          notes=notes, source_root=source_root)
