@@ -1,4 +1,6 @@
-"""MkDocs hook: the CLI reference, a page per ``jcalib`` command with its ``--help`` text, made at build time.
+"""MkDocs hook: the CLI reference, a page per ``jcalib`` command with its ``--help`` text, made at build time;
+and the examples, a page per folder of ``examples/`` (its README.md and cell spec), so that the guides link
+to the very commands and files that ``tests/test_examples.py`` runs.
 
 The pages come from the typer app itself (``jcalib.app.cli.app``, its click commands), so they cannot go
 stale: a new command gets its page and its nav entry, a changed option its new help. ``on_config`` expands
@@ -14,6 +16,23 @@ from pathlib import Path
 
 INDEX = "reference/cli/index.md"
 WIDTH = 100
+EXAMPLES_INDEX = "examples/index.md"
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def example_names() -> list[str]:
+    """The example folders (those with a README.md), sorted."""
+    return sorted(p.name for p in EXAMPLES.iterdir() if (p / "README.md").is_file())
+
+
+def example_page(name: str) -> str:
+    """An example's page: its README.md, then its cell spec."""
+    d = EXAMPLES / name
+    cell = (d / "cell.yaml").read_text(encoding="utf-8").rstrip()
+    readme = (d / "README.md").read_text(encoding="utf-8").rstrip()
+    return (f"{readme}\n\nFiles in `examples/{name}/`: `cell.yaml` (below), `observations.json`, `expected.json` "
+            "(the simulation's truth, which `tests/test_examples.py` compares the result with).\n\n"
+            f"```yaml\n{cell}\n```\n")
 
 
 def _app_command():
@@ -70,22 +89,25 @@ def index_page(helps: dict[str, str]) -> str:
             "`JCALIB_DEBUG=1` shows the traceback of an unexpected error.\n")
 
 
-def _expand(nav, names):
-    """``nav`` with the entry ``INDEX`` replaced by a section: the index, then each command's page."""
+def _expand(nav, names, examples=()):
+    """``nav`` with the entry ``INDEX`` replaced by a section: the index, then each command's page (and
+    ``EXAMPLES_INDEX`` by the examples' index, then each example's page)."""
     if isinstance(nav, list):
-        return [_expand(item, names) for item in nav]
+        return [_expand(item, names, examples) for item in nav]
     if isinstance(nav, dict):
         out = {}
         for title, value in nav.items():
             if value == INDEX:
                 value = [INDEX, *({f"jcalib {n}": f"reference/cli/{n}.md"} for n in names)]
-            out[title] = _expand(value, names)
+            elif value == EXAMPLES_INDEX:
+                value = [EXAMPLES_INDEX, *({n: f"examples/{n}.md"} for n in examples)]
+            out[title] = _expand(value, names, examples)
         return out
     return nav
 
 
 def on_config(config, **kwargs):
-    config["nav"] = _expand(config["nav"], list(command_help()))
+    config["nav"] = _expand(config["nav"], list(command_help()), example_names())
     return config
 
 
@@ -96,4 +118,7 @@ def on_files(files, config, **kwargs):
     files.append(File.generated(config, INDEX, content=index_page(helps)))
     for name, text in helps.items():
         files.append(File.generated(config, f"reference/cli/{name}.md", content=command_page(name, text)))
+    files.append(File.generated(config, EXAMPLES_INDEX, content=(EXAMPLES / "README.md").read_text(encoding="utf-8")))
+    for name in example_names():
+        files.append(File.generated(config, f"examples/{name}.md", content=example_page(name)))
     return files
