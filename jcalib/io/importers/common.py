@@ -450,6 +450,7 @@ def _pose_observations(stations: list[ImportedStation], sensors: set[str]) -> di
             {
                 "id": st.id,
                 **({} if st.T_base_flange is None else {"T_base_flange": np.asarray(st.T_base_flange).tolist()}),
+                **({} if st.joints_deg is None else {"joints_deg": list(st.joints_deg)}),
                 "detections": [],
                 "poses": [_pose_measurement(p, sensors) for p in st.poses],
             }

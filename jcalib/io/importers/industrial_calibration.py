@@ -1,5 +1,8 @@
 """ROS-Industrial ``industrial_calibration`` extrinsic hand-eye data sets -> capture session.
 
+(Its kinematic-calibration data sets, ``measurements.yaml``, are read by
+:mod:`jcalib.io.importers.industrial_calibration_kinematic`, to which :func:`import_source` hands them.)
+
 Layout (the tool's ``docs/extrinsic_hand_eye_calibration.md`` and ``examples/data/test_set_*``)::
 
     cal_data.yaml        data: [{image: images/0.png, pose: poses/0.yaml}, ...]   (paths relative to it)
@@ -52,16 +55,21 @@ from jcalib.io.importers.common import (
     resolve_source,
     write_session,
 )
+from jcalib.io.importers.industrial_calibration_kinematic import OPTIONS as KINEMATIC_OPTIONS
 from jcalib.io.importers.source import ALLOW_OUTSIDE_HELP, SourceFolder, flag_option
 
 FORMAT = "industrial-calibration"
-OPTIONS = {
+#: Options of the extrinsic hand-eye data sets (cal_data.yaml).
+EXTRINSIC_OPTIONS = {
     "intrinsics": "held (default: as the tool, which holds them fixed) or initial (start values, estimated)",
     "camera_model": "lens model when the source has no intrinsics (default opencv5)",
     "camera": "camera id in the session (default cam0)",
-    "target": "target id in the session (default board)",
+    "target": "target id in the session (default board; kinematic data sets: target)",
     "allow_outside": ALLOW_OUTSIDE_HELP,
 }
+#: Every option: those of the kinematic data sets (measurements.yaml) too.
+OPTIONS = {**{k: f"kinematic data sets (measurements.yaml): {v}" for k, v in KINEMATIC_OPTIONS.items()},
+           **EXTRINSIC_OPTIONS}
 _POSE_KEYS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 
 
@@ -129,7 +137,11 @@ def import_source(source: str | os.PathLike, out: str | os.PathLike, *, mount: s
         BadInputError: a missing or malformed field, file or image, an unsupported target, or ``mount``
             contradicting ``static_camera``.
     """
-    check_options(FORMAT, options, OPTIONS)
+    from jcalib.io.importers import industrial_calibration_kinematic as kinematic
+
+    if kinematic.is_kinematic_source(source):  # the kinematic-calibration data set (measurements.yaml)
+        return kinematic.import_source(source, out, mount=mount, **options)
+    check_options(FORMAT, options, EXTRINSIC_OPTIONS)
     path = resolve_source(source, "cal_data.yaml", f"import {FORMAT}")
     root = path.parent
     folder = SourceFolder(root, FORMAT, flag_option(options, "allow_outside", FORMAT))
