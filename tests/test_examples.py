@@ -122,6 +122,25 @@ def test_example_runs_and_matches_its_expected_values(name, tmp_path):
     assert check(ResultFile.load(work / expected["result"]), expected) > 0
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_example_files_validate_against_the_published_schemas(name):
+    """An editor that follows ``cell.yaml``'s ``yaml-language-server`` line validates it, and the observations,
+    with the shipped JSON Schemas (jcalib/io/schema/json)."""
+    import jsonschema
+    import yaml
+
+    d = EXAMPLES / name
+    head = (d / "cell.yaml").read_text(encoding="utf-8").splitlines()[0]
+    schema_path = (d / head.split("$schema=", 1)[1]).resolve()
+    assert schema_path == (EXAMPLES.parent / "jcalib/io/schema/json/cell.schema.json").resolve()
+    for file, schema in (("cell.yaml", schema_path), ("observations.json", schema_path.with_name(
+            "observations.schema.json"))):
+        doc = yaml.safe_load((d / file).read_text(encoding="utf-8"))
+        validator = jsonschema.Draft202012Validator(json.loads(schema.read_text(encoding="utf-8")))
+        errors = list(validator.iter_errors(doc))
+        assert not errors, f"{name}/{file}: {errors[0].message[:300]}"
+
+
 def test_the_check_can_fail():
     """A truth moved by 10 σ of a component is reported (the comparison is not vacuous)."""
     cov = np.diag([1e-6] * 3 + [1e-8] * 3)
