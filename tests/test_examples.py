@@ -135,7 +135,8 @@ def test_example_files_validate_against_the_published_schemas(name):
     assert schema_path == (EXAMPLES.parent / "jcalib/io/schema/json/cell.schema.json").resolve()
     for file, schema in (("cell.yaml", schema_path), ("observations.json", schema_path.with_name(
             "observations.schema.json"))):
-        doc = yaml.safe_load((d / file).read_text(encoding="utf-8"))
+        text = (d / file).read_text(encoding="utf-8")
+        doc = json.loads(text) if file.endswith(".json") else yaml.safe_load(text)
         validator = jsonschema.Draft202012Validator(json.loads(schema.read_text(encoding="utf-8")))
         errors = list(validator.iter_errors(doc))
         assert not errors, f"{name}/{file}: {errors[0].message[:300]}"
