@@ -87,3 +87,23 @@ def test_bad_sensor_input_is_refused_by_name(edit, match):
     edit(cell, obs)
     with pytest.raises(BadInputError, match=match):
         jcalib.calibrate(cell, obs)
+
+
+def test_sensor_mounts_follow_the_rules_of_cameras():
+    """``mount: world`` and ``robot:`` with several robots, ``fixed`` names a sensor and its transform, a fixed
+    sensor's ``pose`` is read; wrong mounts are refused by name."""
+    eye = np.eye(4).tolist()
+    two = {"schema": "jcalib.cell/1", "robots": {"r1": {}, "r2": {}},
+           "sensors": {"t1": {"kind": "pose", "mount": "world", "pose": eye}, "t2": {"kind": "pose", "mount": "flange",
+                                                                                     "robot": "r2"}},
+           "targets": {"m": {"type": "points", "mount": "flange", "robot": "r1"}}, "fixed": ["t1", "T_world_t1"]}
+    spec = parse_cell(two)
+    assert spec.sensors["t2"].robot == "r2" and np.array_equal(spec.sensors["t1"].pose, np.eye(4))
+    for edit, match in ((lambda c: c["sensors"]["t1"].update(mount="base"), "ambiguous"),
+                        (lambda c: c["sensors"]["t2"].pop("robot"), "robot"),
+                        (lambda c: c["sensors"]["t1"].update(mount="free"), "mount"),
+                        (lambda c: c["sensors"].update(m={"kind": "pose"}), "name")):
+        bad = {**two, "sensors": {k: dict(v) for k, v in two["sensors"].items()}}
+        edit(bad)
+        with pytest.raises(BadInputError, match=match):
+            parse_cell(bad)
