@@ -15,6 +15,10 @@ pose ``base: [[4x4]]`` = ``T_world_<robot>``, m). ``robot:`` and ``robots:`` are
   (``mount: base`` is refused: whose base?), flange cameras / targets and tools name their robot
   with ``robot: <name>`` (required), cell points are in the world frame. Robot names must differ
   from the camera, target, tool and point names and from ``world``, ``base``, ``flange``.
+
+Sensors (``sensors: {tracker: {kind: pose, mount: base}}``): measuring sensors with no lens (a laser
+tracker, a metrology or motion-capture system) whose stations' ``poses`` give 6-DOF target poses. They are
+mounted as cameras are (``base`` / ``world`` / ``flange`` with ``robot:``), and have no model and no image size.
 """
 
 from __future__ import annotations
@@ -168,6 +172,7 @@ class CellSpec:
     without a robot and with several robots); ``robots`` holds the named robots of ``robots:`` in
     file order (empty for ``robot:``). ``goals``: accuracy goals for station planning and adaptive capture
     (:mod:`jcalib.io.goals`); they do not change a calibration.
+    ``sensors``: measuring sensors with no lens (:class:`SensorSpec`, ``sensors:``), in file order.
     """
 
     cameras: dict[str, CameraSpec]
