@@ -128,7 +128,8 @@ class SensorSpec:
     Attributes:
         name: sensor id, e.g. ``"tracker"``.
         kind: ``"pose"``: it measures targets' 6-DOF poses (stations' ``poses: [{sensor, target,
-            T_sensor_target}]``).
+            T_sensor_target}]``); ``"point"``: it measures tool tips' 3-D positions (stations' ``positions:
+            [{sensor, tool, p_sensor_tool}]``).
         mount: ``"base"`` (fixed, one-robot cell: unknown ``T_base_<name>``), ``"world"`` (fixed, several
             robots) or ``"flange"`` (on a robot: unknown ``T_flange_<name>``).
         pose: optional (4, 4) known pose in its mount frame, m.

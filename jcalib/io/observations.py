@@ -97,6 +97,19 @@ class PoseMeasurement:
 
 
 @dataclass(frozen=True)
+class PositionMeasurement:
+    """The tip of ``tool`` (its TCP origin, e.g. a laser tracker's reflector) measured by the point sensor
+    ``sensor``: ``p_sensor_tool`` (3,), m, in the sensor frame."""
+
+    sensor: str
+    tool: str
+    p_sensor_tool: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"sensor": self.sensor, "tool": self.tool, "p_sensor_tool": self.p_sensor_tool.tolist()}
+
+
+@dataclass(frozen=True)
 class Station:
     """One robot station (or one free view when there is no robot).
 
@@ -108,6 +121,8 @@ class Station:
         contacts: tool-tip contacts with cell points.
         poses: 6-DOF pose measurements (``"poses": [{"sensor", "target", "T_sensor_target"}]`` or
             ``[{"camera", "target", "T_cam_target"}]``).
+        positions: 3-D tool-tip positions measured by point sensors (``"positions": [{"sensor", "tool",
+            "p_sensor_tool"}]``).
         flange_poses: robot name -> (4, 4) measured flange pose of that robot in its own base
             (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
             the station gives ``T_base_flange``. Which robots a station must give is checked against
@@ -125,6 +140,7 @@ class Station:
     flange_poses: dict[str, np.ndarray] = field(default_factory=dict)
     poses: tuple[PoseMeasurement, ...] = ()
     joints_deg: np.ndarray | dict[str, np.ndarray] | None = None
+    positions: tuple[PositionMeasurement, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"id": self.id}
@@ -141,6 +157,8 @@ class Station:
             out["contacts"] = [{"tool": c.tool, "point": c.point} for c in self.contacts]
         if self.poses:
             out["poses"] = [m.to_dict() for m in self.poses]
+        if self.positions:
+            out["positions"] = [m.to_dict() for m in self.positions]
         return out
 
 
@@ -311,13 +329,18 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
             by, key = ("sensor", "T_sensor_target") if sensor else ("camera", "T_cam_target")
             poses.append(PoseMeasurement(str(m[by]), str(m["target"]), _flange_pose(m[key], f"{w}.{key}"),
                                          sensor_form=sensor))
+        positions = tuple(
+            PositionMeasurement(str(m["sensor"]), str(m["tool"]),
+                                _array(m["p_sensor_tool"], f"{where}.positions[{j}].p_sensor_tool", 1).reshape(3))
+            for j, m in enumerate(s.get("positions") or []))  # (keys and shapes checked by the schema)
         joints = s.get("joints_deg")
         if isinstance(joints, dict):
             joints = {str(r): _array(q, f"{where}.joints_deg.{r}", 1) for r, q in joints.items()}
         elif joints is not None:
             joints = _array(joints, where + ".joints_deg", 1)
         stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts,
-                                flange_poses=flange_poses, poses=tuple(poses), joints_deg=joints))
+                                flange_poses=flange_poses, poses=tuple(poses), joints_deg=joints,
+                                positions=positions))
     return Observations(cameras=cameras, targets=targets, stations=tuple(stations), source=source)
 
 

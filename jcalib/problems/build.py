@@ -21,7 +21,7 @@ Unknowns (names as in the result file):
 Factor groups (one per pair of things, one residual function per configuration): target corners
 (pose-chain reprojection, pixels), tool tips (the tool frame's origin through the chain, pixels),
 tool-axis points (distance from the projected axis, pixels), contacts (tip minus point, m), pose
-measurements (rotation and translation halves), priors. Corners are laid out in runs of one view
+measurements (rotation and translation halves), tool tips measured by point sensors (m), priors. Corners are laid out in runs of one view
 (``FactorGroup.chunk``), padded with zero-weight copies: the normal equations are summed per view
 with one matrix product.
 """
@@ -38,13 +38,13 @@ from jcalib.geometry.targets import warp_bow
 from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.start import Start
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
-from jcalib.residuals.pose import axis_translation_prior, contact, kinematic, pose_measurement
+from jcalib.residuals.pose import axis_translation_prior, contact, kinematic, pose_measurement, position_measurement
 from jcalib.residuals.reprojection import reprojection, tool_axis, warped_reprojection
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable, replace
 
 #: Residual kinds and their unit.
 KINDS = {"corner": "px", "corner_mean": "px", "tip": "px", "axis": "px", "contact": "m",
-         "pose_rotation": "rad", "pose_translation": "m"}
+         "pose_rotation": "rad", "pose_translation": "m", "position": "m"}
 
 #: Kinds of target corners: one image each, or the mean of a static scene's repeated images.
 CORNER_KINDS = ("corner", "corner_mean")
@@ -508,6 +508,19 @@ class _Builder:
                 f = FactorGroup(name, pose_measurement(chain, part), args, self.indices(args, st), obs, sigma=sigma)
                 self.factor(Group(name, f"pose_{part}", (c, t), st, np.full(n, -1), np.arange(n), n, False), f, args)
 
+    def positions(self) -> None:
+        """Tool tips measured by point sensors (m, σ ``pose_sigma_m`` per axis)."""
+        g, cell = self.g, self.g.cell
+        for (sensor, tool), ps in g.positions.items():
+            args, chain = self.chain(cell.cameras[sensor], sensor, cell.tools[tool], tool)
+            st = np.asarray(ps.stations, np.int32)
+            n = st.size
+            fn, jac = position_measurement(chain)
+            name = f"positions:{sensor}/{tool}"
+            f = FactorGroup(name, fn, args, self.indices(args, st), np.stack(ps.p_sensor_tool), sigma=self.o.pose_sigma_m,
+                            jacobian=jac)
+            self.factor(Group(name, "position", (sensor, tool), st, np.full(n, -1), np.arange(n), n, False), f, args)
+
     def extra_priors(self) -> None:
         fixed = self.s.unobservable_fixed
         if fixed is not None:
@@ -560,13 +573,14 @@ def build(g: Graph, start: Start, options, pose_model: dict[str, bool], priors: 
     b.tips_and_axes()
     b.contacts()
     b.pose_measurements()
+    b.positions()
     b.extra_priors()
     b.eliminate()
     order = [n for n in b.variables if n in b.per_station] + [n for n in b.variables if n not in b.per_station]
     problem = Problem([b.variables[n] for n in order], b.factors)
     sigma = {"corner": options.sigma_px, "corner_mean": options.sigma_px, "tip": options.tip_sigma_px,
              "axis": options.axis_sigma_px, "contact": options.contact_sigma_m, "pose_rotation": float(np.radians(options.pose_sigma_deg)),
-             "pose_translation": options.pose_sigma_m}
+             "pose_translation": options.pose_sigma_m, "position": options.pose_sigma_m}
     return Built(problem, b.groups, sigma, b.flange_entry, b.free_entry, b.transforms, pose_model, b.calibrated,
                  sorted(set(b.used_priors)), b.pose_sqrt_info, b.warps, b.kinematic, b.kinematic_noise)
 

@@ -32,6 +32,7 @@ from jcalib.problems.prediction import prediction
 from jcalib.problems.refine import refine
 from jcalib.problems.orientation import relabel, resolve_orientations
 from jcalib.problems.start import Start, start_intrinsics, start_poses
+from jcalib.problems.positions import start_point_sensors
 from jcalib.problems.tools import start_tools
 
 
@@ -215,6 +216,7 @@ def prepare(cell: CellSpec, obs: Observations, options: CalibrationOptions | Non
     for n, p in (points or {}).items():
         if n in cell.points and cell.points[n].position is None:
             s.points[n] = np.asarray(p, np.float64).reshape(3)
+    start_point_sensors(g, s)
     start_tools(g, s)
     if unobservable_fixed is not None and s.unobservable_fixed is None:
         s.unobservable_fixed = dict(unobservable_fixed)
@@ -364,7 +366,7 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         stats.update(rms_px=cal.rms_px, rms_px_per_coordinate=cal.rms_px_per_coordinate, sigma_px=cal.sigma_px)
     for kind, key, scale in (("tip", "tip_rms_px", 1.0), ("axis", "axis_rms_px", 1.0), ("contact", "contact_rms_m", 1.0),
                              ("pose_rotation", "pose_rms_deg", float(np.degrees(1.0))),
-                             ("pose_translation", "pose_rms_m", 1.0)):
+                             ("pose_translation", "pose_rms_m", 1.0), ("position", "position_rms_m", 1.0)):
         if kind in cal.rms and cal.rms[kind] == cal.rms[kind]:
             stats[key] = cal.rms[kind] * scale
     tip = cal.rms_per_coordinate.get("tip")

@@ -11,8 +11,8 @@ Every camera, target and tool hangs on a *holder*:
 
 Observations are grouped by what they connect: target corners per (camera, target) *pair*, tool tips
 (and points on the imaged tool axis) per (camera, tool), contacts per (tool, cell point), 6-DOF pose
-measurements per (camera, target). :func:`gather` validates them against the cell and keeps the
-stations that observe something.
+measurements per (camera, target), 3-D tool-tip positions per (point sensor, tool). :func:`gather`
+validates them against the cell and keeps the stations that observe something.
 """
 
 from __future__ import annotations
@@ -90,6 +90,16 @@ class PoseMeasurements:
     T_cam_target: list[np.ndarray] = field(default_factory=list)
 
 
+@dataclass
+class Positions:
+    """3-D positions of a tool's tip measured by a point sensor: ``p_sensor_tool`` per station."""
+
+    sensor: str
+    tool: str
+    stations: list[int] = field(default_factory=list)
+    p_sensor_tool: list[np.ndarray] = field(default_factory=list)
+
+
 class Graph:
     """The things of a cell, their holders, the used stations and the observation groups.
 
@@ -108,7 +118,7 @@ class Graph:
             :func:`jcalib.problems.kinematics.select_parameters`, which also refuses motion that cannot
             determine them); ``kinematic_noise``: robot -> ``(S (6, 6), source)`` the square-root
             information of one of its flange poses and where its σ came from.
-        pairs, tips, contacts, poses: the observation groups, keyed by the two names they connect.
+        pairs, tips, contacts, poses, positions: the observation groups, keyed by the two names they connect.
     """
 
     def __init__(self, cell: CellSpec, obs: Observations, reference_camera: str | None = None):
@@ -134,6 +144,7 @@ class Graph:
         self.tips: dict[tuple[str, str], Tips] = {}
         self.contacts: dict[tuple[str, str], Contacts] = {}
         self.poses: dict[tuple[str, str], PoseMeasurements] = {}
+        self.positions: dict[tuple[str, str], Positions] = {}
         self.station_ids: list[str] = []
         self.flange: dict[str, np.ndarray] = {}
         self.need: dict[str, np.ndarray] = {}
@@ -327,6 +338,16 @@ class Graph:
                 pm.stations.append(k)
                 pm.T_cam_target.append(np.asarray(m.T_cam_target, np.float64))
                 need |= {self.holder(cell.cameras[m.camera]), self.holder(cell.targets[m.target])}
+                used = True
+            for m in getattr(station, "positions", ()) or ():
+                if m.sensor not in cell.sensors or m.tool not in cell.tools:
+                    raise BadInputError(
+                        f"{src}: station '{station.id}': a position of tool '{m.tool}' measured by '{m.sensor}'; the "
+                        "sensor must be in the cell's sensors (kind: point) and the tool in its tools")
+                ps = self.positions.setdefault((m.sensor, m.tool), Positions(m.sensor, m.tool))
+                ps.stations.append(k)
+                ps.p_sensor_tool.append(np.asarray(m.p_sensor_tool, np.float64).reshape(3))
+                need |= {self.holder(cell.cameras[m.sensor]), self.holder(cell.tools[m.tool])}
                 used = True
             if not used:
                 continue

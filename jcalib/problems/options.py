@@ -30,7 +30,7 @@ class CalibrationOptions:
         axis_sigma_px: noise of a point on an imaged tool axis, across the axis (pixels).
         contact_sigma_m: how well a tool tip sits in a touched point, per axis (m).
         pose_sigma_deg, pose_sigma_m: noise of a 6-DOF pose measurement, per rotation axis (degrees)
-            and per translation axis (m).
+            and per translation axis (m); ``pose_sigma_m`` is also a point sensor's noise per axis (m).
         noise: ``"a_posteriori"`` (σ from the residuals, default) or ``"stated"`` (trust the σ above).
         loss: robust loss on corners, tool tips, axis points and contacts: ``"none"``, ``"huber"`` or
             ``"cauchy"``.
@@ -123,7 +123,7 @@ APPLIES = {
                                                                               for a in t.axis)),
     "contact_sigma_m": ("tool contacts with cell points", lambda g: bool(g.contacts)),
     "pose_sigma_deg": ("6-DOF pose measurements", lambda g: bool(g.poses)),
-    "pose_sigma_m": ("6-DOF pose measurements", lambda g: bool(g.poses)),
+    "pose_sigma_m": ("6-DOF pose or 3-D point measurements", lambda g: bool(g.poses) or bool(g.positions)),
     "reseed_views": ("free-moving targets (mount: free)", lambda g: bool(g.free_things())),
     "pose_model": ("a robot with pose_noise in the cell spec", lambda g: any(g.has_noise(r) for r in g.used_robots)),
     "method": (_HAND_EYE, _hand_eye_pair),

@@ -25,6 +25,7 @@ _KIND_TEXT = {
     "tip": ("tool-tip", "px", 1.0), "axis": ("tool-axis", "px", 1.0), "contact": ("contact", "mm", 1e3),
     "pose_rotation": ("pose-measurement rotation", "deg", float(np.degrees(1.0))),
     "pose_translation": ("pose-measurement translation", "mm", 1e3),
+    "position": ("point-sensor position", "mm", 1e3),
 }
 
 #: Why the residuals of a kind can be far beyond its noise, and what to try.
@@ -37,6 +38,8 @@ _CAUSES = {
     "pose_rotation": "the pose sensor or the robot is worse than stated, or the data mix frames or units",
     "pose_translation": "the pose sensor or the robot is worse than stated, or the data mix frames or units "
                         "(millimetres written as metres, joints in radians where degrees are expected)",
+    "position": "the point sensor or the robot is worse than stated, the reflector moved on the flange, or the data "
+                "mix frames or units (millimetres written as metres)",
 }
 
 

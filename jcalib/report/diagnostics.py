@@ -19,7 +19,7 @@ __all__ = ["GroupStatistics", "RadialTest", "ResidualDiagnostics", "group_statis
 #: Display unit and scale of each residual kind (the solve's units: px, m, rad).
 _UNITS = {"corner": ("px", 1.0), "corner_mean": ("px", 1.0), "tip": ("px", 1.0), "axis": ("px", 1.0),
           "contact": ("mm", 1e3),
-          "pose_rotation": ("deg", float(np.degrees(1.0))), "pose_translation": ("mm", 1e3)}
+          "pose_rotation": ("deg", float(np.degrees(1.0))), "pose_translation": ("mm", 1e3), "position": ("mm", 1e3)}
 
 
 @dataclass(frozen=True)

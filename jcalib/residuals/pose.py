@@ -1,5 +1,6 @@
-"""Residuals between poses: tool-tip contacts, 6-DOF pose measurements (pose loops), a robot's flange
-pose against its kinematic model and a prior on a translation component.
+"""Residuals between poses: tool-tip contacts, 6-DOF pose measurements (pose loops), 3-D tool-tip positions
+measured by a point sensor, a robot's flange pose against its kinematic model and a prior on a translation
+component.
 """
 
 from __future__ import annotations
@@ -37,6 +38,29 @@ def contact(chain: Chain):
         return tip - point, (*blocks, -jnp.eye(3, dtype=point.dtype))
 
     fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("contact", chain)
+    return fn, jacobian
+
+
+@functools.cache
+def position_measurement(chain: Chain):
+    """``(fn, jacobian)``: a tool tip's predicted position in a point sensor's frame minus the measured one, m,
+    ``(3,)``.
+
+    ``fn(*poses, obs)``: the chain carries the tool frame's origin (its tip) into the sensor frame (e.g.
+    ``T_base_sensor⁻¹ · T_base_flange_i · T_flange_tool``); ``obs`` is the measured ``p_sensor_tool (3,)``
+    (a laser tracker's reflector position).
+    """
+
+    def fn(*rest):
+        *poses, p_meas = rest
+        return chain_apply(poses, chain, jnp.zeros((3,), p_meas.dtype)) - p_meas
+
+    def jacobian(*rest):
+        *poses, p_meas = rest
+        tip, blocks, _ = chain_jacobian(poses, chain, jnp.zeros((3,), p_meas.dtype))
+        return tip - p_meas, tuple(blocks)
+
+    fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("position_measurement", chain)
     return fn, jacobian
 
 

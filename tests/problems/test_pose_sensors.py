@@ -107,3 +107,70 @@ def test_sensor_mounts_follow_the_rules_of_cameras():
         edit(bad)
         with pytest.raises(BadInputError, match=match):
             parse_cell(bad)
+
+
+def _point_sensor_cell(num: int = 16, noise_m: float = 2e-5, seed: int = 1):
+    """A fixed laser tracker (kind: point) measuring a reflector on the flange (a tool): cell, observations, truth."""
+    from jcalib.geometry.se3 import exp_so3, invert, make_pose
+
+    rng = np.random.default_rng(seed)
+    T_base_tracker = make_pose(exp_so3(np.array([0.3, -1.2, 0.5])), np.array([2.0, 0.5, 1.0]))
+    p_flange_smr = np.array([0.01, -0.03, 0.12])
+    stations = []
+    for i in range(num):
+        F = make_pose(exp_so3(rng.normal(0, 0.6, 3)), rng.normal([0.6, 0.0, 0.5], 0.2))
+        p = (invert(T_base_tracker) @ F @ np.r_[p_flange_smr, 1.0])[:3] + noise_m * rng.normal(size=3)
+        stations.append({"id": f"s{i:02d}", "T_base_flange": F.tolist(),
+                         "positions": [{"sensor": "tracker", "tool": "smr", "p_sensor_tool": p.tolist()}]})
+    cell = {"schema": "jcalib.cell/1", "sensors": {"tracker": {"kind": "point", "mount": "base"}},
+            "tools": {"smr": {}}, "robot": {}}
+    return cell, {"schema": "jcalib.observations/1", "stations": stations}, (T_base_tracker, p_flange_smr)
+
+
+def test_point_sensor_closed_form_is_exact_on_noiseless_data():
+    from jcalib.init.point_sensor import point_sensor_start
+
+    _, obs, (T, p) = _point_sensor_cell(noise_m=0.0)
+    F = np.array([s["T_base_flange"] for s in obs["stations"]])
+    P = np.array([s["positions"][0]["p_sensor_tool"] for s in obs["stations"]])
+    T_est, p_est = point_sensor_start(F, P)
+    np.testing.assert_allclose(T_est, T, atol=1e-9)  # float64 identities on exact data
+    np.testing.assert_allclose(p_est, p, atol=1e-9)
+    with pytest.raises(jcalib.errors.NotObservableError, match="13"):
+        point_sensor_start(F[:8], P[:8])
+    with pytest.raises(jcalib.errors.NotObservableError, match="rotate"):
+        point_sensor_start(np.broadcast_to(F[0], F.shape), P)
+
+
+def test_point_sensor_calibrates_the_tracker_and_the_reflector_within_sigma():
+    """A laser tracker measuring a reflector's position (3-D) at 16 stations, 20 µm per axis: the tracker's pose
+    (6 DOF) and the reflector's position on the flange lie within their σ of the truth (χ²)."""
+    from jcalib.geometry.se3 import invert, log_so3
+
+    cell, obs, (T_true, p_true) = _point_sensor_cell()
+    res = jcalib.calibrate(cell, obs, {"pose_sigma_m": 2e-5}).file
+    tr = res.transforms["T_base_tracker"]
+    D = invert(np.asarray(tr.matrix)) @ T_true
+    e = np.r_[log_so3(D[:3, :3]), D[:3, 3]]
+    assert float(e @ np.linalg.solve(np.asarray(tr.covariance), e)) < stats.chi2.ppf(0.999, 6), e
+    tip = res.transforms["T_flange_smr"]
+    assert tip.extra["calibrated"] == ["tx", "ty", "tz"]
+    e = np.asarray(tip.matrix)[:3, 3] - p_true
+    assert float(e @ np.linalg.solve(np.asarray(tip.covariance)[3:, 3:], e)) < stats.chi2.ppf(0.999, 3), e
+    assert res.stats["position_rms_m"] < 1e-4 and not res.cameras
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda c, o: o["stations"][0]["positions"][0].update(sensor="trackr"), "point sensor 'trackr'"),
+    (lambda c, o: o["stations"][0]["positions"][0].update(tool="sm"), "tool 'sm'"),
+    (lambda c, o: c["sensors"]["tracker"].update(kind="pose"), "point sensor 'tracker'"),
+    (lambda c, o: o["stations"][0].update(poses=[{"sensor": "tracker", "target": "marker", "T_sensor_target":
+                                                   np.eye(4).tolist()}]), "kind point"),
+    (lambda c, o: o["stations"][0]["positions"][0].update(p_sensor_tool=[1200.0, 0.0, 0.0]), "millimetres"),
+])
+def test_bad_point_sensor_input_is_refused_by_name(edit, match):
+    cell, obs, _ = _point_sensor_cell(num=3)
+    cell["targets"] = {"marker": {"type": "points", "mount": "flange"}}
+    edit(cell, obs)
+    with pytest.raises(BadInputError, match=match):
+        jcalib.calibrate(cell, obs)

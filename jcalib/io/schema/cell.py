@@ -223,10 +223,13 @@ class PoseNoise(Closed):
 
 class Sensor(Closed):
     """A measuring sensor with no lens (a laser tracker, a metrology or motion-capture system): it measures
-    6-DOF target poses (``kind: pose``; stations' ``poses: [{sensor, target, T_sensor_target}]``)."""
+    6-DOF target poses (``kind: pose``; stations' ``poses: [{sensor, target, T_sensor_target}]``) or 3-D points
+    (``kind: point``: a tool's tip, e.g. a laser tracker's reflector; stations' ``positions: [{sensor, tool,
+    p_sensor_tool}]``)."""
 
-    kind: Literal["pose"] = _d("pose: it measures a target's 6-DOF pose T_sensor_target (m); no lens model and no "
-                               "image size")
+    kind: Literal["pose", "point"] = _d("pose: it measures a target's 6-DOF pose T_sensor_target (m); point: it "
+                                        "measures a tool tip's position p_sensor_tool (m); neither has a lens model "
+                                        "or an image size")
     mount: Literal["flange", "base", "world"] = _d("base / world: fixed (unknown T_base_<sensor>, T_world_<sensor> "
                                                    "with several robots); flange: moves with the robot (unknown "
                                                    "T_flange_<sensor>)", "base")

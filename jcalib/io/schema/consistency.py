@@ -93,13 +93,24 @@ def check_cell_observations(cell: Any, obs: Any) -> None:
                 cam, tgt = pm.get("sensor" if sensor else "camera"), pm.get("target")
             else:
                 sensor, cam, tgt = getattr(pm, "sensor_form", False), pm.camera, pm.target
-            measuring = {**cell.cameras, **getattr(cell, "sensors", {})}  # either form may name either
+            sensors = getattr(cell, "sensors", {})
+            if cam in sensors and sensors[cam].kind != "pose":
+                problems.append((f"{where}.poses[{j}].sensor", f"sensor {cam!r} is of kind {sensors[cam].kind}: it "
+                                 "measures positions ([{sensor, tool, p_sensor_tool}]), not poses"))
+                continue
+            measuring = {**cell.cameras, **sensors}  # either form may name either
             if cam not in measuring:
                 kind = "sensor" if sensor else "camera"
                 problems.append((f"{where}.poses[{j}].{kind}", _unknown(kind, cam, measuring, src).replace(
                     f"its {kind}s:", "its cameras and sensors:")))
             if tgt not in cell.targets:
                 problems.append((f"{where}.poses[{j}].target", _unknown("target", tgt, cell.targets, src)))
+        for j, m in enumerate(getattr(st, "positions", ()) or ()):
+            sensors = {n: s for n, s in getattr(cell, "sensors", {}).items() if s.kind == "point"}
+            if m.sensor not in sensors:
+                problems.append((f"{where}.positions[{j}].sensor", _unknown("point sensor", m.sensor, sensors, src)))
+            if m.tool not in cell.tools:
+                problems.append((f"{where}.positions[{j}].tool", _unknown("tool", m.tool, cell.tools, src)))
         if len(problems) >= 20:
             break
     _check_target_points(cell, obs, problems)

@@ -12,7 +12,7 @@ pixel); a few pixels just outside give an :class:`~jcalib.errors.InputWarning` n
 Extensions accepted here (their meaning is the calibration code's): stations ``joints_deg`` (a list,
 or a mapping robot -> list, as sessions record them) and ``poses: [{sensor, target, T_sensor_target}]``
 (6-DOF pose measurements by a pose sensor of the cell, m; the camera form ``{camera, target, T_cam_target}``
-stays valid); target detections ``orientation_ambiguous: true`` (the labelling is one of
+stays valid), ``positions: [{sensor, tool, p_sensor_tool}]`` (3-D tool-tip positions by a point sensor, m); target detections ``orientation_ambiguous: true`` (the labelling is one of
 those the board's symmetry allows).
 """
 
@@ -149,6 +149,14 @@ class PoseMeasurement(Closed):
         return self
 
 
+class PositionMeasurement(Closed):
+    """A 3-D position of a tool's tip (its TCP origin, e.g. a laser tracker's reflector) measured by a point sensor."""
+
+    sensor: Name = Field(description="the point sensor (cell sensors of kind point)")
+    tool: Name = Field(description="the tool whose tip is measured")
+    p_sensor_tool: Vec3 = Field(description="the tip's position [x, y, z] in the sensor frame, m")
+
+
 #: Joint values as sessions record them, for the published schema (the validator checks finiteness).
 JointValues = list[float] | dict[str, list[float]] | None
 
@@ -166,6 +174,8 @@ class Station(Closed):
     detections: list[Detection] | None = Field(None, description="what the cameras detected")
     contacts: list[Contact] | None = Field(None, description="tool-tip contacts with cell points")
     poses: list[PoseMeasurement] | None = Field(None, description="6-DOF pose measurements")
+    positions: list[PositionMeasurement] | None = Field(None, description="3-D tool-tip positions measured by "
+                                                                          "point sensors")
 
 
 class ObservationsDocument(Closed):
@@ -237,6 +247,11 @@ def _check_station(i: int, st: dict, sizes: dict, targets: dict, reach: float, p
         why = pose_problem(pm[key], MAX_CELL_EXTENT_M, "target position")
         if why:
             problems.append((f"{where}.poses[{j}].{key}", why))
+    for j, pm in enumerate(st.get("positions") or []):
+        if float(norm(pm["p_sensor_tool"])) > MAX_CELL_EXTENT_M:
+            problems.append((f"{where}.positions[{j}].p_sensor_tool", f"{float(norm(pm['p_sensor_tool'])):.4g} m from "
+                             f"the sensor, more than {MAX_CELL_EXTENT_M:g} m: positions are in metres; are these "
+                             "millimetres? (divide by 1000)"))
     for j, det in enumerate(st.get("detections") or []):
         at = f"{where}.detections[{j}]"
         cam = det["camera"]
