@@ -139,6 +139,26 @@ def kinematics_example(seed: int = 3) -> tuple[dict, dict, dict]:
     return cell, obs, expected
 
 
+def point_sensor_example(seed: int = 1, num: int = 16) -> tuple[dict, dict, dict]:
+    """A laser tracker (a 3-D point sensor) following a reflector on the flange at ``num`` stations, 20 µm."""
+    from jcalib.geometry.se3 import exp_so3, invert, make_pose
+
+    rng = np.random.default_rng(seed)
+    T_base_tracker = make_pose(exp_so3(np.array([0.3, -1.2, 0.5])), np.array([2.0, 0.5, 1.0]))
+    T_flange_smr = make_pose(np.eye(3), np.array([0.01, -0.03, 0.12]))
+    stations = []
+    for i in range(num):
+        F = make_pose(exp_so3(rng.normal(0, 0.6, 3)), rng.normal([0.6, 0.0, 0.5], 0.2))
+        p = (invert(T_base_tracker) @ F @ T_flange_smr)[:3, 3] + 2e-5 * rng.normal(size=3)
+        stations.append({"id": f"s{i:02d}", "T_base_flange": F.tolist(),
+                         "positions": [{"sensor": "tracker", "tool": "smr", "p_sensor_tool": p.tolist()}]})
+    cell = {"schema": "jcalib.cell/1", "sensors": {"tracker": {"kind": "point", "mount": "base"}},
+            "tools": {"smr": {}}, "robot": {}}
+    expected = {"result": "result.json", "max_sigma": MAX_SIGMA,
+                "transforms": {"T_base_tracker": T_base_tracker.tolist(), "T_flange_smr": T_flange_smr.tolist()}}
+    return cell, {"schema": "jcalib.observations/1", "stations": stations}, expected
+
+
 def write(name: str, cell: dict, obs: dict, expected: dict) -> None:
     d = ROOT / name
     d.mkdir(exist_ok=True)
@@ -160,8 +180,9 @@ def _rounded(x):
 
 
 def main(names: list[str]) -> None:
-    for name in names or [*SCENARIOS, "kinematics-tracker"]:
-        data = kinematics_example() if name == "kinematics-tracker" else study_example(name)
+    special = {"kinematics-tracker": kinematics_example, "tracker-reflector": point_sensor_example}
+    for name in names or [*SCENARIOS, *special]:
+        data = special[name]() if name in special else study_example(name)
         write(name, *data)
         print("wrote", ROOT / name)
 

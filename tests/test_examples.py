@@ -29,9 +29,9 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NAMES = sorted(p.name for p in EXAMPLES.iterdir() if (p / "README.md").is_file())
 #: Examples run under ``slow`` only: each new problem shape costs seconds of compilation, and these repeat
 #: what the default ones and their own tests cover (the kinematic solve with a pose sensor:
-#: tests/problems/test_pose_sensors.py; eye-to-hand mirrors eye-in-hand; stereo and camera TCP:
+#: tests/problems/test_pose_sensors.py, which also solves the point sensor's cell; eye-to-hand mirrors eye-in-hand; stereo and camera TCP:
 #: tests/problems). The default ones: a camera, eye-in-hand, a tracked pivot and a pose sensor's hand-eye.
-SLOW = {"kinematics-tracker", "stereo", "eye-to-hand", "camera-tcp", "two-robots"}
+SLOW = {"kinematics-tracker", "stereo", "eye-to-hand", "camera-tcp", "two-robots", "tracker-reflector"}
 _TANGENT = ("rx", "ry", "rz", "tx", "ty", "tz")
 
 
@@ -104,7 +104,7 @@ def check(result: ResultFile, expected: dict) -> int:
 
 def test_every_cell_kind_has_an_example():
     assert {"camera", "stereo", "eye-in-hand", "eye-to-hand", "camera-tcp", "pivot-tracker", "two-robots",
-            "kinematics-tracker", "tracker-handeye"} <= set(NAMES)
+            "kinematics-tracker", "tracker-handeye", "tracker-reflector"} <= set(NAMES)
     for name in NAMES:
         d = EXAMPLES / name
         assert (d / "cell.yaml").is_file() and (d / "expected.json").is_file(), name
