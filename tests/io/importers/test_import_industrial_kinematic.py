@@ -98,3 +98,23 @@ def test_bad_kinematic_data_sets_are_refused_by_name(tmp_path, edit, options, ma
     args = [a for o in options for a in ("--option", o)]
     code, text = cli("import", "industrial-calibration", tmp_path / "src", "--out", tmp_path / "sess", *args)
     assert code == 2 and match in text, text
+
+
+def test_a_moving_camera_chain_puts_the_sensor_on_the_flange(tmp_path):
+    """``camera_joints`` moving (``target_joints`` empty): the sensor rides on the chain, the target is fixed."""
+    write_measurements(tmp_path / "src", num=3)
+    f = tmp_path / "src" / "measurements.yaml"
+    doc = yaml.safe_load(f.read_text())
+    for entry in doc.values():
+        entry["camera_joints"], entry["target_joints"] = entry["target_joints"], []
+    f.write_text(yaml.safe_dump(doc))
+    code, text = cli("import", "industrial-calibration", tmp_path / "src", "--out", tmp_path / "sess",
+                     "--option", f"kinematics={PRESET}", "--mount", "base")
+    assert code == 2 and "--mount base" in text, text  # contradicts the moving camera chain
+    code, text = cli("import", "industrial-calibration", tmp_path / "src", "--out", tmp_path / "sess",
+                     "--option", f"kinematics={PRESET}")
+    assert code == 0, text
+    cell = load_cell(tmp_path / "sess" / "cell.yaml")
+    assert cell.sensors["camera"].mount == "flange" and cell.targets["target"].mount == "base"
+    q = [np.radians(s["joints_deg"]) for s in json.loads((tmp_path / "sess" / "observations.json").read_text())["stations"]]
+    np.testing.assert_allclose(q, [e["camera_joints"] for e in doc.values()], atol=1e-12)
