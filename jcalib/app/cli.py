@@ -229,6 +229,8 @@ def export(
         typer.Option(help="rapid, krl: TOOL=flange or TOOL=X,Y,Z (tool axis in the flange frame) for a tool whose "
                           "orientation was not calibrated; such tools are refused without it."),
     ] = None,
+    at: Annotated[Optional[str], typer.Option(help="CAMERA.SETTING=VALUE: a zoom camera at one lens setting.")] = None,
+    extrapolate: Annotated[bool, typer.Option(help="--at outside the calibrated range.")] = False,
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID, KUKA KRL, or the calibrated robot
     kinematics as a cell-spec table with σ and controller offsets (kinematics), a URDF (urdf), or a UR arm's
@@ -238,6 +240,10 @@ def export(
     from jcalib.io.export import export_result
     from jcalib.io.export.formats import export_options
 
+    if at is not None:
+        from jcalib.app.lens_at import result_at
+
+        result, camera = result_at(result, at, extrapolate, camera)
     options = export_options(format, camera=camera, module=module, robot=robot, tool_orientation=tool_orientation)
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")

@@ -62,6 +62,29 @@ class Result:
         known = list(self.file.cameras) + list(self.file.transforms)
         raise BadInputError(f"no covariance for {name!r}; the result has: {', '.join(known)}")
 
+    def camera_at(self, camera: str | None = None, *, extrapolate: bool = False, **settings: float):
+        """A camera with a zoom lens at one setting, e.g. ``result.camera_at("cam0", Zoom=350)``.
+
+        Returns:
+            ``(CameraResult, TransformResult | None)``: the intrinsics with their covariance, and the
+            camera's pose on its holder at that setting (``T_flange_cam0``, ...) with its 6x6 covariance
+            (sampling noise, first order). ``camera`` may be omitted when one camera has a lens.
+        Raises:
+            BadInputError: no lens, another setting, or a value outside the calibrated range (without
+                ``extrapolate``).
+        """
+        from jcalib.problems.lens import camera_at
+
+        lenses = list(self.file.extra.get("lenses") or {})
+        if camera is None and len(lenses) == 1:
+            camera = lenses[0]
+        if camera is None or len(settings) != 1:
+            raise BadInputError(f"camera_at: give the camera ({', '.join(lenses) or 'none has a lens'}) and one setting, "
+                                "e.g. camera_at('cam0', Zoom=350)")
+        (name, value), = settings.items()
+        cam, _, tr = camera_at(self.file, camera, name, float(value), extrapolate)
+        return cam, tr
+
     def __repr__(self) -> str:
         return f"Result(cameras={list(self.file.cameras)}, transforms={list(self.file.transforms)})"
 
@@ -401,6 +424,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
                                      "matrix": np.asarray(jc["matrix"]).tolist(),
                                      "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, "
                                               "tz; warp:<target>: c0, c1"}
+    if cal.lenses:
+        extra["lenses"] = cal.lenses
     if cal.T_cam_target:
         extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
     provenance = Provenance.now(input_hash=hash_, options=asdict(options))

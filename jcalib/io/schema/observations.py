@@ -149,6 +149,8 @@ class Station(Closed):
     detections: list[Detection] | None = Field(None, description="what the cameras detected")
     contacts: list[Contact] | None = Field(None, description="tool-tip contacts with cell points")
     poses: list[PoseMeasurement] | None = Field(None, description="6-DOF pose measurements")
+    lens: dict[Name, dict[Name, Num]] | None = Field(
+        None, description="lens settings each camera had (cameras with lens: in the cell), e.g. {cam0: {Zoom: 350}}")
 
 
 class ObservationsDocument(Closed):
