@@ -86,8 +86,8 @@ def _look_at(eye, target, up):
 
 def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600, 700, 800), num_stations: int = 6,
                         sigma_px: float = 0.2, lens: ZoomLensModel | None = None, degree: int = 3, knots: int = 0,
-                        geometry_seed: int = 7) -> tuple[dict, dict, dict]:
-    """An eye-in-hand zoom camera ``cam0`` looking at a fixed 14x10 checkerboard; every robot station is
+                        geometry_seed: int = 7, square: float = 0.025) -> tuple[dict, dict, dict]:
+    """An eye-in-hand zoom camera ``cam0`` looking at a fixed checkerboard; every robot station is
     captured at every zoom setting (one observation station each, ``lens: {cam0: {Zoom: s}}``); exact
     flange poses (the robot does not move while the lens zooms).
 
@@ -95,6 +95,8 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
         seed: noise seed; geometry_seed: the stations' seed (the same stations for every noise draw).
         settings: the captured ``Zoom`` settings; num_stations: robot stations.
         sigma_px: corner noise σ.
+        square: the checkerboard's square (m); the board spans about 0.35 m x 0.25 m whatever the square
+            (a finer board gives the narrow tele views more corners).
 
     Returns:
         ``(cell dict, observations dict, truth dict)``; truth: ``lens`` (the :class:`ZoomLensModel`),
@@ -105,7 +107,8 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
 
     lens = lens or ZoomLensModel()
     rng, geo = np.random.default_rng(seed), np.random.default_rng(geometry_seed)
-    board = Checkerboard(cols=14, rows=10, square=0.025)
+    cols, rows = int(round(0.35 / square)), int(round(0.25 / square))
+    board = Checkerboard(cols=cols, rows=rows, square=square)
     pts = np.asarray(board.points, np.float64)
     T_base_board = make_pose(rotation((1, 0, 0), np.pi), [0.6, -0.05, 0.0])
     centre = T_base_board[:3, :3] @ pts.mean(axis=0) + T_base_board[:3, 3]
@@ -136,7 +139,7 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
     cell = {"schema": "jcalib.cell/1",
             "cameras": {"cam0": {"model": "opencv5", "mount": "flange",
                                  "lens": {"settings": ["Zoom"], "degree": degree, "knots": knots}}},
-            "targets": {"board": {"type": "checkerboard", "cols": 14, "rows": 10, "square": 0.025, "mount": "base"}},
+            "targets": {"board": {"type": "checkerboard", "cols": cols, "rows": rows, "square": square, "mount": "base"}},
             "robot": {}}
     obs = {"schema": "jcalib.observations/1", "cameras": {"cam0": {"image_size": list(lens.image_size)}},
            "targets": {"board": {"points": pts.tolist()}}, "stations": stations}

@@ -17,8 +17,8 @@ from scipy.stats import chi2
 import jcalib
 from jcalib.errors import BadInputError, NotObservableError
 from jcalib.geometry.cameras import OpenCV5, zoom
-from jcalib.geometry.lie import se3_log
 from jcalib.geometry.conversions import matrix_to_pose
+from jcalib.geometry.lie import se3_log
 from jcalib.problems.lens import file_at, parse_at
 from jcalib.residuals.reprojection import zoom_reprojection
 from jcalib.sim.zoom import heldout_projection_rms_px, mount_at, synthetic_zoom_cell
@@ -89,7 +89,7 @@ def test_zoom_residual_jacobian_matches_autodiff():
 
 
 def test_zoom_cell_recovers_the_lens_and_hand_eye_in_sigma(zoom_cell):
-    cell, obs, truth, result = zoom_cell
+    _, _, truth, result = zoom_cell
     lens = truth["lens"]
     assert set(result.file.extra["lenses"]) == {"cam0"}
     for value in (SETTINGS[0], HELD_OUT, SETTINGS[-1]):
@@ -121,7 +121,7 @@ def test_station_without_its_setting_is_named():
 
 
 def test_export_at_a_setting_and_the_range_refusal(zoom_cell, tmp_path):
-    _, _, truth, result = zoom_cell
+    result = zoom_cell[3]
     assert parse_at("cam0.Zoom=350") == ("cam0", "Zoom", 350.0)
     with pytest.raises(BadInputError, match="outside the calibrated range"):
         file_at(result.file, "cam0.Zoom=900")

@@ -32,8 +32,8 @@ from jcalib.io.export._common import (
     checked_export,
     comment_text,
     exact_float,
-    pick_camera,
     lens_setting_lines,
+    pick_camera,
     provenance_lines,
 )
 from jcalib.io.result import ResultFile, load_result
