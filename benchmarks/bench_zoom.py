@@ -3,8 +3,8 @@ interpolated linearly between settings (today's practice), at the same images.
 
 The simulated cell (:func:`jcalib.sim.zoom.synthetic_zoom_cell`): an eye-in-hand camera with the simulated
 motorised zoom lens (:class:`jcalib.sim.zoom.ZoomLensModel`: focal length 1x-6x over Zoom 0..1000, k1 from
-barrel to pincushion, principal point drift, entrance pupil 20 mm forward), a fixed 14x10 checkerboard
-(25 mm), ``--stations`` robot stations (exact flange poses), each captured at every captured setting;
+barrel to pincushion, principal point drift, entrance pupil 20 mm forward), a fixed 0.35 m x 0.25 m checkerboard
+(``--square``, default 12.5 mm: 27x20 corners, so the narrow tele views keep enough of them), ``--stations`` robot stations (exact flange poses), each captured at every captured setting;
 corner noise ``--sigma-px``. Eleven settings 100..900 (step 80); ``--held-out`` of them are left out of
 both fits and predicted.
 
@@ -112,7 +112,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=20, help="noise draws (default 20)")
     parser.add_argument("--stations", type=int, default=8, help="robot stations, each at every captured setting")
     parser.add_argument("--sigma-px", type=float, default=0.2, help="corner noise σ (px)")
-    parser.add_argument("--square", type=float, default=0.025, help="checkerboard square (m); the board is about "
+    parser.add_argument("--square", type=float, default=0.0125, help="checkerboard square (m); the board is about "
                                                                    "0.35 m x 0.25 m whatever the square")
     parser.add_argument("--held-out", type=float, nargs="+", default=[260.0, 500.0, 740.0],
                         help="settings left out of the fits (among 100, 180, ..., 900)")

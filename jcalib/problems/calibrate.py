@@ -319,6 +319,12 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
         saved = file.cameras.get(c)
         if saved is not None and tuple(saved.param_names) == tuple(model.param_names):
             x0[f"intrinsics:{c}"] = np.asarray(saved.params, np.float64)[None, :]
+    for c in s.lenses:  # a zoom lens's functions (the file's lenses.<cam>)
+        saved = (file.extra.get("lenses") or {}).get(c)
+        if saved is None or len(saved.get("lens", [])) != built.problem.variable(f"lens:{c}").value.shape[-1]:
+            raise BadInputError(f"result: the cell gives camera '{c}' a zoom lens, but the result has no matching "
+                                f"lenses.{c} section; give the cell spec the result was computed from")
+        x0[f"lens:{c}"] = np.asarray(saved["lens"], np.float64)[None, :]
     for t in built.warps:
         saved = file.targets.get(t)
         if saved is None:

@@ -116,6 +116,19 @@ def fit_control_points(u, params, shifts=None, degree: int = DEFAULT_DEGREE, kno
     return ctrl
 
 
+def _stacked(intrinsics, lens, b):
+    p, d = lens_at(intrinsics, lens, b)
+    return jnp.concatenate([p, d[None]])
+
+
+@jax.jit
+def _value_and_jacobian(intrinsics, lens, b):
+    """``(y (P + 1,), ∂y/∂intrinsics, ∂y/∂lens)`` of ``y = (params, shift)`` at basis row ``b`` (compiled once
+    per shape)."""
+    Ji, Jl = jax.jacfwd(_stacked, argnums=(0, 1))(intrinsics, lens, b)
+    return _stacked(intrinsics, lens, b), Ji, Jl
+
+
 @dataclass(frozen=True)
 class LensFunction:
     """A calibrated lens: its functions of one setting and their covariance (NumPy in, NumPy out).
@@ -157,18 +170,12 @@ class LensFunction:
         perturbation of the camera frame at that setting). Covariances are None without one."""
         b = jnp.asarray(basis(self.normalise([float(value)]), self.degree, self.knots)[0])
         intr, lens = jnp.asarray(self.intrinsics), jnp.asarray(self.lens)
-
-        def stacked(i, l):
-            p, d = lens_at(i, l, b)
-            return jnp.concatenate([p, d[None]])
-
-        y = np.asarray(stacked(intr, lens))
+        y, Ji, Jl = (np.asarray(a) for a in _value_and_jacobian(intr, lens, b))
         P, L = intr.size, lens.size
         out = {"params": y[:P], "shift_m": float(y[P])}
         J = None
         if self.covariance is not None:
-            Ji, Jl = jax.jacfwd(stacked, argnums=(0, 1))(intr, lens)
-            J = np.concatenate([np.asarray(Ji), np.asarray(Jl)], axis=1)  # (P + 1, P + L)
+            J = np.concatenate([Ji, Jl], axis=1)  # (P + 1, P + L)
             C = np.asarray(self.covariance)[: P + L, : P + L]
             Cy = J @ C @ J.T
             out["params_covariance"] = Cy[:P, :P]
