@@ -4,7 +4,7 @@ interpolated linearly between settings (today's practice), at the same images.
 The simulated cell (:func:`jcalib.sim.zoom.synthetic_zoom_cell`): an eye-in-hand camera with the simulated
 motorised zoom lens (:class:`jcalib.sim.zoom.ZoomLensModel`: focal length 1x-6x over Zoom 0..1000, k1 from
 barrel to pincushion, principal point drift, entrance pupil 20 mm forward), a fixed 0.35 m x 0.25 m checkerboard
-(``--square``, default 12.5 mm: 27x20 corners, so the narrow tele views keep enough of them), ``--stations`` robot stations (exact flange poses), each captured at every captured setting;
+(``--square``, default 12.5 mm: 28x20 corners, so the narrow tele views keep enough of them), ``--stations`` robot stations (exact flange poses), each captured at every captured setting;
 corner noise ``--sigma-px``. Eleven settings 100..900 (step 80); ``--held-out`` of them are left out of
 both fits and predicted.
 
