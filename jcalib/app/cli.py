@@ -477,6 +477,8 @@ def plan(
                                                       "cam0:projection_px<=0.1 (repeatable; default: the cell's goals:).")] = None,
     max_stations: Annotated[Optional[int], typer.Option(callback=count(1, 500), help="optimal: most stations to plan (default 20); the plan "
                                                              "stops earlier when the goals are met.")] = None,
+    lens_settings: Annotated[Optional[list[str]], typer.Option("--lens-settings", help="CAMERA.SETTING=V1,V2,...: "
+                             "visit every station at each lens setting (a zoom lens, e.g. cam0.Zoom=100,300,500).")] = None,
 ) -> None:
     """Plan robot stations (flange poses) for camera, hand-eye, TCP or kinematic calibration, or for goals.
 
@@ -498,6 +500,9 @@ def plan(
 
     check_plan_options(kind, stations=stations, goal=goal, max_stations=max_stations, tool=tool, camera=camera,
                        target=target, candidates=candidates, sigma_px=sigma_px)
+    from jcalib.app.lens_at import check_lens_specs, lens_plan
+
+    check_lens_specs(lens_settings)
     planned = run_plan(cell, kind, out, robot=robot, num_stations=stations, camera=camera, target=target,
                        tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size),
                        num_candidates=candidates, seed=seed, sigma_px=sigma_px, goals=goal,
@@ -510,7 +515,8 @@ def plan(
 
         for line in (kinematic_plan_lines if kind == "kinematics" else optimal_plan_lines)(planned):
             typer.echo(line)
-    typer.echo(f"wrote {out}: {len(planned.plan)} stations ({kind})")
+    n = lens_plan(out, lens_settings) if lens_settings else len(planned.plan)
+    typer.echo(f"wrote {out}: {n} stations ({kind})")
 
 
 @app.command()

@@ -98,13 +98,13 @@ def start_lens(g, cam, cam_pairs, initial_model, fixed_mask_of):
     if len(used) < 2:
         raise NotObservableError(
             f"{g.cell.source}: camera '{cam.name}' has a zoom lens (lens: {{settings: [{name}]}}) but every station "
-            f"was taken at one {name} setting ({used[0] if used else 'none'}), so its functions of {name} are not "
-            f"observable; capture stations at several {name} settings (at least {nb}; plan --lens-settings "
+            f"was taken at one {name} setting ({used[0] if used else 'none'}), so its functions of {name} ({what}) are "
+            f"not observable; capture stations at several {name} settings (at least {nb}; plan --lens-settings "
             f"{cam.name}.{name}=...), or drop lens: and calibrate the camera at that setting", [what])
     if len(used) < nb:
         raise NotObservableError(
-            f"{g.cell.source}: camera '{cam.name}': {len(used)} distinct {name} settings cannot determine lens "
-            f"functions with {nb} control points (degree {spec.degree}, knots {spec.knots}); capture at least {nb} "
+            f"{g.cell.source}: camera '{cam.name}': {len(used)} distinct {name} settings cannot determine its lens "
+            f"functions ({what}) with {nb} control points (degree {spec.degree}, knots {spec.knots}); capture at least {nb} "
             "settings or lower lens.degree", [what])
     lo, hi = used[0], used[-1]
     u = (values - lo) / (hi - lo)

@@ -107,7 +107,7 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
 
     lens = lens or ZoomLensModel()
     rng, geo = np.random.default_rng(seed), np.random.default_rng(geometry_seed)
-    cols, rows = int(round(0.35 / square)), int(round(0.25 / square))
+    cols, rows = round(0.35 / square), round(0.25 / square)
     board = Checkerboard(cols=cols, rows=rows, square=square)
     pts = np.asarray(board.points, np.float64)
     T_base_board = make_pose(rotation((1, 0, 0), np.pi), [0.6, -0.05, 0.0])

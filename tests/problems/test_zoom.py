@@ -15,10 +15,10 @@ from hypothesis import strategies as st
 from scipy.stats import chi2
 
 import jcalib
-from jcalib.errors import BadInputError, NotObservableError
-from jcalib.geometry.cameras import OpenCV5, zoom
 import jcalib.geometry.conversions
 import jcalib.geometry.lie
+from jcalib.errors import BadInputError, NotObservableError
+from jcalib.geometry.cameras import OpenCV5, zoom
 from jcalib.geometry.conversions import matrix_to_pose
 from jcalib.geometry.lie import se3_log
 from jcalib.problems.lens import file_at, parse_at
@@ -163,7 +163,7 @@ def test_camera_at_propagates_the_covariance_like_sampling():
     cov = A @ A.T
     mount = np.eye(4)
     mount[:3, 3] = [0.05, -0.03, 0.09]
-    lf = zoom.LensFunction("Zoom", (100.0, 800.0), 3, 0, tuple("fx fy cx cy k1 k2 p1 p2 k3".split()), intr, lens,
+    lf = zoom.LensFunction("Zoom", (100.0, 800.0), 3, 0, ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"), intr, lens,
                            cov, mount)
     at = lf.at(430.0)
     b = jnp.asarray(zoom.basis(lf.normalise([430.0]))[0])
