@@ -50,3 +50,45 @@ def test_zoom_and_focus_are_set_read_back_and_rendered(aravis):
         finally:
             cam.close()
     assert {"Zoom": 350.0, "Focus": 620.0} in seen
+
+
+def test_simulate_serves_a_zoom_camera_and_writes_its_functions(aravis, tmp_path):
+    """``jcalib simulate`` with a cell camera that has ``lens:``: its fake GigE camera has Zoom, renders through
+    the simulated lens at the value set (another image), and the truth file holds the lens's functions."""
+    import json
+    import threading
+    import time
+
+    from jcalib.app.simulate import run_simulate
+    from jcalib.sim.zoom import ZoomLensModel
+
+    cell = {"schema": "jcalib.cell/1", "robot": {"model": "kuka_kr10_r1100_sixx"},
+            "cameras": {"cam0": {"model": "opencv5", "mount": "flange", "lens": {"settings": ["Zoom"]}}},
+            "targets": {"board": {"type": "checkerboard", "cols": 9, "rows": 6, "square": 0.025, "mount": "base"}}}
+    (tmp_path / "cell.json").write_text(json.dumps(cell))
+    stop, info = threading.Event(), {}
+    worker = threading.Thread(target=run_simulate, args=(tmp_path / "cell.json",), daemon=True, kwargs=dict(
+        robot_protocol="kuka", robot_port=0, camera_addresses={"cam0": "127.0.0.1"}, truth=tmp_path / "truth.json",
+        stop=stop, on_ready=info.update, time_scale=0.0))
+    worker.start()
+    deadline = time.monotonic() + 120
+    while not info and worker.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert info, "the simulator did not start"
+    try:
+        cam = GigECamera("127.0.0.1", name="cam0")
+        try:
+            wide = cam.grab().image
+            cam.set("Zoom", 900)
+            assert cam.get("Zoom") == 900
+            assert not np.array_equal(cam.grab().image, wide)
+        finally:
+            cam.close()
+    finally:
+        stop.set()
+        worker.join(30)
+    truth = json.loads((tmp_path / "truth.json").read_text())["lenses"]["cam0"]
+    lens = ZoomLensModel(f_wide_px=0.8 * truth["image_size"][0], image_size=tuple(truth["image_size"]))
+    k = truth["settings"].index(500.0)
+    np.testing.assert_allclose(truth["params"][k], lens.params(500.0), rtol=1e-12)
+    assert truth["shift_m"][-1] == lens.shift_m(1000.0)
