@@ -69,6 +69,33 @@ def station_values(g, cam) -> np.ndarray:
     return out
 
 
+#: Settings closer than this fraction of the captured range, or of the setting's magnitude, are one setting
+#: for the start and for counting settings (a camera may read back a commanded setting with a little jitter);
+#: each station still uses its own recorded value in the solve.
+SETTING_GROUP_FRACTION = 0.005
+SETTING_GROUP_RELATIVE = 0.001
+
+
+def setting_groups(values) -> dict[float, float]:
+    """Sorted distinct settings -> the mean of their group (neighbours closer than
+    :data:`SETTING_GROUP_FRACTION` of the range or :data:`SETTING_GROUP_RELATIVE` of the largest magnitude
+    are one group)."""
+    values = sorted(float(v) for v in values)
+    if not values:
+        return {}
+    tol = max(SETTING_GROUP_FRACTION * (values[-1] - values[0]),
+              SETTING_GROUP_RELATIVE * max(abs(values[0]), abs(values[-1])))
+    groups, current = [], [values[0]]
+    for v in values[1:]:
+        if v - current[-1] <= tol:
+            current.append(v)
+        else:
+            groups.append(current)
+            current = [v]
+    groups.append(current)
+    return {v: float(np.mean(gr)) for gr in groups for v in gr}
+
+
 def start_lens(g, cam, cam_pairs, initial_model, fixed_mask_of):
     """The start of a lens camera: ``(model at the lowest setting, mask, LensStart, {(cam, target):
     {station: T_cam_target}})``.
@@ -92,7 +119,9 @@ def start_lens(g, cam, cam_pairs, initial_model, fixed_mask_of):
         raise BadInputError(f"{g.cell.source}: camera '{cam.name}' has a zoom lens, whose start needs targets that "
                             "move in its image (a hand-eye or fixed-camera cell); a target it holds still is not "
                             "supported")
-    used = sorted({float(values[k]) for p in moving for k in p.views})
+    seen = sorted({float(values[k]) for p in moving for k in p.views})
+    group = setting_groups(seen)  # value -> its group's setting (read-back jitter of one commanded setting)
+    used = sorted(set(group.values()))
     nb = zoom.num_control_points(spec.degree, spec.knots)
     what = f"lens:{cam.name}"
     if len(used) < 2:
@@ -106,14 +135,14 @@ def start_lens(g, cam, cam_pairs, initial_model, fixed_mask_of):
             f"{g.cell.source}: camera '{cam.name}': {len(used)} distinct {name} settings cannot determine its lens "
             f"functions ({what}) with {nb} control points (degree {spec.degree}, knots {spec.knots}); capture at least {nb} "
             "settings or lower lens.degree", [what])
-    lo, hi = used[0], used[-1]
+    lo, hi = seen[0], seen[-1]
     u = (values - lo) / (hi - lo)
     per_setting, poses = {}, {}
     for value in used:
         pts, pix, where = [], [], []
         for p in moving:
             for j, k in enumerate(p.views):
-                if float(values[k]) == value:
+                if group[float(values[k])] == value:
                     pts.append(p.points[j])
                     pix.append(p.pixels[j])
                     where.append((p.target, k))

@@ -21,7 +21,7 @@ from jcalib.geometry.cameras import camera_model_from_name
 from jcalib.io.cell import CellSpec, load_cell
 from jcalib.io.observations import Observations, load_observations
 from jcalib.problems.calibrate import calibrate_cell
-from jcalib.problems.lens import lens_function
+from jcalib.problems.lens import lens_function, setting_groups
 
 
 def heldout_settings(cell: CellSpec | str | dict, obs: Observations | str | dict, held_out, options=None,
@@ -30,8 +30,9 @@ def heldout_settings(cell: CellSpec | str | dict, obs: Observations | str | dict
 
     Args:
         cell, obs: the cell spec and observations (paths, dicts or parsed).
-        held_out: lens setting values (of the camera's one setting) to leave out; each must be inside the
-            range of the other settings (a prediction, not an extrapolation).
+        held_out: lens setting values (of the camera's one setting) to leave out, with the stations whose
+            recorded value reads back within jitter of one (:func:`jcalib.problems.lens.setting_groups`);
+            each must be inside the range of the other settings (a prediction, not an extrapolation).
         options: :class:`jcalib.problems.options.CalibrationOptions` of the fit.
         camera: the zoom camera (default: the cell's only camera with ``lens:``).
 
@@ -51,13 +52,16 @@ def heldout_settings(cell: CellSpec | str | dict, obs: Observations | str | dict
     cam = zooms[0]
     name = cam.lens.settings[0]
     held = sorted({float(v) for v in held_out})
-    value = {st.id: st.lens.get(cam.name, {}).get(name) for st in obs.stations}
+    recorded = {st.id: st.lens.get(cam.name, {}).get(name) for st in obs.stations}
+    group = setting_groups({v for v in recorded.values() if v is not None} | set(held))  # read-back jitter
+    of_group = {group[h]: h for h in held}
+    value = {sid: (None if v is None else of_group.get(group[v], v)) for sid, v in recorded.items()}
     kept = [st for st in obs.stations if value[st.id] not in held]
     out = [st for st in obs.stations if value[st.id] in held]
     missing = sorted(set(held) - {value[st.id] for st in out})
     if missing:
         raise BadInputError(f"heldout_settings: no station was taken at {name} = {missing}")
-    rest = sorted({v for v in (value[st.id] for st in kept) if v is not None})
+    rest = sorted({v for v in (recorded[st.id] for st in kept) if v is not None})
     outside = [v for v in held if not rest or not rest[0] < v < rest[-1]]
     if outside:
         raise BadInputError(f"heldout_settings: {name} = {outside} is not inside the kept settings' range "
@@ -72,7 +76,7 @@ def heldout_settings(cell: CellSpec | str | dict, obs: Observations | str | dict
     stations: dict[float, int] = dict.fromkeys(held, 0)
     for st in out:
         s = float(value[st.id])
-        at = lf.at(s)
+        at = lf.at(float(recorded[st.id]))  # the camera at the station's own recorded setting
         model = camera_model_from_name(entry["model"], tuple(entry["image_size"]), at["params"])
         T_bf = st.T_base_flange
         for d in st.detections:

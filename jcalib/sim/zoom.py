@@ -86,7 +86,7 @@ def _look_at(eye, target, up):
 
 def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600, 700, 800), num_stations: int = 6,
                         sigma_px: float = 0.2, lens: ZoomLensModel | None = None, degree: int = 3, knots: int = 0,
-                        geometry_seed: int = 7, square: float = 0.025) -> tuple[dict, dict, dict]:
+                        geometry_seed: int = 7, square: float = 0.025, jitter: float = 0.0) -> tuple[dict, dict, dict]:
     """An eye-in-hand zoom camera ``cam0`` looking at a fixed checkerboard; every robot station is
     captured at every zoom setting (one observation station each, ``lens: {cam0: {Zoom: s}}``); exact
     flange poses (the robot does not move while the lens zooms).
@@ -95,6 +95,8 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
         seed: noise seed; geometry_seed: the stations' seed (the same stations for every noise draw).
         settings: the captured ``Zoom`` settings; num_stations: robot stations.
         sigma_px: corner noise σ.
+        jitter: σ (motor steps) of where the lens actually stops around each commanded setting; the
+            station records (and the images show) the actual value, as a camera reads it back.
         square: the checkerboard's square (m); the board spans about 0.35 m x 0.25 m whatever the square
             (a finer board gives the narrow tele views more corners).
 
@@ -124,7 +126,8 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
         flanges.append(T_base_c @ invert(T_flange_cam_wide))
     stations = []
     for i, T_bf in enumerate(flanges):
-        for s in settings:
+        for commanded in settings:
+            s = float(commanded) + (jitter * geo.normal() if jitter > 0 else 0.0)
             T_cam_board = invert(T_bf @ mount_at(T_flange_cam_wide, lens, s)) @ T_base_board
             p = pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
             u = np.asarray(lens.camera(s).project(jnp.asarray(p)))
@@ -134,7 +137,7 @@ def synthetic_zoom_cell(seed: int = 0, *, settings=(100, 200, 300, 400, 500, 600
             if idx.size >= 12:
                 px = u[idx] + sigma_px * rng.normal(size=(idx.size, 2))
                 dets.append({"camera": "cam0", "target": "board", "point_index": idx.tolist(), "pixels": px.tolist()})
-            stations.append({"id": f"s{i:02d}z{int(s):04d}", "T_base_flange": T_bf.tolist(), "detections": dets,
+            stations.append({"id": f"s{i:02d}z{int(commanded):04d}", "T_base_flange": T_bf.tolist(), "detections": dets,
                              "lens": {"cam0": {"Zoom": float(s)}}})
     cell = {"schema": "jcalib.cell/1",
             "cameras": {"cam0": {"model": "opencv5", "mount": "flange",

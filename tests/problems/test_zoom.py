@@ -31,7 +31,8 @@ HELD_OUT = 475.0
 
 @pytest.fixture(scope="module")
 def zoom_cell():
-    cell, obs, truth = synthetic_zoom_cell(3, settings=SETTINGS, num_stations=4)
+    # the lens stops within ~0.2 steps of each commanded setting; stations record what it reads back
+    cell, obs, truth = synthetic_zoom_cell(3, settings=SETTINGS, num_stations=4, jitter=0.2)
     return cell, obs, truth, jcalib.calibrate(cell, obs)
 
 
@@ -42,6 +43,14 @@ def test_basis_is_a_partition_of_unity(degree, knots, u):
     np.testing.assert_allclose(B.sum(axis=1), 1.0, atol=1e-12)  # float64 identity (also extrapolated)
     inside = (np.asarray(u) >= 0) & (np.asarray(u) <= 1)
     assert np.all(B[inside] >= -1e-15)
+
+
+def test_read_back_jitter_groups_into_one_setting():
+    from jcalib.problems.lens import setting_groups
+
+    groups = setting_groups([99.8, 100.1, 100.2, 399.9, 400.3, 700.0])
+    assert sorted(set(groups.values())) == pytest.approx([100.03333333333333, 400.1, 700.0])
+    assert setting_groups([349.9, 350.1]) == {349.9: 350.0, 350.1: 350.0}
 
 
 def test_fit_reproduces_functions_in_the_family():
@@ -95,7 +104,9 @@ def test_zoom_cell_recovers_the_lens_and_hand_eye_in_sigma(zoom_cell):
     _, _, truth, result = zoom_cell
     lens = truth["lens"]
     assert set(result.file.extra["lenses"]) == {"cam0"}
-    for value in (SETTINGS[0], HELD_OUT, SETTINGS[-1]):
+    lo, hi = result.file.extra["lenses"]["cam0"]["range"]
+    assert abs(lo - SETTINGS[0]) < 1 and abs(hi - SETTINGS[-1]) < 1  # the recorded (read-back) extremes
+    for value in (lo, HELD_OUT, hi):
         cam, T = result.camera_at("cam0", Zoom=value)
         err = cam.params - lens.params(value)
         free = np.diag(cam.covariance) > 0
