@@ -114,6 +114,8 @@ def input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
                 chunks.append(f"{c.tool}|{c.point}".encode())
             for m in st.poses:
                 chunks += [f"{m.camera}|{m.target}".encode(), np.ascontiguousarray(m.T_cam_target).tobytes()]
+            if st.lens:
+                chunks.append(json.dumps(st.lens, sort_keys=True).encode())
         parts.append(b"\x00".join(chunks))
     return hash_inputs(*parts)
 
