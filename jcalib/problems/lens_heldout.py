@@ -102,3 +102,21 @@ def heldout_settings(cell: CellSpec | str | dict, obs: Observations | str | dict
     every = np.concatenate([np.concatenate(v) for v in per.values() if v]) if any(per.values()) else np.zeros(0)
     return {"camera": cam.name, "setting": name, "fit_rms_px": float(cal.rms_px),
             "rms_px": float(np.sqrt(np.mean(every))) if every.size else float("nan"), "settings": settings}
+
+
+def with_heldout(file, check: dict):
+    """The result file with a held-out-settings check (:func:`heldout_settings`) recorded under
+    ``lenses.<cam>.heldout``, where the report marks the held-out settings and their prediction RMS."""
+    from dataclasses import replace as dc_replace
+
+    lenses = dict(file.extra.get("lenses") or {})
+    cam = check["camera"]
+    if cam not in lenses:
+        raise BadInputError(f"with_heldout: the result has no lens functions for camera {cam!r}")
+    def finite(x):
+        return x if not isinstance(x, float) or np.isfinite(x) else None  # a result file holds no nan
+
+    settings = {f"{float(s):g}": {k: finite(x) for k, x in v.items()} for s, v in check["settings"].items()}
+    entry = {**lenses[cam], "heldout": {"fit_rms_px": finite(check["fit_rms_px"]), "rms_px": finite(check["rms_px"]),
+                                        "settings": settings}}
+    return dc_replace(file, extra={**file.extra, "lenses": {**lenses, cam: entry}})

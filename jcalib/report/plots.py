@@ -316,7 +316,7 @@ def lens_functions_png(name: str, lens, columns: list[str], captured, heldout: M
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[len(columns):]:
         ax.axis("off")
-    held = ", ".join(f"{float(k):g}: {v.get('rms_px', float('nan')):.3f} px" for k, v in (heldout or {}).items())
+    held = ", ".join(f"{float(k):g}: {v.get('rms_px') or float('nan'):.3f} px" for k, v in (heldout or {}).items())
     fig.suptitle(f"{name}: lens functions of {lens.setting} (bands ±1σ, ±3σ; grey: calibrated settings"
                  + (f"; red: held out, prediction RMS {held})" if held else ")"), fontsize=9)
     fig.tight_layout()

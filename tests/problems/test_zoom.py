@@ -209,5 +209,11 @@ def test_heldout_settings_are_predicted_near_the_fit(zoom_cell):
     check = heldout_settings(cell, obs, [400.0])
     assert set(check["settings"]) == {400.0} and check["settings"][400.0]["num_points"] > 100
     assert check["rms_px"] < 2.0 * check["fit_rms_px"]
+    from jcalib.problems.lens_heldout import with_heldout
+    from jcalib.report import sections
+
+    marked = with_heldout(zoom_cell[3].file, check)
+    assert marked.extra["lenses"]["cam0"]["heldout"]["settings"]["400"]["rms_px"] == check["rms_px"]
+    assert 'alt="lens functions of cam0"' in sections.lenses(marked)
     with pytest.raises(BadInputError, match="not inside"):
         heldout_settings(cell, obs, [100.0])
