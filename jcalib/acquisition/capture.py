@@ -239,6 +239,7 @@ def capture(
     t_start = time.monotonic()
     session_dir = Path(session_dir)
     requested = apply_camera_settings(cameras, camera_settings)
+    check_lens_settings(plan, cameras)
     robot_lock = RobotLock(robot.address, str(session_dir)) if lock_robot and needs_lock(robot.address) else None
     try:
         writer, retakes = _open_session(plan, robot, cameras, session_dir, resume, cell, requested)
@@ -333,6 +334,13 @@ def capture(
                     if stopped():
                         raise operator_stop(station) from e
                     raise interrupted(station, "adjust", e) from e
+        if station.lens:  # a motorised lens: set its settings, record what the camera reads back
+            try:
+                extra = {**extra, "lens": set_lens(cameras, station.lens)}
+            except DeviceError as e:
+                if stopped():
+                    raise operator_stop(station) from e
+                raise interrupted(station, "lens", e) from e
         images, reject = _grab_all(cameras, station, quality_check, regrabs, grab_timeout_s, status, interrupted)
         emit("grabbed", station.id, reject)
         if stopped():
@@ -378,6 +386,29 @@ def capture(
             robot_lock.release()
     result.elapsed_s = time.monotonic() - t_start
     return result
+
+def check_lens_settings(plan, cameras: Mapping[str, Camera]) -> None:
+    """Every lens setting a plan's stations ask for names a camera of the capture and a feature it has."""
+    for station in plan.stations:
+        for cid, features in (station.lens or {}).items():
+            if cid not in cameras:
+                raise BadInputError(f"plan: station {station.id} sets the lens of camera {cid!r}, which is not in the "
+                                    f"capture (cameras: {', '.join(cameras)})")
+            missing = [f for f in features if not cameras[cid].has(f)]
+            if missing:
+                raise BadInputError(f"plan: station {station.id} sets {', '.join(missing)} on camera {cid!r}, which "
+                                    "has no such feature (a camera without a motorised lens?)")
+
+
+def set_lens(cameras: Mapping[str, Camera], lens: Mapping[str, Mapping[str, float]]) -> dict:
+    """Set each camera's lens features and read them back: camera -> feature -> the value it reports."""
+    out: dict[str, dict[str, float]] = {}
+    for cid, features in lens.items():
+        for name, value in features.items():
+            cameras[cid].set(name, value)
+            out.setdefault(cid, {})[name] = float(cameras[cid].get(name))
+    return out
+
 
 def _record(station: Station, state: RobotState, paths: dict, status: str, extra: dict | None = None) -> dict:
     """The stations.jsonl line of a station reached at ``state``."""

@@ -229,6 +229,8 @@ def export(
         typer.Option(help="rapid, krl: TOOL=flange or TOOL=X,Y,Z (tool axis in the flange frame) for a tool whose "
                           "orientation was not calibrated; such tools are refused without it."),
     ] = None,
+    at: Annotated[Optional[str], typer.Option(help="CAMERA.SETTING=VALUE: a zoom camera at one lens setting.")] = None,
+    extrapolate: Annotated[bool, typer.Option(help="--at outside the calibrated range.")] = False,
 ) -> None:
     """Export a result for the cell: OpenCV YAML, ROS camera_info, ABB RAPID, KUKA KRL, or the calibrated robot
     kinematics as a cell-spec table with σ and controller offsets (kinematics), a URDF (urdf), or a UR arm's
@@ -238,6 +240,10 @@ def export(
     from jcalib.io.export import export_result
     from jcalib.io.export.formats import export_options
 
+    if at is not None:
+        from jcalib.app.lens_at import result_at
+
+        result, camera = result_at(result, at, extrapolate, camera)
     options = export_options(format, camera=camera, module=module, robot=robot, tool_orientation=tool_orientation)
     path = export_result(result, format, out, **options)
     typer.echo(f"wrote {path}")
@@ -471,6 +477,8 @@ def plan(
                                                       "cam0:projection_px<=0.1 (repeatable; default: the cell's goals:).")] = None,
     max_stations: Annotated[Optional[int], typer.Option(callback=count(1, 500), help="optimal: most stations to plan (default 20); the plan "
                                                              "stops earlier when the goals are met.")] = None,
+    lens_settings: Annotated[Optional[list[str]], typer.Option("--lens-settings", help="CAMERA.SETTING=V1,V2,...: "
+                             "visit every station at each lens setting (a zoom lens, e.g. cam0.Zoom=100,300,500).")] = None,
 ) -> None:
     """Plan robot stations (flange poses) for camera, hand-eye, TCP or kinematic calibration, or for goals.
 
@@ -492,6 +500,9 @@ def plan(
 
     check_plan_options(kind, stations=stations, goal=goal, max_stations=max_stations, tool=tool, camera=camera,
                        target=target, candidates=candidates, sigma_px=sigma_px)
+    from jcalib.app.lens_at import check_lens_specs, lens_plan
+
+    check_lens_specs(lens_settings)
     planned = run_plan(cell, kind, out, robot=robot, num_stations=stations, camera=camera, target=target,
                        tool=tool, amplitude_deg=amplitude_deg, image_size=parse_image_size(image_size),
                        num_candidates=candidates, seed=seed, sigma_px=sigma_px, goals=goal,
@@ -504,7 +515,8 @@ def plan(
 
         for line in (kinematic_plan_lines if kind == "kinematics" else optimal_plan_lines)(planned):
             typer.echo(line)
-    typer.echo(f"wrote {out}: {len(planned.plan)} stations ({kind})")
+    n = lens_plan(out, lens_settings) if lens_settings else len(planned.plan)
+    typer.echo(f"wrote {out}: {n} stations ({kind})")
 
 
 @app.command()

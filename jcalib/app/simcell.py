@@ -262,6 +262,15 @@ class CellScene:
         return exposure_electrons(*render_reflectance(cam.model, pairs, options), options)
 
 
+def _through_lens(cell: CellScene, camera: str, lens: Any, zoom: float, focus: float) -> CellScene:
+    """The cell with ``camera`` at a lens setting: the lens's intrinsics there and its frame shifted."""
+    from jcalib.sim.zoom import mount_at
+
+    cam = cell.scene.cameras[camera]
+    moved = dataclasses.replace(cam, model=lens.camera(zoom, focus), pose=mount_at(cam.pose, lens, zoom, focus))
+    return dataclasses.replace(cell, scene=dataclasses.replace(cell.scene, cameras={**cell.scene.cameras, camera: moved}))
+
+
 def scene_frame_source(
     scene: Any,
     camera: str,
@@ -270,6 +279,7 @@ def scene_frame_source(
     options: Any = None,
     reference_exposure_us: float = 10000.0,
     seed: int = 0,
+    lens: Any = None,
 ) -> FrameSource:
     """A frame source rendering camera ``camera`` of a simulated cell at the robot's pose.
 
@@ -282,6 +292,9 @@ def scene_frame_source(
         options: :class:`jcalib.sim.render.RenderOptions`; brightness follows the requested exposure.
         reference_exposure_us: exposure at which ``options`` applies unchanged, us.
         seed: sensor-noise seed; frame ``k`` uses ``seed + k``.
+        lens: a motorised zoom lens (:class:`jcalib.sim.zoom.ZoomLensModel`): each frame is rendered through
+            it at the request's ``Zoom`` and ``Focus`` (:attr:`FrameRequest.lens`, default 500 each): its
+            intrinsics there, the camera frame shifted along its axis from its pose at ``Zoom = 0``.
 
     A camera that observes a tool renders it once here (:meth:`CellScene.warm_up`). The noise-free exposure
     of the last pose is kept: while the robot stands still (a live view), a frame costs only its sensor
@@ -301,9 +314,11 @@ def scene_frame_source(
         if scale != 1.0:
             opts = dataclasses.replace(opts, white_electrons=opts.white_electrons * scale)
         T = np.asarray(pose_of_flange(), dtype=np.float64)
-        key = (T.tobytes(), opts)
+        setting = (float(req.lens.get("Zoom", 500.0)), float(req.lens.get("Focus", 500.0))) if lens is not None else None
+        key = (T.tobytes(), opts, setting)
         if last.get("key") != key:
-            last["electrons"] = cell.electrons(camera, T, opts)
+            last["electrons"] = (cell if lens is None else _through_lens(cell, camera, lens, *setting)).electrons(
+                camera, T, opts)
             last["key"] = key
         return expose(last["electrons"], opts, np.random.default_rng(seed + req.index))
 

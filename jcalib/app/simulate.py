@@ -96,6 +96,7 @@ def run_simulate(
     unknown = set(camera_addresses) - set(layout.cameras)
     if unknown:
         raise BadInputError(f"--camera: {', '.join(sorted(unknown))} not in the cell (has {', '.join(layout.cameras)})")
+    lenses = _zoom_lenses(cell, layout)
     scene = scene_from_layout(layout)
     model = preset_model(layout.robot)
     model.inverse(layout.T_base_flange_home, model.home_rad)  # compile the IK before clients connect
@@ -107,8 +108,10 @@ def run_simulate(
         true_forward = kinematics.forward()
         true_forward(model.home_rad)  # compile before clients connect
     if truth is not None:
-        write_json_atomic(truth, layout_truth(layout, kinematics, seed=int(seed), time_scale=float(time_scale),
-                                              protocol=robot_protocol))  # fmt: skip
+        known = layout_truth(layout, kinematics, seed=int(seed), time_scale=float(time_scale), protocol=robot_protocol)
+        if lenses:  # the zoom lenses' functions, tabulated (the camera's pose in the layout is at Zoom = 0)
+            known["lenses"] = {n: lens.functions(range(0, 1001, 25)) for n, lens in lenses.items()}
+        write_json_atomic(truth, known)
     ready = threading.Event()
     info: dict = {}
 
@@ -123,7 +126,7 @@ def run_simulate(
         scene, robot_protocol=robot_protocol, robot_port=None if robot_port is None else int(robot_port),
         camera_addresses=camera_addresses,
         robot_model=model, time_scale=time_scale, seed=seed, stop=stop, ready=ready, info=info, options=options,
-        true_forward=true_forward,
+        true_forward=true_forward, lenses=lenses,
     )  # fmt: skip
 
 
@@ -141,6 +144,7 @@ def run_simulated_cell(
     info: dict | None = None,
     options: Any = None,
     true_forward: Callable[[np.ndarray], np.ndarray] | None = None,
+    lenses: Mapping[str, Any] | None = None,
 ) -> None:
     """A robot server plus one fake GigE camera per scene camera, until ``stop`` (behind ``jcalib simulate``).
 
@@ -160,6 +164,8 @@ def run_simulated_cell(
         options: the cameras' :class:`jcalib.sim.render.RenderOptions` (None: the defaults).
         true_forward: the robot's true kinematics (joints rad -> ``T_base_flange``), which the cameras
             see while the controller reports ``robot_model``'s (None: no kinematic error).
+        lenses: camera -> :class:`jcalib.sim.zoom.ZoomLensModel` of the cameras with a motorised zoom lens
+            (their fake has ``Zoom`` and ``Focus`` features and renders through the lens).
     """
     from contextlib import ExitStack
 
@@ -178,10 +184,13 @@ def run_simulated_cell(
         server = make_server(robot_protocol, "127.0.0.1", robot_port, ctrl).start()
         stack.callback(server.stop)
         for k, (name, address) in enumerate(camera_addresses.items()):
-            source = scene_frame_source(scene, name, ctrl.true_T_base_flange, options=options, seed=seed + 1000 * k)
+            lens = (lenses or {}).get(name)
+            source = scene_frame_source(scene, name, ctrl.true_T_base_flange, options=options, seed=seed + 1000 * k,
+                                        lens=lens)
             size = camera_image_size(scene.cameras[name].model)
             # GigE Vision serials hold 15 bytes: index + name, cut
-            fake = FakeGigECamera(source, address, sensor_size=size, serial=f"SIM{k}-{name}"[:15])
+            fake = FakeGigECamera(source, address, sensor_size=size, serial=f"SIM{k}-{name}"[:15],
+                                  lens_features=lens is not None)
             stack.enter_context(fake)
         if info is not None:
             info.update(robot=getattr(server, "url", f"{robot_protocol}://{server.host}:{server.port}"),
@@ -195,3 +204,18 @@ def run_simulated_cell(
             pass
 
 
+
+
+def _zoom_lenses(cell: Any, layout: Any) -> dict:
+    """Camera -> the simulated zoom lens (:class:`jcalib.sim.zoom.ZoomLensModel`, its sensor the layout
+    camera's) of the cameras whose cell entry has ``lens:``."""
+    from jcalib.io.cell import load_cell
+    from jcalib.sim.zoom import ZoomLensModel
+
+    spec = load_cell(cell)
+    out = {}
+    for name, cam in spec.cameras.items():
+        if cam.lens is not None and name in layout.cameras:
+            w, h = layout.cameras[name].image_size
+            out[name] = ZoomLensModel(f_wide_px=0.8 * w, image_size=(int(w), int(h)))
+    return out

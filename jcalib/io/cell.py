@@ -63,6 +63,7 @@ class CameraSpec:
             ``robots:``); None otherwise.
         settings: GenICam features set at capture, name -> number or string (e.g.
             ``{"ExposureTime": 5000, "Gain": 2}``; ExposureTime in us).
+        lens: a zoom (focus) lens whose settings the intrinsics depend on (:class:`LensSpec`), or None.
     """
 
     name: str
@@ -75,6 +76,18 @@ class CameraSpec:
     pose: np.ndarray | None = None
     robot: str | None = None
     settings: dict[str, Any] = field(default_factory=dict)
+    lens: LensSpec | None = None
+
+
+@dataclass(frozen=True)
+class LensSpec:
+    """A zoom (focus) lens: the camera's intrinsics and axial position are functions of ``settings``
+    (GenICam feature names; one so far), each a clamped B-spline of ``degree`` with ``knots`` uniform
+    interior knots in the setting normalised over the calibrated range (:mod:`jcalib.geometry.cameras.zoom`)."""
+
+    settings: tuple[str, ...]
+    degree: int = 3
+    knots: int = 0
 
 
 @dataclass(frozen=True)
@@ -255,7 +268,7 @@ def _check_keys(entry: dict, allowed: set[str], where: str) -> None:
 def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
-    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose", "robot", "settings"}, where)
+    _check_keys(entry, {"model", "mount", "skew", "fix", "intrinsics", "pose", "robot", "settings", "lens"}, where)
     model = entry.get("model")
     if model not in CAMERA_MODELS:
         raise _fail(where, f"unknown camera model {model!r}; use one of {', '.join(CAMERA_MODELS)}")
@@ -293,7 +306,29 @@ def _parse_camera(name: str, entry: Any, where: str) -> CameraSpec:
         pose=pose,
         robot=_robot_ref(entry, where),
         settings=dict(settings),
+        lens=_parse_lens(entry.get("lens"), model, where + ".lens"),
     )
+
+
+def _parse_lens(entry: Any, model: str, where: str) -> LensSpec | None:
+    if entry is None:
+        return None
+    if not isinstance(entry, dict):
+        raise _fail(where, f"expected {{settings: [Zoom], degree: 3, knots: 0}}, got {entry!r}")
+    _check_keys(entry, {"settings", "degree", "knots"}, where)
+    settings = entry.get("settings")
+    if not isinstance(settings, list) or not settings or not all(isinstance(x, str) and x for x in settings):
+        raise _fail(where + ".settings", f"expected a list of GenICam feature names such as [Zoom], got {settings!r}")
+    if len(settings) != 1:
+        raise _fail(where + ".settings", f"got {settings}; a lens depends on one setting so far (e.g. [Zoom]): "
+                                         "calibrate with the other one held, one cell per value")
+    if model == "splined":
+        raise _fail(where, "the splined lens model has no zoom functions; use an opencv model or the fisheye")
+    degree, knots = entry.get("degree", 3), entry.get("knots", 0)
+    for key, value, lo, hi in (("degree", degree, 1, 5), ("knots", knots, 0, 8)):
+        if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+            raise _fail(f"{where}.{key}", f"expected an integer in [{lo}, {hi}], got {value!r}")
+    return LensSpec(settings=tuple(settings), degree=int(degree), knots=int(knots))
 
 
 def _parse_target(name: str, entry: Any, where: str) -> TargetSpec:
@@ -613,6 +648,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
             entry["robot"] = c.robot
         if c.settings:
             entry["settings"] = dict(c.settings)
+        if c.lens is not None:
+            entry["lens"] = {"settings": list(c.lens.settings), "degree": c.lens.degree, "knots": c.lens.knots}
         out["cameras"][c.name] = entry
     if cell.sensors:
         out["sensors"] = {n: {"kind": x.kind, "mount": x.mount, **({"pose": x.pose.tolist()} if x.pose is not None else {}),

@@ -127,6 +127,8 @@ class Station:
             (``T_<robot>_flange``), metres: the stations of a cell with named ``robots:``. Empty when
             the station gives ``T_base_flange``. Which robots a station must give is checked against
             the cell (:func:`jcalib.problems.calibrate_cell`).
+        lens: camera -> lens setting -> value (e.g. ``{"cam0": {"Zoom": 350.0}}``): the settings of the
+            cameras whose cell entry has ``lens:``, as the camera reported them back.
         joints_deg: the robot's joint values as its controller reports them (degrees; prismatic axes
             in mm): ``(n,)``, or robot name -> ``(n,)`` in a cell with named robots; None when not
             recorded. Used by kinematic calibration (and to compute a flange pose from a robot's
@@ -141,6 +143,7 @@ class Station:
     poses: tuple[PoseMeasurement, ...] = ()
     joints_deg: np.ndarray | dict[str, np.ndarray] | None = None
     positions: tuple[PositionMeasurement, ...] = ()
+    lens: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"id": self.id}
@@ -159,6 +162,8 @@ class Station:
             out["poses"] = [m.to_dict() for m in self.poses]
         if self.positions:
             out["positions"] = [m.to_dict() for m in self.positions]
+        if self.lens:
+            out["lens"] = {c: dict(v) for c, v in self.lens.items()}
         return out
 
 
@@ -338,9 +343,17 @@ def parse_observations(data: Any, source: str = "<dict>") -> Observations:
             joints = {str(r): _array(q, f"{where}.joints_deg.{r}", 1) for r, q in joints.items()}
         elif joints is not None:
             joints = _array(joints, where + ".joints_deg", 1)
+        lens = {}
+        for cam, values in (s.get("lens") or {}).items():
+            if not isinstance(values, dict) or not all(
+                    isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                    for k, v in values.items()):
+                raise _fail(f"{where}.lens.{cam}", "expected lens setting names mapped to finite numbers, e.g. "
+                                                   f"{{Zoom: 350}}, got {str(values)[:80]}")
+            lens[str(cam)] = {str(k): float(v) for k, v in values.items()}
         stations.append(Station(id=sid, detections=dets, T_base_flange=T, contacts=contacts,
                                 flange_poses=flange_poses, poses=tuple(poses), joints_deg=joints,
-                                positions=positions))
+                                positions=positions, lens=lens))
     return Observations(cameras=cameras, targets=targets, stations=tuple(stations), source=source)
 
 

@@ -38,17 +38,21 @@ _ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 @dataclass(frozen=True)
 class Station:
     """One planned station: id, target ``T_base_flange`` (4, 4) in m, the move kind, and optionally the
-    joints ``joints_deg`` (n,) that reach it (controller units: deg, mm for prismatic axes)."""
+    joints ``joints_deg`` (n,) that reach it (controller units: deg, mm for prismatic axes), and the lens
+    settings ``lens`` (camera -> GenICam feature -> value) to set before grabbing."""
 
     id: str
     T_base_flange: np.ndarray
     move: str = "joint"
     joints_deg: tuple[float, ...] | None = None
+    lens: Mapping[str, Mapping[str, float]] | None = None
 
     def to_json(self) -> dict:
         out = {"id": self.id, "T_base_flange": self.T_base_flange.tolist(), "move": self.move}
         if self.joints_deg is not None:
             out["joints_deg"] = list(self.joints_deg)
+        if self.lens:
+            out["lens"] = {c: dict(v) for c, v in self.lens.items()}
         return out
 
 
@@ -110,7 +114,7 @@ def _validate(stations: object, where: str) -> Plan:
         move = s.get("move", "joint")
         if move not in ("joint", "linear"):
             raise BadInputError(f"{at} ({sid}): move must be 'joint' or 'linear', got {move!r}")
-        out.append(Station(sid, T, move, _joints(s.get("joints_deg"), f"{at} ({sid})")))
+        out.append(Station(sid, T, move, _joints(s.get("joints_deg"), f"{at} ({sid})"), _lens(s.get("lens"), f"{at} ({sid})")))
     sizes = {len(st.joints_deg) for st in out if st.joints_deg is not None}
     if len(sizes) > 1:
         raise BadInputError(f"{where}: the stations' joints_deg have different lengths {sorted(sizes)}; one robot "
@@ -132,6 +136,48 @@ def _joints(value: object, at: str) -> tuple[float, ...] | None:
         raise BadInputError(f"{at}: joints_deg must be a list of 1..32 finite joint values (deg; mm for "
                             f"prismatic axes), got {value!r}")
     return tuple(float(v) for v in arr)
+
+
+def _lens(value: object, at: str) -> dict[str, dict[str, float]] | None:
+    """A station's optional ``lens``: camera -> GenICam feature -> finite number."""
+    if value is None:
+        return None
+    ok = isinstance(value, dict) and all(
+        isinstance(c, str) and isinstance(f, dict) and all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+            for k, v in f.items()) for c, f in value.items())
+    if not ok:
+        raise BadInputError(f"{at}: lens must map cameras to lens settings, e.g. {{cam0: {{Zoom: 350}}}}, got {value!r}")
+    return {c: {k: float(v) for k, v in f.items()} for c, f in value.items()}
+
+
+def with_lens_settings(plan: Plan, specs: list[str]) -> Plan:
+    """The plan with every station visited at each lens setting of ``specs`` (``"cam0.Zoom=100,200,300"``;
+    several specs: every combination), in order: each station's settings one after the other (the robot
+    moves once per station). Ids become ``<id>-<setting><value>`` (e.g. ``s003-Zoom350``)."""
+    import itertools
+
+    axes = []
+    for spec in specs:
+        head, eq, values = str(spec).partition("=")
+        cam, dot, name = head.partition(".")
+        try:
+            numbers = [float(v) for v in values.split(",") if v.strip()]
+        except ValueError:
+            numbers = []
+        if not eq or not dot or not cam or not name or not numbers or not all(np.isfinite(numbers)):
+            raise BadInputError(f"--lens-settings: got {spec!r}; expected CAMERA.SETTING=V1,V2,..., e.g. "
+                                "cam0.Zoom=100,200,300")
+        axes.append([(cam, name, v) for v in numbers])
+    stations = []
+    for st in plan.stations:
+        for combo in itertools.product(*axes):
+            lens: dict[str, dict[str, float]] = {}
+            for cam, name, v in combo:
+                lens.setdefault(cam, {})[name] = v
+            suffix = "-".join(f"{name}{v:g}" for _, name, v in combo)
+            stations.append({**st.to_json(), "id": f"{st.id}-{suffix}"[:64], "lens": lens})
+    return _validate(stations, "plan")
 
 
 def plan_from_json(obj: dict, where: str = "plan") -> Plan:

@@ -265,7 +265,9 @@ def detect_session(
         T = rec.get("T_base_flange")
         stations.append(
             Station(id=sid, detections=tuple(dets), T_base_flange=None if T is None else np.asarray(T, dtype=np.float64),
-                    joints_deg=_joints(rec.get("joints_deg")))
+                    joints_deg=_joints(rec.get("joints_deg")),
+                    lens={str(c): {str(k): float(v) for k, v in (values or {}).items()}
+                          for c, values in (rec.get("lens") or {}).items()})  # zoom settings read back at capture
         )
     for cam, size in sizes.items():
         said = size_warnings(spec.cameras[cam], size, recorded_settings(meta, cam), str(d / "session.json"))

@@ -19,6 +19,7 @@ from jcalib.problems.kinematics import forward_batch
 from jcalib.geometry.cameras import AbstractCameraModel
 from jcalib.problems.build import CORNER_KINDS, Built, kinematic_prior_sigma, se3_matrix
 from jcalib.problems.graph import FREE, Graph
+from jcalib.problems.lens import lens_result
 from jcalib.problems.outcome import outcome_warnings
 from jcalib.problems.refine import Refined, residuals
 from jcalib.problems.start import Start
@@ -63,6 +64,7 @@ class Calibration:
         solution, graph, built: the :class:`jcalib.solve.Solution` and how it was built (for the report).
         kinematics: robot -> its calibrated kinematics (:func:`kinematic_result`), for the robots whose
             kinematic parameters were estimated.
+        lenses: camera -> its zoom lens's result entry (:func:`jcalib.problems.lens.lens_result`).
         covariance_noise: how the covariances read the solution: ``"a_posteriori"`` (scaled by its
             ``sigma2``) or ``"stated"`` (its factor groups' σ, which carry the variance components).
     """
@@ -112,6 +114,7 @@ class Calibration:
     prediction: dict | None = None
     rms_per_coordinate: dict[str, float] = field(default_factory=dict)
     view_rms_px_per_coordinate: dict[tuple[str, str], float] = field(default_factory=dict)
+    lenses: dict[str, dict] = field(default_factory=dict)
 
     @property
     def rms_px(self) -> float:
@@ -281,6 +284,13 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
             B[o:o + 6, o:o + 6] = np.kron(np.eye(2), rotation_z_to(T[:3, 2]).T @ T[:3, :3])
             M = B @ M @ B.T
     joint = {"names": [a for a, _ in joint_names], "dims": dims, "matrix": M}
+    lenses = {}
+    for c, ls in start.lenses.items():
+        mount = g.mount_name(cell.cameras[c])
+        names = [f"intrinsics:{c}", f"lens:{c}"] + ([mount] if mount in built.transforms else [])
+        C = sol.joint_covariance(names, noise=noise)
+        lenses[c] = lens_result(c, ls, cameras[c], vals[f"intrinsics:{c}"][0], vals[f"lens:{c}"][0], C,
+                                mount if mount in built.transforms else None)
 
     # per-view target poses, RMS, residual statistics
     T_cam_target: dict[str, dict[str, np.ndarray]] = {}
@@ -359,6 +369,6 @@ def assemble(g: Graph, start: Start, built: Built, r: Refined) -> Calibration:
         start={n: start.known[n] for n in built.transforms if n in start.known},
         start_method={n: start.how.get(n, "known") for n in built.transforms}, inits=dict(start.inits),
         motions=dict(start.motions), unobservable_fixed=start.unobservable_fixed, priors=list(built.priors),
-        joint_covariance=joint, status=sol.status.name.lower(), iterations=sol.iterations, sigma2=float(sol.sigma2),
+        lenses=lenses, joint_covariance=joint, status=sol.status.name.lower(), iterations=sol.iterations, sigma2=float(sol.sigma2),
         num_residuals=num_res, pose_model=any(built.pose_model.values()), solution=sol, graph=g, built=built,
         covariance_noise=noise, kinematics=kinematics)

@@ -10,6 +10,7 @@ Unknowns (names as in the result file):
   tool axes determine it (the rotation about the axis itself is held);
 - ``T_world_<robot>``: each robot's base (several robots; the gauge robot's is held);
 - ``point:<name>``: each cell point (held when the spec gives its position);
+- ``lens:<cam>``: a zoom lens's function coefficients (:mod:`jcalib.problems.lens`), for cameras with ``lens:``;
 - ``kinematics:<robot>``: a robot's kinematic parameters (``calibrate_kinematics``; an identifiable
   subset free, :mod:`jcalib.problems.kinematics`), whose flange poses are then per-station unknowns
   tied to the kinematics at the station's joints (factor ``kinematic:<robot>``) instead of the pose prior;
@@ -39,7 +40,7 @@ from jcalib.problems.graph import FREE, Graph
 from jcalib.problems.start import Start
 from jcalib.residuals.losses import CauchyLoss, HuberLoss, TrivialLoss
 from jcalib.residuals.pose import axis_translation_prior, contact, kinematic, pose_measurement, position_measurement
-from jcalib.residuals.reprojection import reprojection, tool_axis, warped_reprojection
+from jcalib.residuals.reprojection import reprojection, tool_axis, warped_reprojection, zoom_reprojection
 from jcalib.solve import SE3, Euclidean, FactorGroup, Problem, Variable, replace
 
 #: Residual kinds and their unit.
@@ -321,6 +322,13 @@ class _Builder:
             self.add(f"intrinsics:{cam.name}", Euclidean(len(model.param_names)), params[None, :],
                      fixed=s.fixed_masks[cam.name][None, :], key=cam.name, coord_names=list(model.param_names),
                      entry_label=cam.name, **kw)
+            ls = s.lenses.get(cam.name)
+            if ls is not None:  # a zoom lens: its functions' further control points (jcalib.problems.lens)
+                cols = ["log_fx", "log_fy"] + list(model.param_names)[2:] + ["shift_m"]
+                rows = ls.lens.size // len(cols)
+                self.add(f"lens:{cam.name}", Euclidean(ls.lens.size), ls.lens[None, :], fixed=ls.fixed[None, :],
+                         key=f"lens:{cam.name}", coord_names=[f"{c}@{i + 1}" for i in range(rows) for c in cols],
+                         entry_label=f"{cam.name} lens")
         for spec in list(cell.cameras.values()) + list(cell.targets.values()):
             name = g.mount_name(spec)
             if name is None or name in self.variables:
@@ -445,7 +453,15 @@ class _Builder:
             arguments = (f"intrinsics:{c}",) + args
             indices = (np.zeros_like(runs),) + self.indices(args, runs)
             obs = (points, pixels, self.aspect(c, runs.size))
-            if t in self.warps:
+            ls = self.s.lenses.get(c)
+            if ls is not None and t in self.warps:
+                raise BadInputError(f"{cell.source}: target '{t}' (warp: true) seen by camera '{c}' with a zoom lens: "
+                                    "the two together are not supported yet; drop one")
+            if ls is not None:
+                fn, jac = zoom_reprojection(*self.camera_config(c), chain)
+                arguments, indices = arguments + (f"lens:{c}",), indices + (np.zeros_like(runs),)
+                obs = obs + (ls.basis[runs],)
+            elif t in self.warps:
                 fn, jac = warped_reprojection(*self.camera_config(c), chain)
                 arguments, indices = arguments + (f"warp:{t}",), indices + (np.zeros_like(runs),)
                 obs = obs + (warp_bow(points, np.asarray(g.obs.targets[t], np.float64)),)

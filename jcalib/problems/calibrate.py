@@ -63,6 +63,29 @@ class Result:
         known = list(self.file.cameras) + list(self.file.transforms)
         raise BadInputError(f"no covariance for {name!r}; the result has: {', '.join(known)}")
 
+    def camera_at(self, camera: str | None = None, *, extrapolate: bool = False, **settings: float):
+        """A camera with a zoom lens at one setting, e.g. ``result.camera_at("cam0", Zoom=350)``.
+
+        Returns:
+            ``(CameraResult, TransformResult | None)``: the intrinsics with their covariance, and the
+            camera's pose on its holder at that setting (``T_flange_cam0``, ...) with its 6x6 covariance
+            (sampling noise, first order). ``camera`` may be omitted when one camera has a lens.
+        Raises:
+            BadInputError: no lens, another setting, or a value outside the calibrated range (without
+                ``extrapolate``).
+        """
+        from jcalib.problems.lens import camera_at
+
+        lenses = list(self.file.extra.get("lenses") or {})
+        if camera is None and len(lenses) == 1:
+            camera = lenses[0]
+        if camera is None or len(settings) != 1:
+            raise BadInputError(f"camera_at: give the camera ({', '.join(lenses) or 'none has a lens'}) and one setting, "
+                                "e.g. camera_at('cam0', Zoom=350)")
+        (name, value), = settings.items()
+        cam, _, tr = camera_at(self.file, camera, name, float(value), extrapolate)
+        return cam, tr
+
     def __repr__(self) -> str:
         return f"Result(cameras={list(self.file.cameras)}, transforms={list(self.file.transforms)})"
 
@@ -92,6 +115,8 @@ def input_hash(cell_arg, obs_arg, cell: CellSpec, obs: Observations) -> str:
                 chunks.append(f"{c.tool}|{c.point}".encode())
             for m in st.poses:
                 chunks += [f"{m.camera}|{m.target}".encode(), np.ascontiguousarray(m.T_cam_target).tobytes()]
+            if st.lens:
+                chunks.append(json.dumps(st.lens, sort_keys=True).encode())
         parts.append(b"\x00".join(chunks))
     return hash_inputs(*parts)
 
@@ -310,6 +335,12 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
         saved = file.cameras.get(c)
         if saved is not None and tuple(saved.param_names) == tuple(model.param_names):
             x0[f"intrinsics:{c}"] = np.asarray(saved.params, np.float64)[None, :]
+    for c in s.lenses:  # a zoom lens's functions (the file's lenses.<cam>)
+        saved = (file.extra.get("lenses") or {}).get(c)
+        if saved is None or len(saved.get("lens", [])) != built.problem.variable(f"lens:{c}").value.shape[-1]:
+            raise BadInputError(f"result: the cell gives camera '{c}' a zoom lens, but the result has no matching "
+                                f"lenses.{c} section; give the cell spec the result was computed from")
+        x0[f"lens:{c}"] = np.asarray(saved["lens"], np.float64)[None, :]
     for t in built.warps:
         saved = file.targets.get(t)
         if saved is None:
@@ -415,6 +446,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
                                      "matrix": np.asarray(jc["matrix"]).tolist(),
                                      "order": "camera ids: intrinsics (param_names); transforms: rx, ry, rz, tx, ty, "
                                               "tz; warp:<target>: c0, c1"}
+    if cal.lenses:
+        extra["lenses"] = cal.lenses
     if cal.T_cam_target:
         extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
     provenance = Provenance.now(input_hash=hash_, options=asdict(options))

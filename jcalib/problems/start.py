@@ -38,6 +38,7 @@ from jcalib.init.handeye_motion import (
 )
 from jcalib.init.robot_world import solve_robot_world_hand_eye
 from jcalib.problems.graph import FREE, Graph
+from jcalib.problems.lens import start_lens
 
 
 @dataclass
@@ -60,6 +61,8 @@ class Start:
         warnings: what the user should know (weak motion, what was held at a prior).
         unobservable_fixed: ``{"transform", "axis", "frame", "value_m", "sigma_m"}`` when a hand-eye
             translation along the common rotation axis is held at a prior (``fix_unobservable``).
+        lenses: camera -> :class:`jcalib.problems.lens.LensStart` of the cameras with a zoom lens (their
+            ``models`` entry is the camera at the lowest calibrated setting).
     """
 
     models: dict[str, AbstractCameraModel] = field(default_factory=dict)
@@ -75,6 +78,7 @@ class Start:
     tool_axes: dict[str, bool] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     unobservable_fixed: dict | None = None
+    lenses: dict = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------ intrinsics
@@ -215,6 +219,12 @@ def start_intrinsics(g: Graph, start: Start, seed=None) -> None:
         cam_pairs = [p for (c, _), p in g.pairs.items() if c == cam.name]
         if not cam_pairs and not any(c == cam.name for (c, _) in g.tips) and any(c == cam.name for (c, _) in g.poses):
             continue  # a pose sensor only (6-DOF measurements): no lens to calibrate
+        if cam.lens is not None:  # a zoom lens: one start per setting, then its functions
+            model, mask, ls, views = start_lens(g, cam, cam_pairs, initial_model, intrinsics_fixed_mask)
+            start.models[cam.name], start.fixed_masks[cam.name], start.aspects[cam.name] = model, mask, (0.0, 1.0)
+            start.lenses[cam.name] = ls
+            start.views.update(views)
+            continue
         K0, dist0 = cam.K, cam.dist
         if K0 is None and seed is not None and cam.name in seed.cameras and seed.cameras[cam.name].model == cam.model:
             K0, dist0 = np.asarray(seed.cameras[cam.name].K), np.asarray(seed.cameras[cam.name].dist)

@@ -150,7 +150,7 @@ def render_report(
         sections.warnings(warnings),
         "<h2>Summary</h2>", sections.statistics(file.stats), sections.intrinsics(file), sections.transforms(file),
         sections.points(file),
-        sections.targets(file), kinematics.section(file), goals_html(goals) if goals else "",
+        sections.targets(file), sections.lenses(file), kinematics.section(file), goals_html(goals) if goals else "",
         sections.prediction(file.stats),
         "<h2>Per-view reprojection error</h2>", sections.view_rms(file.stats),
         "<h2>Task-space uncertainty</h2>", sections.INCLUDES, sections.task_space(file),

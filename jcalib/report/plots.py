@@ -18,6 +18,7 @@ __all__ = [
     "correlation_png",
     "coverage_png",
     "cross_validation_png",
+    "lens_functions_png",
     "projection_sigma_map",
     "projection_sigma_png",
     "radial_residuals_png",
@@ -267,4 +268,56 @@ def cross_validation_png(name: str, u: np.ndarray, v: np.ndarray, diff: np.ndarr
     cbar = fig.colorbar(cs, ax=list(axes), label="[px]", fraction=0.03)
     cbar.set_ticks(levels[::2])
     cbar.set_ticklabels([f"{x:.3g}" for x in levels[::2]])
+    return _png(fig)
+
+
+# ------------------------------------------------------------------------------ zoom lenses
+
+
+def lens_functions_png(name: str, lens, columns: list[str], captured, heldout: Mapping[float, dict] | None = None,
+                       num: int = 61) -> bytes:
+    """Each intrinsic and the axial shift of a zoom camera against the lens setting, with ±σ and ±3σ bands.
+
+    Args:
+        name: camera id; lens: its :class:`jcalib.geometry.cameras.zoom.LensFunction`.
+        columns: the panels (intrinsic names and ``shift_m``); captured: the calibrated settings (ticks).
+        heldout: setting -> ``{"rms_px": ...}`` of held-out settings (marked, their prediction RMS shown).
+    """
+    plt = _pyplot()
+    lo, hi = lens.range_
+    s = np.linspace(lo, hi, num)
+    names = list(lens.param_names)
+    values = {c: np.zeros(num) for c in columns}
+    sigma = {c: np.zeros(num) for c in columns}
+    for i, x in enumerate(s):
+        at = lens.at(x)
+        for c in columns:
+            if c == "shift_m":
+                values[c][i] = at["shift_m"] * 1e3
+                sigma[c][i] = (at["shift_std_m"] or 0.0) * 1e3
+            else:
+                j = names.index(c)
+                values[c][i] = at["params"][j]
+                cov = at["params_covariance"]
+                sigma[c][i] = 0.0 if cov is None else float(np.sqrt(max(cov[j, j], 0.0)))
+    cols = 3
+    rows = -(-len(columns) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(FIG_WIDTH_IN, 2.3 * rows), squeeze=False)
+    for ax, c in zip(axes.ravel(), columns):
+        v, sd = values[c], sigma[c]
+        ax.fill_between(s, v - 3 * sd, v + 3 * sd, color="tab:blue", alpha=0.15, lw=0)
+        ax.fill_between(s, v - sd, v + sd, color="tab:blue", alpha=0.35, lw=0)
+        ax.plot(s, v, color="tab:blue", lw=1.2)
+        for x in captured:
+            ax.axvline(x, color="0.7", lw=0.6, zorder=0)
+        for x in (heldout or {}):
+            ax.axvline(float(x), color="tab:red", lw=1.0, ls="--", zorder=0)
+        ax.set_title("shift along +z [mm]" if c == "shift_m" else c, fontsize=9)
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[len(columns):]:
+        ax.axis("off")
+    held = ", ".join(f"{float(k):g}: {v.get('rms_px') or float('nan'):.3f} px" for k, v in (heldout or {}).items())
+    fig.suptitle(f"{name}: lens functions of {lens.setting} (bands ±1σ, ±3σ; grey: calibrated settings"
+                 + (f"; red: held out, prediction RMS {held})" if held else ")"), fontsize=9)
+    fig.tight_layout()
     return _png(fig)

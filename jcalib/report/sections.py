@@ -173,6 +173,30 @@ def targets(file: ResultFile) -> str:
             + table(["target", "c0, c1 [mm]", "σ [mm]", "centre [mm]"], rows, {1, 2, 3}))
 
 
+def lenses(file: ResultFile, heldout: Mapping[str, Mapping] | None = None) -> str:
+    """Zoom lenses: each intrinsic and the axial shift against the setting with σ bands (``lenses.<cam>``),
+    the held-out settings (``heldout``: camera -> :func:`jcalib.problems.lens_heldout.heldout_settings`, or
+    the entry's own ``heldout``) marked with their prediction RMS."""
+    from jcalib.problems.lens import lens_function
+    from jcalib.report import plots
+
+    entries = file.extra.get("lenses") or {}
+    if not entries:
+        return ""
+    out = ["<h3>Zoom lenses</h3>", note("The camera's intrinsics and the shift of its frame along the optical axis "
+                                         "as functions of the lens setting (sampling σ, not the error of the "
+                                         "spline between calibrated settings: the held-out settings test that).")]
+    for name, entry in entries.items():
+        mount = entry.get("mount")
+        lens = lens_function(entry, file.transforms[mount].matrix if mount in file.transforms else None)
+        held = ((heldout or {}).get(name) or entry.get("heldout") or {}).get("settings") or {}
+        columns = [n for n in lens.param_names if n not in ("p1", "p2")] + ["shift_m"]
+        png = plots.lens_functions_png(name, lens, columns, entry.get("settings_used", []), held)
+        out.append(figure(png, f"lens functions of {name}", f"{name}: intrinsics and axial shift against "
+                                                            f"{esc(lens.setting)}"))
+    return "".join(out)
+
+
 def view_rms(stats: Mapping[str, Any]) -> str:
     from jcalib.report import plots
 

@@ -14,6 +14,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from jcalib.geometry.cameras import zoom
 from jcalib.residuals.chain import Chain, chain_apply, chain_jacobian
 
 
@@ -179,4 +180,37 @@ def tool_axis(model_cls: type, image_size: tuple[int, int], skew: bool, chain: C
         return r[None], (-g_intr[None], *[-(g_cam @ b)[None] for b in blocks])
 
     fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("tool_axis", model_cls, image_size, skew, chain)
+    return fn, jacobian
+
+
+@functools.cache
+def zoom_reprojection(model_cls: type, image_size: tuple[int, int], skew: bool, chain: Chain):
+    """``(fn, jacobian)`` of a target corner's reprojection by a camera with a zoom (focus) lens
+    (:mod:`jcalib.geometry.cameras.zoom`): the intrinsics and the camera frame's axial shift ``d`` are
+    B-spline functions of the lens setting, ``p_cam(u) = chain · p − d(u) e_z``.
+
+    ``fn(intrinsics, *poses, lens, obs)`` with ``obs = (p (3,), pixel (2,), aspect (2,), basis (nb,))``:
+    ``intrinsics`` the camera at the lowest calibrated setting, ``lens`` the other control points and
+    ``basis`` the spline basis at the observation's setting. ``jacobian`` as :func:`reprojection`'s (the
+    shift does not depend on the poses), with ``∂/∂lens`` by autodiff through the lens functions.
+    """
+
+    def project(p_cam, intrinsics, lens, obs):
+        _, pixel, aspect, b = obs
+        params, shift = zoom.lens_at(intrinsics, lens, b)
+        model = _model(model_cls, image_size, skew, params, aspect)
+        r = model.project(p_cam - jnp.stack([jnp.zeros_like(shift), jnp.zeros_like(shift), shift])) - pixel
+        return r, r
+
+    def fn(intrinsics, *rest):
+        *poses, lens, obs = rest
+        return project(chain_apply(poses, chain, obs[0]), intrinsics, lens, obs)[0]
+
+    def jacobian(intrinsics, *rest):
+        *poses, lens, obs = rest
+        p_cam, blocks, _ = chain_jacobian(poses, chain, obs[0])
+        (J_cam, J_intr, J_lens), r = jax.jacrev(project, argnums=(0, 1, 2), has_aux=True)(p_cam, intrinsics, lens, obs)
+        return r, (J_intr, *[J_cam @ b for b in blocks], J_lens)
+
+    fn.__jcalib_key__ = jacobian.__jcalib_key__ = recipe("zoom_reprojection", model_cls, image_size, skew, chain)
     return fn, jacobian

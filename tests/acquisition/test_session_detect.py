@@ -46,8 +46,9 @@ def session(tmp_path_factory):
             if k == 1 and cam == "cam0":
                 img = np.full_like(img, 128)  # nothing to find
             images[cam] = w.write_image(cam, st.id, img)
+        lens = {"lens": {"cam0": {"Zoom": 350.0}}} if k == 0 else {}  # a zoom setting read back at capture
         w.append_station({"id": st.id, "T_base_flange": st.T_base_flange.tolist(), "joints_deg": [0.0] * 6,
-                          "time": utc_now(), "images": images, "status": "ok"})  # fmt: skip
+                          "time": utc_now(), "images": images, "status": "ok", **lens})  # fmt: skip
     w.close()
     (d / "images" / "cam1" / f"{plan.stations[3].id}.png").unlink()  # lost after the capture
     return d, layout, plan
@@ -60,6 +61,7 @@ def test_detections_match_the_ground_truth_and_failures_are_listed(session):
     got = {(f.station, f.camera, f.reason) for f in failures}
     assert got == {(ids[1], "cam0", "not_found"), (ids[2], None, "skipped"), (ids[3], "cam1", "missing_image")}
     assert [s.id for s in obs.stations] == [ids[0], ids[1], ids[3]]
+    assert [s.lens for s in obs.stations] == [{"cam0": {"Zoom": 350.0}}, {}, {}]  # carried into the observations
     assert obs.cameras == {"cam0": (320, 240), "cam1": (320, 240)}
     assert [sorted(det.camera for det in s.detections) for s in obs.stations] == [["cam0", "cam1"], ["cam1"], ["cam0"]]
     t = layout.targets["board"]

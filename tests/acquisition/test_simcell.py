@@ -184,3 +184,33 @@ def test_scene_tools_from_a_layout_and_bad_tools():
         SceneTool(tool.geometry, np.eye(4), ("cam1",))
     with pytest.raises(BadInputError, match="zone_radius_m"):
         dataclasses.replace(tool, zone_radius_m=0.0)
+
+
+def test_scene_frame_source_renders_through_a_zoom_lens():
+    """With a zoom lens, a frame is what jcalib.sim renders with the lens's camera at the request's Zoom and
+    Focus and the camera frame shifted along its axis (jcalib.sim.zoom); other settings give other images."""
+
+    from jcalib.acquisition.cameras import FrameRequest
+    from jcalib.app.simcell import scene_frame_source
+    from jcalib.sim.scene import Scene, SceneCamera, View, render_view
+    from jcalib.sim.scene import SceneTarget as SimTarget
+    from jcalib.sim.zoom import ZoomLensModel, mount_at
+
+    lens = ZoomLensModel(f_wide_px=130.0, image_size=(160, 120))
+    board = Checkerboard(cols=5, rows=4, square=0.02)
+    ctrl = SimulatedController(time_scale=0.0)
+    T_home = ctrl.true_T_base_flange()
+    T_flange_cam = make_pose(np.eye(3), np.array([0.0, 0.0, 0.05]))
+    R = T_home[:3, :3]
+    T_base_board = make_pose(R, T_home[:3, 3] + R @ np.array([-0.04, -0.03, 0.4]))
+    scene = Scene(cameras={"cam0": SceneCamera(lens.camera(0.0), "flange", T_flange_cam)},
+                  targets={"board": SimTarget(board, target_texture(board, 0.0005), "base", T_base_board)},
+                  views=[View("s000", T_home)])
+    source = scene_frame_source(scene, "cam0", ctrl.true_T_base_flange, seed=5, lens=lens)
+    images = {}
+    for zoom in (200.0, 800.0):
+        images[zoom] = source(FrameRequest(160, 120, lens={"Zoom": zoom, "Focus": 400.0}))
+        at = SceneCamera(lens.camera(zoom, 400.0), "flange", mount_at(T_flange_cam, lens, zoom, 400.0))
+        want = render_view(dataclasses.replace(scene, cameras={"cam0": at}), 0, "cam0", rng=5)
+        np.testing.assert_array_equal(images[zoom], want)
+    assert not np.array_equal(images[200.0], images[800.0])

@@ -46,6 +46,8 @@ class FrameRequest:
         exposure_us: exposure time, microseconds.
         gain: device gain value (device units).
         index: running number of frames served by this camera.
+        lens: lens feature -> current value (``Zoom``, ``Focus`` in motor steps) of a camera with a
+            motorised lens; empty otherwise.
     """
 
     width: int
@@ -56,6 +58,7 @@ class FrameRequest:
     exposure_us: float = 10000.0
     gain: float = 0.0
     index: int = 0
+    lens: Mapping[str, float] = field(default_factory=dict)
 
 
 #: A frame source renders the scene as seen now: ``source(request) -> image``. The image is either the

@@ -20,6 +20,7 @@ loopback address (127.0.0.2) must be assigned to ``lo`` first (e.g. inside ``uns
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import fcntl
 import os
@@ -41,6 +42,43 @@ _REG_SENSOR_HEIGHT = 0x118
 _REG_SENSOR_WIDTH = 0x11C
 _REG_WIDTH = 0x100
 _REG_HEIGHT = 0x104
+
+#: Lens features this module adds to the fake's GenICam description (``lens_features=True``): name ->
+#: (register, default, maximum). A motorised zoom and focus in motor steps (GenICam ``Zoom``, ``Focus``);
+#: the registers are free in the fake's device register block (0x100-0x1ff).
+LENS_FEATURES = {"Zoom": (0x140, 500, 1000), "Focus": (0x144, 500, 1000)}
+
+
+def lens_genicam_xml(base_xml: str) -> str:
+    """The fake camera's GenICam XML with the :data:`LENS_FEATURES` added (a ``LensControl`` category)."""
+    nodes = []
+    for name, (reg, _, top) in LENS_FEATURES.items():
+        nodes.append(f"""
+	<Integer Name="{name}" NameSpace="Standard">
+		<Description>Lens {name.lower()} motor position (steps).</Description>
+		<pValue>{name}Register</pValue>
+		<Min>0</Min>
+		<Max>{top}</Max>
+	</Integer>
+
+	<IntReg Name="{name}Register" NameSpace="Custom">
+		<Address>{reg:#x}</Address>
+		<Length>4</Length>
+		<AccessMode>RW</AccessMode>
+		<pPort>Device</pPort>
+		<Sign>Unsigned</Sign>
+		<Endianess>BigEndian</Endianess>
+	</IntReg>
+""")
+    category = ("\n\t<Category Name=\"LensControl\" NameSpace=\"Standard\">\n"
+                + "".join(f"\t\t<pFeature>{n}</pFeature>\n" for n in LENS_FEATURES) + "\t</Category>\n")
+    root = '<Category Name="Root" NameSpace="Standard">'
+    end = "</RegisterDescription>"
+    if root not in base_xml or end not in base_xml:
+        raise DeviceError("the fake camera's GenICam XML has an unexpected layout; cannot add lens features")
+    xml = base_xml.replace(root, root + "\n\t\t<pFeature>LensControl</pFeature>", 1)
+    return xml.replace(end, category + "".join(nodes) + "\n" + end, 1)
+
 
 # GenICam PFNC codes of the formats the fake offers.
 PIXEL_FORMATS = {
@@ -71,6 +109,14 @@ def load_libraries():
         ) from e
     arv.arv_gv_fake_camera_new.restype = ctypes.c_void_p
     arv.arv_gv_fake_camera_new.argtypes = [ctypes.c_char_p, ctypes.c_char_p]
+    arv.arv_gv_fake_camera_new_full.restype = ctypes.c_void_p
+    arv.arv_gv_fake_camera_new_full.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p]
+    arv.arv_fake_camera_new.restype = ctypes.c_void_p
+    arv.arv_fake_camera_new.argtypes = [ctypes.c_char_p]
+    arv.arv_fake_camera_get_genicam_xml.restype = ctypes.c_void_p
+    arv.arv_fake_camera_get_genicam_xml.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_size_t)]
+    arv.arv_fake_camera_read_register.restype = ctypes.c_int
+    arv.arv_fake_camera_read_register.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.POINTER(ctypes.c_uint32)]
     arv.arv_gv_fake_camera_is_running.restype = ctypes.c_int
     arv.arv_gv_fake_camera_is_running.argtypes = [ctypes.c_void_p]
     arv.arv_gv_fake_camera_get_fake_camera.restype = ctypes.c_void_p
@@ -115,6 +161,9 @@ class FakeGigECamera:
             adds up to 40 ms of latency to every triggered frame).
         lock_timeout_s: how long :meth:`start` waits for another fake on the same address (in this
             network namespace, any process: parallel test workers) to finish.
+        lens_features: the device also has a motorised lens: integer features ``Zoom`` and ``Focus``
+            (:data:`LENS_FEATURES`, motor steps 0..1000), whose current values every
+            :class:`FrameRequest` carries in ``lens`` (the frame source renders through the lens there).
 
     Use as a context manager, or call :meth:`start` / :meth:`stop`. Several fakes can live in one
     process (one per address); the GigE client can live in the same process.
@@ -131,6 +180,7 @@ class FakeGigECamera:
         warm_up: bool = True,
         trigger_poll_hz: float = 500.0,
         lock_timeout_s: float = 120.0,
+        lens_features: bool = False,
     ) -> None:
         w, h = (int(v) for v in sensor_size)
         if not (8 <= w <= 16384 and 8 <= h <= 16384):
@@ -155,6 +205,9 @@ class FakeGigECamera:
         self.warm_up = bool(warm_up)
         self._lock_fd = -1
         self.guard: GvcpGuard | None = None
+        self.lens_features = bool(lens_features)
+        self._fake: int | None = None
+        self._xml_path: str | None = None
 
     def _acquire_address(self) -> None:
         """Only one GigE device can own UDP port 3956 on an address: serialise users across processes."""
@@ -190,7 +243,7 @@ class FakeGigECamera:
             w, h = arv.arv_buffer_get_image_width(buf), arv.arv_buffer_get_image_height(buf)
             x, y = arv.arv_buffer_get_image_x(buf), arv.arv_buffer_get_image_y(buf)
             fmt = PIXEL_FORMATS.get(int(pixel_format), "Mono8")
-            req = FrameRequest(w, h, x, y, fmt, float(exposure_us), float(gain), self.frames_served)
+            req = FrameRequest(w, h, x, y, fmt, float(exposure_us), float(gain), self.frames_served, self.lens())
             img = np.asarray(self.frame_source(req))
             if img.shape[:2] != (h, w):
                 sw, sh = self.sensor_size
@@ -224,7 +277,10 @@ class FakeGigECamera:
             self.frame_source(FrameRequest(w, h, 0, 0, "Mono8", 10000.0, 0.0, 0))
         self._acquire_address()
         before = udp_sockets()
-        gv = arv.arv_gv_fake_camera_new(self.address.encode(), self.serial.encode())
+        if self.lens_features:
+            gv = arv.arv_gv_fake_camera_new_full(self.address.encode(), self.serial.encode(), self._lens_xml().encode())
+        else:
+            gv = arv.arv_gv_fake_camera_new(self.address.encode(), self.serial.encode())
         if not gv or not arv.arv_gv_fake_camera_is_running(gv):
             if gv:
                 load_libraries()[1].g_object_unref(gv)
@@ -237,6 +293,9 @@ class FakeGigECamera:
         w, h = self.sensor_size
         for reg, val in ((_REG_SENSOR_WIDTH, w), (_REG_SENSOR_HEIGHT, h), (_REG_WIDTH, w), (_REG_HEIGHT, h)):
             arv.arv_fake_camera_write_register(fake, reg, val)
+        self._fake = fake
+        for reg, default, _ in (LENS_FEATURES.values() if self.lens_features else ()):
+            arv.arv_fake_camera_write_register(fake, reg, default)
         arv.arv_fake_camera_set_fill_pattern(fake, self._callback, None)
         arv.arv_fake_camera_set_trigger_frequency(fake, self.trigger_poll_hz)
         self._gv = gv
@@ -247,6 +306,33 @@ class FakeGigECamera:
             raise DeviceError(f"the fake GigE camera on {self.address} could not be guarded: {e}") from e
         self.set_loss_ratio(self._loss_ratio)
         return self
+
+    def _lens_xml(self) -> str:
+        """Write the GenICam XML with the lens features to a temporary file (once); its path."""
+        if self._xml_path is None:
+            arv, gobj = load_libraries()
+            probe = arv.arv_fake_camera_new(b"JCALIB-XML")
+            size = ctypes.c_size_t()
+            data = arv.arv_fake_camera_get_genicam_xml(probe, ctypes.byref(size))
+            base = ctypes.string_at(data, size.value).decode("utf-8").rstrip("\x00")
+            gobj.g_object_unref(probe)
+            fd, path = tempfile.mkstemp(prefix="jcalib-fake-lens-", suffix=".xml")
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(lens_genicam_xml(base))
+            self._xml_path = path
+        return self._xml_path
+
+    def lens(self) -> dict[str, float]:
+        """The lens features' current values (empty without ``lens_features``)."""
+        if not self.lens_features or self._fake is None:
+            return {}
+        arv, _ = load_libraries()
+        out = {}
+        for name, (reg, _, _) in LENS_FEATURES.items():
+            value = ctypes.c_uint32()
+            arv.arv_fake_camera_read_register(self._fake, reg, ctypes.byref(value))
+            out[name] = float(value.value)
+        return out
 
     def _guard(self, fake: int, fds: dict[int, tuple[str, int]]) -> GvcpGuard:
         """Put :class:`GvcpGuard` in front of the fake's GVCP port (see the module docstring)."""
@@ -276,7 +362,12 @@ class FakeGigECamera:
             guard.stop()
         if self._gv is not None:
             gv, self._gv = self._gv, None
+            self._fake = None
             load_libraries()[1].g_object_unref(gv)
+        if self._xml_path is not None:
+            path, self._xml_path = self._xml_path, None
+            with contextlib.suppress(OSError):
+                os.unlink(path)
         if guard is not None:
             guard.close_inner()
         self._release_address()

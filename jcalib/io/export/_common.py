@@ -201,3 +201,14 @@ def tool_pose(result: ResultFile, tool: str, orientations: Mapping[str, np.ndarr
     if how == "calibrated" and "calibrated" in entry.extra and "rz" not in entry.extra["calibrated"]:
         return T, "orientation: tool axis calibrated; rotation about it by convention (smallest from the flange z)"
     return T, "orientation: calibrated"
+
+
+def lens_setting_lines(result, camera: str) -> list[str]:
+    """Comment lines (without ``#``) for a zoom camera exported at one lens setting (``jcalib export --at``):
+    the setting and each intrinsic's σ; empty for any other camera."""
+    values = (result.stats.get("lens_setting") or {}).get(camera)
+    if not values or camera not in result.cameras:
+        return []
+    setting = ", ".join(f"{k}={v:g}" for k, v in values.items())
+    std = ", ".join(f"{k}={v:.4g}" for k, v in result.cameras[camera].std.items())
+    return [comment_text(f"{camera} at lens setting {setting}; std (1 sigma, sampling noise): {std}")]

@@ -27,7 +27,8 @@ import numpy as np
 
 from jcalib.errors import BadInputError
 from jcalib.io.atomic import write_text_atomic
-from jcalib.io.export._common import checked_export, comment_text, exact_float, pick_camera, provenance_lines
+from jcalib.io.export._common import (checked_export, comment_text, exact_float, lens_setting_lines, pick_camera,
+                                      provenance_lines)
 from jcalib.io.result import CameraResult, ResultFile, load_result
 
 __all__ = ["OPENCV_MODELS", "opencv_yaml", "write_opencv_yaml"]
@@ -108,6 +109,7 @@ def opencv_yaml(result: ResultFile, cameras: str | Sequence[str] | None = None) 
 
     lines = ["%YAML:1.0", "---"]
     lines += [f"# {line}" for line in provenance_lines(result)]
+    lines += [f"# {line}" for name in names for line in lens_setting_lines(result, name)]
     if len(names) == 1:
         lines += _camera(names[0], result.cameras[names[0]], "")
     else:

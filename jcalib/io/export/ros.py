@@ -32,6 +32,7 @@ from jcalib.io.export._common import (
     checked_export,
     comment_text,
     exact_float,
+    lens_setting_lines,
     pick_camera,
     provenance_lines,
 )
@@ -102,7 +103,8 @@ def ros_camera_info(
     P = np.concatenate([cam.K, np.zeros((3, 1))], axis=1)
     lines = [
         f"# {line}"
-        for line in [f"jcalib camera '{comment_text(camera)}' (model {cam.model})", *provenance_lines(result)]
+        for line in [f"jcalib camera '{comment_text(camera)}' (model {cam.model})", *provenance_lines(result),
+                     *lens_setting_lines(result, camera)]
     ]
     lines += [
         f"image_width: {cam.image_size[0]}",

@@ -136,6 +136,16 @@ class Intrinsics(Closed):
                                  None)
 
 
+class Lens(Closed):
+    """A zoom (focus) lens: the intrinsics and the camera frame's shift along its optical axis are smooth
+    functions of a lens setting, estimated jointly from stations taken at several settings."""
+
+    settings: list[GenICamName] = _d("the GenICam feature the lens depends on, e.g. [Zoom] (one so far); every "
+                                     "station records its value under lens.<camera>")
+    degree: Int | None = _d("degree of each function's B-spline in the normalised setting (1-5)", 3)
+    knots: Int | None = _d("uniform interior knots of the B-splines (0-8; 0: one polynomial piece)", 0)
+
+
 class Camera(Closed):
     """A camera: its lens model, where it is mounted, what of it is known."""
 
@@ -151,6 +161,7 @@ class Camera(Closed):
     robot: Name | None = _d("the robot whose flange carries the camera (cells with several robots)", None)
     settings: dict[GenICamName, Setting] | None = _d("GenICam features applied at capture, e.g. {ExposureTime: 5000}",
                                                       None)
+    lens: Lens | None = _d("a zoom (focus) lens: intrinsics and axial position as functions of a setting", None)
 
 
 class Target(Closed):

@@ -176,6 +176,8 @@ class Station(Closed):
     poses: list[PoseMeasurement] | None = Field(None, description="6-DOF pose measurements")
     positions: list[PositionMeasurement] | None = Field(None, description="3-D tool-tip positions measured by "
                                                                           "point sensors")
+    lens: dict[Name, dict[Name, Num]] | None = Field(
+        None, description="lens settings each camera had (cameras with lens: in the cell), e.g. {cam0: {Zoom: 350}}")
 
 
 class ObservationsDocument(Closed):

@@ -24,6 +24,9 @@ class PlanStation(Closed):
     move: Literal["joint", "linear"] = Field("joint", description="how the robot moves there")
     joints_deg: Annotated[list[YNum], Field(min_length=1, max_length=32)] | None = Field(
         None, description="joint values in controller units (degrees; prismatic axes mm)")
+    lens: dict[str, dict[str, YNum]] | None = Field(
+        None, description="lens settings to set before grabbing, camera -> GenICam feature -> value (e.g. "
+                          "{cam0: {Zoom: 350}}); capture records what the camera reads back")
 
 
 class PlanDocument(Closed):

@@ -83,6 +83,10 @@ class ResultDocument(Open):
                                                             "order")
     T_cam_target: dict | None = Field(None, description="the target's pose in each camera at the estimate, for every "
                                                         "view: station -> camera -> 4x4, m")
+    lenses: dict[Name, dict] | None = Field(
+        None, description="zoom lenses by camera: setting, range, settings_used, degree, knots, model, image_size, "
+                          "param_names, columns, intrinsics (at the lowest setting), lens (further control points), "
+                          "control_points, mount, covariance over (intrinsics, lens, mount tangent)")
 
 
 def validate_result_document(data: Any, source: str = "<dict>") -> ResultDocument:

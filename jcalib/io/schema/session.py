@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import BeforeValidator, Field, StringConstraints
 from pydantic_core import PydanticCustomError
 
-from jcalib.io.schema.base import Name, Open, SchemaError, StationId, format_value, validate
+from jcalib.io.schema.base import Name, Num, Open, SchemaError, StationId, format_value, validate
 from jcalib.io.schema.common import Mat4, max_reach_m, pose_problem
 
 __all__ = ["SessionMeta", "StationRecord", "validate_session_meta", "validate_station_record"]
@@ -66,6 +66,9 @@ class StationRecord(Open):
     images: dict[Name, RelativePath] | None = Field(None, description="image of each camera, a path inside the "
                                                                       "session folder (images/<camera>/<station>.png)")
     status: str = Field("ok", description="ok, or 'skipped: <reason>'")
+    lens: dict[Name, dict[Name, Num]] | None = Field(
+        None, description="lens settings each camera read back after capture set them (plan stations with lens), "
+                          "e.g. {cam0: {Zoom: 350}}")
 
 
 class SessionMeta(Open):
