@@ -124,7 +124,7 @@ def test_operator_app_end_to_end(tmp_path, ui_tools):
             page.fill("#plan-stations", "9")
             page.click("#plan-button")
             job = _job(page, "plan", 0, 300)
-            assert job["status"] == "done", job
+            assert job["status"] == "done", (job.get("error"), job)
             page.wait_for_selector("#plan table tbody tr")
             planned = page.locator("#plan table tbody tr").count()
             assert planned == 8
@@ -156,7 +156,7 @@ def test_operator_app_end_to_end(tmp_path, ui_tools):
             page.click("#capture-button")
             page.click("#confirm-button")
             job = _job(page, "capture", job["id"], 300)
-            assert job["status"] == "done", job
+            assert job["status"] == "done", (job.get("error"), job)
             ids = [json.loads(line)["id"] for line in (session / "stations.jsonl").read_text().splitlines()]
             assert sorted(ids) == sorted(set(ids)) and len(ids) == 8  # every station once, none lost
             page.wait_for_selector("#thumbs img")
@@ -166,7 +166,7 @@ def test_operator_app_end_to_end(tmp_path, ui_tools):
             page.goto(base + "/inspect")
             page.click("#calibrate-button")
             job = _job(page, "calibrate", 0, 900)
-            assert job["status"] == "done", job
+            assert job["status"] == "done", (job.get("error"), job)
             page.wait_for_selector("#views-table tbody tr")
             worst = page.locator("#views-table tbody tr").first  # sorted by RMS, largest first
             view = worst.get_attribute("data-view")
@@ -179,7 +179,7 @@ def test_operator_app_end_to_end(tmp_path, ui_tools):
             first = job["id"]
             worst.locator("button.exclude-view").click()
             job = _job(page, "calibrate", first, 300)
-            assert job["status"] == "done", job
+            assert job["status"] == "done", (job.get("error"), job)
             assert f"excluded {station}/{camera}" in job["result"]["summary"]
             _wait(page, f"document.querySelector(\"#views-table tr.excluded[data-view='{view}']\") !== null", 60, errors)
             excl = json.loads((session / "exclusions.json").read_text())
