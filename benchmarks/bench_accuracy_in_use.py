@@ -9,7 +9,7 @@ arm, an opencv5 1600x1200 camera on its flange, a 9x6 board fixed in the base, 0
 - ``systematic + joints``: the arm's joint offsets, link lengths and twists differ from the nominal model the
   controller uses (σ 0.05°, 0.5 mm, 0.05° on the identifiable parameters, about 1 mm at the flange), the
   stations record their joints;
-- ``systematic, no joints``: the same errors, the stations record only the controller's flange pose (the
+- ``systematic without joints``: the same errors, the stations record only the controller's flange pose (the
   kinematics cannot be calibrated: the generating model is not available).
 
 Each cell states nothing but the robot's kinematic model (no ``pose_noise``, no ``calibrate_kinematics``):
@@ -37,11 +37,11 @@ SCENARIOS = {
     "exact": dict(error_scale=0.0, scatter=False),
     "random": dict(error_scale=0.0, repeatability_m=3e-4, repeatability_deg=0.03),
     "systematic + joints": dict(error_scale=1.0),
-    "systematic, no joints": dict(error_scale=1.0),
+    "systematic without joints": dict(error_scale=1.0),
 }
 #: The model that generated each scenario's errors (None: not available to the cell).
 GENERATING = {"exact": "exact", "random": "pose_noise", "systematic + joints": "kinematics",
-              "systematic, no joints": None}
+              "systematic without joints": None}
 MODELS = ("exact", "pose_noise", "kinematics")
 PRESET = "kuka_kr10_r1100_sixx"
 
@@ -52,7 +52,7 @@ def make_cell(scenario: str, seed: int, args, mask):
     cell, obs, truth = synthetic_arm_cell(seed, args.stations, args.heldout, error_mask=mask, **SCENARIOS[scenario])
     cell = copy.deepcopy(cell)
     cell["robot"] = {"kinematics": PRESET}
-    if scenario == "systematic, no joints":
+    if scenario == "systematic without joints":
         cell["robot"] = {}
         for st in obs["stations"]:
             st.pop("joints_deg")
@@ -138,7 +138,7 @@ def main() -> None:
             chose.append(chosen)
             errs = {}
             for m in MODELS:
-                if m == "kinematics" and scenario == "systematic, no joints":
+                if m == "kinematics" and scenario == "systematic without joints":
                     continue
                 c = copy.deepcopy(cell)
                 c["robot"]["error_model"] = m

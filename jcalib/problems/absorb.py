@@ -55,7 +55,7 @@ def _message(camera: str, moved: dict[str, dict], model: str) -> str:
     for label, names in _GROUPS:
         hit = [n for n in names if n in moved]
         if hit:
-            px = float(np.hypot(*[moved[n]["moved"] for n in names if n in moved] + [0.0]))
+            px = float(np.sqrt(sum(moved[n]["moved"] ** 2 for n in hit)))
             parts.append(f"{label} moved {px:.3g} px")
             named.update(hit)
     rest = [n for n in moved if n not in named]

@@ -267,7 +267,7 @@ def _calibrate_one(cell: CellSpec, obs: Observations, options: CalibrationOption
     r = refine(g, s, built, options)
     g, built, r, level = error_model.tune_pose_level(g, built, r, options)
     cal = assemble(g, s, built, r)
-    cal.robot_error_model = error_model.single(g, built, cell, options, level)
+    cal.robot_error_model = error_model.single(g, built, level)
     for robot, held in heldout_accuracy(g, built, r, options).items():
         cal.kinematics[robot]["heldout"] = held
     if options.prediction:

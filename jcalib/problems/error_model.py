@@ -13,8 +13,9 @@ A robot is never exactly where its controller says. jcalib has three models of t
 
 ``auto`` (the default) calibrates the cell with each model that applies and keeps the one that predicts
 held-out stations best (:mod:`jcalib.problems.prediction`, the same held-out computation the result
-reports): the lowest held-out RMS, where the models within :data:`TIE` of it are tied and the simplest
-of the tied (exact, then pose_noise, then kinematics) is kept unless a more complex one also fits the
+reports): the lowest held-out RMS, where the models it does not tell apart (within :data:`TIE`, or the
+stations' paired differences within :data:`TIE_T` standard errors) are tied and the simplest of the tied
+(exact, then pose_noise, then kinematics) is kept unless a more complex one also fits the
 corners significantly better (its a-posteriori corner variance below the simpler one's by more than
 :data:`SIGNIFICANT_SIGMA` standard errors of that ratio: a robot error the simpler model leaves in the
 residuals). With several robots the models are tried for every ``auto`` robot at once (kinematics for
@@ -50,8 +51,12 @@ DEFAULT_POSE_NOISE = (5e-4, 0.05)
 #: Kinematic parameters calibrated by the ``kinematics`` model when the cell names none (the builder keeps
 #: their identifiable subset).
 DEFAULT_KINEMATIC_GROUPS = ("joint_offsets", "link_lengths", "twists")
-#: Held-out RMS within this fraction of the best are tied.
+#: Held-out RMS within this fraction of the best (or :data:`FLOOR_PX` px) are tied.
 TIE = 0.03
+FLOOR_PX = 1e-3
+#: Held-out RMS whose stations' paired differences of mean squared error are within this many standard
+#: errors of zero are tied.
+TIE_T = 2.0
 #: A more complex tied model is kept when the simpler one's a-posteriori corner variance exceeds its own by
 #: more than this many standard errors of the ratio (``sqrt(2 / redundancy)`` each).
 SIGNIFICANT_SIGMA = 3.0
@@ -177,10 +182,25 @@ def candidates(cell: CellSpec, obs, options) -> tuple[list[tuple[str, CellSpec]]
 def _significant(simple, complex_) -> bool:
     """The complex model's corners fit significantly better than the simple one's (module docstring)."""
     a, b = simple.sigma_px ** 2, complex_.sigma_px ** 2
-    if not (a == a and b == b and b > 0):
+    if not (a == a and b == b and b > 0) or simple.sigma_px < FLOOR_PX:
         return False
     r = max(float(simple.num_residuals), 1.0)
     return a / b > 1.0 + SIGNIFICANT_SIGMA * np.sqrt(2.0 / r) * np.sqrt(2.0)
+
+
+def _tied(a: dict, b: dict) -> bool:
+    """Held-out predictions ``a`` (the worse) and ``b`` (the best) are not told apart: within :data:`TIE` or
+    :data:`FLOOR_PX`, or the stations' paired differences of mean squared error within :data:`TIE_T` standard
+    errors of zero."""
+    if a["rms_px"] <= b["rms_px"] * (1.0 + TIE) + FLOOR_PX:
+        return True
+    sa, sb = a.get("per_station") or {}, b.get("per_station") or {}
+    ids = sorted(set(sa) & set(sb))
+    if len(ids) < 3:
+        return False
+    d = np.array([sa[k]["rms_px"] ** 2 - sb[k]["rms_px"] ** 2 for k in ids])
+    se = float(np.std(d, ddof=1)) / np.sqrt(d.size)
+    return se > 0 and float(np.mean(d)) < TIE_T * se
 
 
 def choose(results: dict[str, object], errors: dict[str, str], why: dict[str, str]) -> tuple[str, dict]:
@@ -192,18 +212,20 @@ def choose(results: dict[str, object], errors: dict[str, str], why: dict[str, st
         chosen = next(iter(results))  # nothing to compare: the simplest that solved
         how = "no held-out prediction could be computed; the simplest model that solved is kept"
     else:
-        best = min(usable.values())
-        tied = [m for m in MODELS if m in usable and usable[m] <= best * (1.0 + TIE)]
+        best = min(usable, key=usable.get)
+        tied = [m for m in MODELS if m in usable and (m == best or _tied(results[m].prediction,
+                                                                          results[best].prediction))]
         chosen = tied[0]
         for m in tied[1:]:
             if _significant(results[chosen], results[m]):
                 chosen = m
-        how = (f"the lowest held-out prediction error (models within {TIE:.0%} of the best are tied; the simplest "
-               "of them is kept unless a more complex one also fits the corners significantly better)")
+        how = (f"the lowest held-out prediction error; models it does not tell apart (within {TIE:.0%}, or the "
+               f"stations' paired differences within {TIE_T:g} standard errors) are tied, and the simplest of "
+               "them is kept unless a more complex one also fits the corners significantly better")
     info = {"chosen": chosen, "scores": {m: {"rms_px": s, "sigma_px": float(results[m].sigma_px)}
                                          for m, s in scores.items()},
             "criterion": how}
-    level = (results[chosen].robot_error_model or {}).get("pose_noise_level") if chosen == "pose_noise" else None
+    level = (results[chosen].robot_error_model or {}).get("pose_noise_level")
     if level:
         info["pose_noise_level"] = level
     elif "pose_noise" in results and (results["pose_noise"].robot_error_model or {}).get("pose_noise_level"):
@@ -275,7 +297,7 @@ def tune_pose_level(g: Graph, built: Built, r: Refined, options) -> tuple[Graph,
     return g, built, dc_replace(r, sol=sol), info
 
 
-def single(g: Graph, built: Built, cell: CellSpec, options, level: dict) -> dict | None:
+def single(g: Graph, built: Built, level: dict) -> dict | None:
     """``stats.robot_error_model`` of a cell calibrated with one model (forced, or ``auto`` off), None
     without a robot."""
     if not g.has_robot or not g.used_robots:
