@@ -14,7 +14,7 @@ A robot is never exactly where its controller says. jcalib has three models of t
 ``auto`` (the default) calibrates the cell with each model that applies and keeps the one that predicts
 held-out stations best (:mod:`jcalib.problems.prediction`, the same held-out computation the result
 reports): the lowest held-out RMS, where the models it does not tell apart (within :data:`TIE`, or the
-stations' paired differences within :data:`TIE_T` standard errors) are tied and the simplest of the tied
+better one wins at too few stations, a sign test at :data:`TIE_Z` standard deviations) are tied and the simplest of the tied
 (exact, then pose_noise, then kinematics) is kept unless a more complex one also fits the
 corners significantly better (its a-posteriori corner variance below the simpler one's by more than
 :data:`SIGNIFICANT_SIGMA` standard errors of that ratio: a robot error the simpler model leaves in the
@@ -41,8 +41,8 @@ from jcalib.problems.graph import Graph
 from jcalib.problems.refine import Refined, uses_components
 from jcalib.solve import SolveOptions, replace, solve
 
-__all__ = ["DEFAULT_KINEMATIC_GROUPS", "DEFAULT_POSE_NOISE", "MODELS", "TIE", "candidates", "choose",
-           "tune_pose_level"]
+__all__ = ["DEFAULT_KINEMATIC_GROUPS", "DEFAULT_POSE_NOISE", "MODELS", "TIE", "available", "candidates", "choose",
+           "indistinct", "predictable", "restored_cell", "single", "tune_pose_level", "variant"]
 
 #: The robot error models, simplest first.
 MODELS = ("exact", "pose_noise", "kinematics")
@@ -54,9 +54,9 @@ DEFAULT_KINEMATIC_GROUPS = ("joint_offsets", "link_lengths", "twists")
 #: Held-out RMS within this fraction of the best (or :data:`FLOOR_PX` px) are tied.
 TIE = 0.03
 FLOOR_PX = 1e-3
-#: Held-out RMS whose stations' paired differences of mean squared error are within this many standard
-#: errors of zero are tied.
-TIE_T = 2.0
+#: Held-out RMS where the better model wins at fewer stations than ``n/2 + TIE_Z·√n/2`` (a sign test at
+#: about two standard deviations) are tied.
+TIE_Z = 2.0
 #: A more complex tied model is kept when the simpler one's a-posteriori corner variance exceeds its own by
 #: more than this many standard errors of the ratio (``sqrt(2 / redundancy)`` each).
 SIGNIFICANT_SIGMA = 3.0
@@ -188,19 +188,18 @@ def _significant(simple, complex_) -> bool:
     return a / b > 1.0 + SIGNIFICANT_SIGMA * np.sqrt(2.0 / r) * np.sqrt(2.0)
 
 
-def _tied(a: dict, b: dict) -> bool:
+def indistinct(a: dict, b: dict) -> bool:
     """Held-out predictions ``a`` (the worse) and ``b`` (the best) are not told apart: within :data:`TIE` or
-    :data:`FLOOR_PX`, or the stations' paired differences of mean squared error within :data:`TIE_T` standard
-    errors of zero."""
+    :data:`FLOOR_PX`, or ``b`` better at too few stations (a sign test: fewer than ``n/2 + TIE_Z·√n/2`` of
+    the ``n`` stations both predicted; robust to one station far off in either)."""
     if a["rms_px"] <= b["rms_px"] * (1.0 + TIE) + FLOOR_PX:
         return True
     sa, sb = a.get("per_station") or {}, b.get("per_station") or {}
     ids = sorted(set(sa) & set(sb))
     if len(ids) < 3:
         return False
-    d = np.array([sa[k]["rms_px"] ** 2 - sb[k]["rms_px"] ** 2 for k in ids])
-    se = float(np.std(d, ddof=1)) / np.sqrt(d.size)
-    return se > 0 and float(np.mean(d)) < TIE_T * se
+    wins = sum(sb[k]["rms_px"] < sa[k]["rms_px"] for k in ids)
+    return wins < 0.5 * len(ids) + 0.5 * TIE_Z * np.sqrt(len(ids))
 
 
 def choose(results: dict[str, object], errors: dict[str, str], why: dict[str, str]) -> tuple[str, dict]:
@@ -213,14 +212,14 @@ def choose(results: dict[str, object], errors: dict[str, str], why: dict[str, st
         how = "no held-out prediction could be computed; the simplest model that solved is kept"
     else:
         best = min(usable, key=usable.get)
-        tied = [m for m in MODELS if m in usable and (m == best or _tied(results[m].prediction,
-                                                                          results[best].prediction))]
+        tied = [m for m in MODELS if m in usable
+                and (m == best or indistinct(results[m].prediction, results[best].prediction))]
         chosen = tied[0]
         for m in tied[1:]:
             if _significant(results[chosen], results[m]):
                 chosen = m
         how = (f"the lowest held-out prediction error; models it does not tell apart (within {TIE:.0%}, or the "
-               f"stations' paired differences within {TIE_T:g} standard errors) are tied, and the simplest of "
+               f"better one wins at too few stations, a sign test at {TIE_Z:g} σ) are tied, and the simplest of "
                "them is kept unless a more complex one also fits the corners significantly better")
     info = {"chosen": chosen, "scores": {m: {"rms_px": s, "sigma_px": float(results[m].sigma_px)}
                                          for m, s in scores.items()},

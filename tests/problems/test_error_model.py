@@ -98,6 +98,14 @@ def test_choice_keeps_the_best_predictor_and_the_simplest_of_ties():
     # tied prediction, but the simpler model leaves the robot's error in its residuals: the pose model
     chosen, _ = em.choose({"exact": _fake(1.0 * tie, 1.0), "pose_noise": _fake(1.0, 0.2)}, {}, {})
     assert chosen == "pose_noise"
+    # a station far off does not hide a model that predicts better at every station (sign test, not a mean)
+    stations = [f"s{k}" for k in range(15)]
+    worse = {"rms_px": 4.0, "per_station": {s: {"rms_px": 40.0 if s == "s0" else 3.0} for s in stations}}
+    better = {"rms_px": 1.0, "per_station": {s: {"rms_px": 3.5 if s == "s1" else 0.3} for s in stations}}
+    assert not em.indistinct(worse, better)
+    # ... while two models that trade stations are tied
+    mixed = {"rms_px": 1.2, "per_station": {s: {"rms_px": 0.2 if k % 2 else 0.4} for k, s in enumerate(stations)}}
+    assert em.indistinct(mixed, better | {"per_station": {s: {"rms_px": 0.3} for s in stations}})
     # a failed model is reported, not chosen
     chosen, info = em.choose({"exact": _fake(1.0, 0.2)}, {"kinematics": "not observable"}, {"pose_noise": "x"})
     assert chosen == "exact" and info["failed"] == {"kinematics": "not observable"}
@@ -146,3 +154,19 @@ def test_absorb_warning_fires_on_a_systematic_robot_error_and_not_on_an_exact_ro
             cal = calibrate_cell(parse_cell(cell), parse_observations(obs), CalibrationOptions())
             fired[scale] += any("absorb robot pose error" in w for w in cal.warnings)
     assert fired[1.0] >= 4 and fired[0.0] == 0
+
+
+def test_console_line_and_report_section_say_the_model_and_the_scores():
+    from jcalib.report.error_model import error_model_line, error_model_section
+
+    level = {"robot": {"factor": 0.7, "translation_m": 3.5e-4, "rotation_deg": 0.035, "prior_translation_m": 5e-4,
+                       "prior_rotation_deg": 0.05}}
+    stats = {"robot_error_model": {"chosen": "pose_noise", "criterion": "the lowest held-out prediction error",
+                                   "scores": {"exact": {"rms_px": 2.5, "sigma_px": 1.4},
+                                              "pose_noise": {"rms_px": 2.4, "sigma_px": 0.2}},
+                                   "pose_noise_level": level, "not_applicable": {"kinematics": "no joints"}}}
+    line = error_model_line(stats)
+    assert line.startswith("robot error model: pose_noise") and "exact 2.500" in line and "0.35 mm" in line
+    html = error_model_section(stats)
+    assert "Robot error model" in html and ">2.4</td>" in html and "no joints" in html
+    assert error_model_line({}) is None and error_model_section({}) == ""
