@@ -165,7 +165,9 @@ class RobotSpec:
     (:class:`jcalib.geometry.kinematic_models.Kinematics`, from the spec's ``kinematics:`` preset or
     table, else from the ``model`` preset when that names a kinematics preset) or None;
     ``calibrate_kinematics``: the parameter names or groups to estimate (empty: the kinematics is taken as
-    exact); ``kinematics_from_model``: the kinematics is the ``model`` preset (the spec has no ``kinematics:``)."""
+    exact); ``kinematics_from_model``: the kinematics is the ``model`` preset (the spec has no ``kinematics:``);
+    ``error_model``: the robot error model (:mod:`jcalib.problems.error_model`; ``auto`` chooses it by held-out
+    prediction)."""
 
     model: str | None = None
     pose_noise_translation_m: np.ndarray | None = None  # (3,) per axis
@@ -176,6 +178,7 @@ class RobotSpec:
     calibrate_kinematics: tuple[str, ...] = ()
     kinematics_spec: Any = None  # the spec's kinematics: entry as written (preset name or table)
     kinematics_from_model: bool = False
+    error_model: str = "auto"  # auto | exact | pose_noise | kinematics (jcalib.problems.error_model)
 
 
 @dataclass(frozen=True)
@@ -379,7 +382,7 @@ def _parse_robot(entry: Any, where: str, name: str | None = None, base_dir: Path
         return RobotSpec(name=name)
     if not isinstance(entry, dict):
         raise _fail(where, f"expected a mapping, got {entry!r}")
-    _check_keys(entry, {"pose_noise", "model", "kinematics", "calibrate_kinematics"}
+    _check_keys(entry, {"pose_noise", "model", "kinematics", "calibrate_kinematics", "error_model"}
                 | ({"base"} if name is not None else set()), where)
     model = entry.get("model")
     if model is not None and not isinstance(model, str):
@@ -387,10 +390,16 @@ def _parse_robot(entry: Any, where: str, name: str | None = None, base_dir: Path
     base = _pose(entry["base"], where + ".base") if entry.get("base") is not None else None
     kin, which, kin_spec = _parse_kinematics(entry, where, name or "robot", base_dir)
     from_model = kin is not None and entry.get("kinematics") is None
+    error_model = entry.get("error_model", "auto")
+    if error_model not in ("auto", "exact", "pose_noise", "kinematics"):
+        raise _fail(where + ".error_model", f"expected auto, exact, pose_noise or kinematics, got {error_model!r}")
+    if error_model == "kinematics" and kin is None:
+        raise _fail(where + ".error_model", "kinematics needs the robot's nominal model: add kinematics: <preset> (or a "
+                                            "DH / MDH / POE table), or model: <preset>")
     noise = entry.get("pose_noise")
     if noise is None:
         return RobotSpec(model=model, name=name, base=base, kinematics=kin, calibrate_kinematics=which,
-                         kinematics_spec=kin_spec, kinematics_from_model=from_model)
+                         kinematics_spec=kin_spec, kinematics_from_model=from_model, error_model=error_model)
     _check_keys(noise, {"translation_m", "rotation_deg"}, where + ".pose_noise")
     if "translation_m" not in noise or "rotation_deg" not in noise:
         raise _fail(where + ".pose_noise", "give both translation_m and rotation_deg")
@@ -404,6 +413,7 @@ def _parse_robot(entry: Any, where: str, name: str | None = None, base_dir: Path
         calibrate_kinematics=which,
         kinematics_spec=kin_spec,
         kinematics_from_model=from_model,
+        error_model=error_model,
     )
 
 
@@ -700,4 +710,6 @@ def _robot_to_dict(r: RobotSpec) -> dict:
         robot["kinematics"] = r.kinematics_spec
     if r.calibrate_kinematics:
         robot["calibrate_kinematics"] = list(r.calibrate_kinematics)
+    if r.error_model != "auto":
+        robot["error_model"] = r.error_model
     return robot

@@ -112,6 +112,7 @@ class Calibration:
     covariance_noise: str = "a_posteriori"
     kinematics: dict[str, dict] = field(default_factory=dict)
     prediction: dict | None = None
+    robot_error_model: dict | None = None
     rms_per_coordinate: dict[str, float] = field(default_factory=dict)
     view_rms_px_per_coordinate: dict[tuple[str, str], float] = field(default_factory=dict)
     lenses: dict[str, dict] = field(default_factory=dict)

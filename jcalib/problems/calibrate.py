@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from jcalib.errors import BadInputError
+from jcalib.errors import BadInputError, JcalibError
 from jcalib.io.cell import CameraSpec, CellSpec, RobotSpec, cell_to_dict
 from jcalib.io.observations import Observations
 from jcalib.geometry import kinematic_models, kinematic_tables
@@ -26,6 +26,8 @@ from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Prove
 from jcalib.problems.assemble import Calibration, assemble
 from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
+from jcalib.problems import error_model
+from jcalib.problems.absorb import absorbed_intrinsics
 from jcalib.problems.heldout import heldout_accuracy
 from jcalib.problems.options import CalibrationOptions, check_applicable
 from jcalib.problems.prediction import prediction
@@ -277,10 +279,34 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
         NotObservableError: unknowns the data cannot determine, named.
     """
     options = options or CalibrationOptions()
-    g, s, built = prepare(cell, obs, options, prior=prior, prior_names=prior_names, start=start, given=given,
-                          priors=priors, known=known)
+    kw = dict(prior=prior, prior_names=prior_names, start=start, given=given, priors=priors, known=known)
+    runs, why = error_model.candidates(tracked_tools(cell), obs, options)
+    if len(runs) == 1:
+        cal = _calibrate_one(runs[0][1], obs, options, **kw)
+    else:  # error_model: auto (jcalib.problems.error_model)
+        results, errors = {}, {}
+        for model, variant in runs:
+            try:
+                results[model] = _calibrate_one(variant, obs, options, **kw)
+            except JcalibError as err:
+                errors[model] = err
+        if not results:
+            raise errors[runs[0][0]]
+        chosen, info = error_model.choose(results, {m: str(e) for m, e in errors.items()}, why)
+        cal = results[chosen]
+        own = cal.robot_error_model
+        cal.robot_error_model = {**info, **({"robots": own["chosen"]} if isinstance(own["chosen"], dict) else {})}
+    cal.warnings += absorbed_intrinsics(cal, obs, options, _calibrate_one)
+    return cal
+
+
+def _calibrate_one(cell: CellSpec, obs: Observations, options: CalibrationOptions, **kw) -> Calibration:
+    """One calibration of a cell whose robot error model is decided (:func:`calibrate_cell`)."""
+    g, s, built = prepare(cell, obs, options, **kw)
     r = refine(g, s, built, options)
+    g, built, r, level = error_model.tune_pose_level(g, built, r, options)
     cal = assemble(g, s, built, r)
+    cal.robot_error_model = error_model.single(g, built, level)
     for robot, held in heldout_accuracy(g, built, r, options).items():
         cal.kinematics[robot]["heldout"] = held
     if options.prediction:
@@ -327,6 +353,7 @@ def restore(cell: CellSpec, obs: Observations, file: ResultFile, options: Calibr
             f"result: it was re-optimised with priors from an earlier result ({', '.join(map(str, file.stats['priors']))}), "
             "which the result file does not hold; its solve can be used only in the process that computed it")
     options = options or options_of(file)
+    cell = error_model.restored_cell(tracked_tools(cell), file.stats)
     points = {n: p.position for n, p in file.points.items()}
     g, s, built = prepare(cell, obs, options, start=file, points=points,
                           unobservable_fixed=file.stats.get("unobservable_fixed"))
@@ -421,6 +448,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         stats["reseeded_views"] = list(cal.reseeded_views)
     if cal.prediction is not None:
         stats["prediction"] = cal.prediction
+    if cal.robot_error_model:
+        stats["robot_error_model"] = cal.robot_error_model
     if cal.robot:
         stats["robot"] = next(iter(cal.robot.values())) if len(cal.robot) == 1 and not cal.graph.multi else cal.robot
     if cal.unobservable_fixed is not None:

@@ -7,6 +7,7 @@ from rich.console import Console
 from rich.table import Table
 
 from jcalib.io.result import KinematicsResult, ResultFile
+from jcalib.report.error_model import error_model_line
 
 _PIXEL_PARAMS = {"fx", "fy", "cx", "cy", "skew"}
 
@@ -140,9 +141,9 @@ def print_result(result: ResultFile, console: Console | None = None, truth=None)
     console.print(" · ".join(parts), highlight=False)
     for label, text in robot_lines(s):
         console.print(f"{label}: {text}", highlight=False)
-    line = prediction_line(s.get("prediction"))
-    if line:
-        console.print(line, highlight=False)
+    for line in (prediction_line(s.get("prediction")), error_model_line(s)):
+        if line:
+            console.print(line, highlight=False)
     for note in s.get("notes", []):
         console.print(f"note: {note}", highlight=False)
     for warning in s.get("warnings", []):

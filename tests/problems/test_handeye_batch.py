@@ -25,7 +25,8 @@ J = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(J)
 
 ROBOT = {"sigma_px": 0.2, "robot_m": 1e-4, "robot_deg": 0.01}
-OPTIONS = CalibrationOptions(sigma_px=0.2)  # pose model from the cell; a-posteriori noise: variance components
+OPTIONS = CalibrationOptions(sigma_px=0.2, prediction=False)  # pose model from the cell (as calibrate_batch);
+# a-posteriori noise: variance components
 
 
 def _tangent(T_a, T_b):

@@ -120,7 +120,7 @@ def test_noise_free_recovery_pixels_only():
 def test_noise_free_recovery_with_pose_model(mount):
     """With the pose model on and exact data, the corrections are zero and the truth is recovered."""
     cell, obs, truth = make_data(2, mount)
-    cell["robot"] = {"pose_noise": {"translation_m": 1e-4, "rotation_deg": 0.01}}
+    cell["robot"] = {"pose_noise": {"translation_m": 1e-4, "rotation_deg": 0.01}, "error_model": "pose_noise"}
     cal = calibrate(cell, obs, noise="stated")
     assert cal.pose_model
     _check_recovery(cal, truth, mount)

@@ -82,9 +82,9 @@ def test_pose_model_switch_overrides_the_cell():
     the cell without pose_noise (to 1e-12: the same problem), through jcalib.calibrate."""
     cell, obs, _ = J.make_data(22, "base", sigma_px=0.2, robot_m=1e-4, robot_deg=0.01)
     off = jcalib.calibrate(cell, obs, CalibrationOptions(sigma_px=0.2, pose_model=False))
-    plain = {k: v for k, v in cell.items() if k != "robot"}
+    plain = {k: v for k, v in cell.items() if k != "robot"} | {"robot": {"error_model": "exact"}}
     ref = jcalib.calibrate(plain, obs, CalibrationOptions(sigma_px=0.2))
-    on = jcalib.calibrate(cell, obs, CalibrationOptions(sigma_px=0.2))
+    on = jcalib.calibrate(cell, obs, CalibrationOptions(sigma_px=0.2, prediction=False))  # the cell's pose_noise
     assert off.file.stats["robot_pose_model"] is False and "robot" not in off.file.stats
     assert on.file.stats["robot_pose_model"] is True and "robot" in on.file.stats
     np.testing.assert_allclose(np.asarray(off.file.transforms["T_base_cam0"].matrix),

@@ -258,6 +258,9 @@ class Robot(Closed):
     kinematics: Kinematics | None = _d("kinematic model: a preset name or a DH / MDH / POE table", None)
     calibrate_kinematics: list[str] | None = _d("kinematic parameters or groups to estimate, e.g. [joint_offsets, "
                                                 "link_lengths]", None)
+    error_model: Literal["auto", "exact", "pose_noise", "kinematics"] = _d(
+        "robot error model: auto (chosen by held-out prediction), exact (poses as reported), pose_noise (per-station "
+        "flange corrections, pose_noise their prior level) or kinematics (calibrated kinematics at the joints)", "auto")
 
 
 class CellDocument(Closed):
