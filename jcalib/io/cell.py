@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.io.assumptions import assumptions_to_dict, parse_assumptions
 from jcalib.io.goals import Goal, parse_goals
 from jcalib.io.schema.cell import validate_cell_document
 from jcalib.io.schema.reading import read_document
@@ -158,6 +159,7 @@ class CellSpec:
     source: str = "<dict>"
     robots: dict[str, RobotSpec] = field(default_factory=dict)
     goals: tuple[Goal, ...] = ()
+    assumptions: tuple = ()  # stated inputs and their uncertainty (jcalib.io.assumptions)
 
     @property
     def multi_robot(self) -> bool:
@@ -476,7 +478,8 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     schema = data.get("schema")
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
-    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed", "goals"}, source)
+    _check_keys(data, {"schema", "cameras", "targets", "tools", "points", "robot", "robots", "fixed", "goals",
+                       "assumptions"}, source)
     # files a cell names (a UR calibration) are relative to the cell file
     base_dir = Path(source).parent if source != "<dict>" and Path(source).is_file() else None
     robots = _parse_robots(data, source, base_dir)
@@ -533,6 +536,9 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     )
     if needs_robot and robot is None and not robots:
         robot = RobotSpec()
+    entities = {*cameras, *targets, *tools, *points, *robots, "robot"} | {  # transform names: checked at the solve
+        k.split(".")[0] for k in (data.get("assumptions") or {}) if isinstance(k, str) and k.startswith("T_")}
+    assumptions = parse_assumptions(data.get("assumptions"), entities, source, base_dir)
     return CellSpec(
         cameras=cameras,
         targets=targets,
@@ -543,6 +549,7 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
         source=source,
         robots=robots,
         goals=goals,
+        assumptions=assumptions,
     )
 
 
@@ -604,6 +611,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
         out["fixed"] = list(cell.fixed)
     if cell.goals:
         out["goals"] = [g.text for g in cell.goals]
+    if cell.assumptions:
+        out["assumptions"] = assumptions_to_dict(cell.assumptions)
     return out
 
 

@@ -112,6 +112,7 @@ class Calibration:
     prediction: dict | None = None
     rms_per_coordinate: dict[str, float] = field(default_factory=dict)
     view_rms_px_per_coordinate: dict[tuple[str, str], float] = field(default_factory=dict)
+    budget: dict | None = None  # the error budget (jcalib.problems.budget)
 
     @property
     def rms_px(self) -> float:

@@ -24,6 +24,8 @@ from jcalib.geometry import kinematic_models, kinematic_tables
 from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Provenance, ResultFile, TargetResult,
                               TransformResult, hash_inputs)
 from jcalib.problems.assemble import Calibration, assemble
+from jcalib.problems.budget import error_budget
+from jcalib.problems.budget_file import attach as attach_budget
 from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
 from jcalib.problems.heldout import heldout_accuracy
@@ -242,6 +244,7 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
                           priors=priors, known=known)
     r = refine(g, s, built, options)
     cal = assemble(g, s, built, r)
+    cal.budget = error_budget(g, built, s, r, cal)
     for robot, held in heldout_accuracy(g, built, r, options).items():
         cal.kinematics[robot]["heldout"] = held
     if options.prediction:
@@ -405,8 +408,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
     provenance = Provenance.now(input_hash=hash_, options=asdict(options))
     kinematics = {r: kinematics_result(k) for r, k in cal.kinematics.items()}
-    return ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
-                      provenance=provenance, extra=extra, kinematics=kinematics)
+    return attach_budget(ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
+                                    provenance=provenance, extra=extra, kinematics=kinematics), cal.budget)
 
 
 def kinematics_notes(g: Graph | None) -> list[str]:
