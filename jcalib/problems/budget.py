@@ -191,6 +191,27 @@ def resolve(g: Graph, built: Built, start: Start) -> tuple[Perturbation, list[It
     return pert, items, notes
 
 
+#: Information given to an input that is to stay where it is stated (a noise level, a zero-σ coordinate) when
+#: the checks let the stated inputs move within their σ.
+HELD_INFORMATION = 1e12
+
+
+def _prior_information(items: list[Item], size: int) -> np.ndarray:
+    """``(p, p)`` information of the stated inputs: the inverse of each assumption's stated covariance
+    (:data:`HELD_INFORMATION` for noise levels and zero-variance directions)."""
+    P = np.zeros((size, size))
+    for it in items:
+        sl = slice(it.start, it.start + it.size)
+        if it.kind == "noise":
+            P[sl, sl] = HELD_INFORMATION * np.eye(it.size)
+            continue
+        w, U = np.linalg.eigh(0.5 * (it.cov + it.cov.T))
+        keep = w > max(float(np.max(w)), 0.0) * 1e-12
+        inv = np.where(keep, 1.0 / np.where(keep, w, 1.0), HELD_INFORMATION)
+        P[sl, sl] = (U * inv) @ U.T
+    return P
+
+
 def _sigma_text(cov, names, units) -> str:
     sd = np.sqrt(np.maximum(np.diag(np.atleast_2d(cov)), 0.0))
     parts = []
@@ -257,7 +278,12 @@ def error_budget(g: Graph, built: Built, start: Start, r, cal) -> dict:
         "notes": [...]}`` (NumPy arrays; :func:`jcalib.problems.budget_file.attach` writes them).
     """
     pert, items, notes = resolve(g, built, start)
-    sens = sensitivities(r.sol, pert) if pert.size else None
+    sens = sensitivities(r.sol, pert, prior_information=_prior_information(items, pert.size)) if pert.size else None
+    if sens is not None and not (all(np.all(np.isfinite(d)) for d in sens.dx.values())
+                                 and np.all(np.isfinite(sens.information)) and np.all(np.isfinite(sens.score))):
+        notes.append("the error budget could not be computed (non-finite sensitivities at the estimate); every σ "
+                     "is sampling noise only")
+        pert, items, sens = Perturbation(size=0), [], None
     unknowns, sensit = {}, {it.key: {"what": it.what, "columns": it.coords, "units": it.units, "of": {}} for it in items}
     for label, kind, var, coords, units, cov, rows in _unknowns(cal, built, start):
         cov = np.asarray(cov, np.float64)

@@ -2,7 +2,9 @@
 
 - **noise levels** (corner, tip, axis, contact, pose measurement σ): the kind's χ² against its *stated* σ
   over its redundancy (``Σ_g χ²_g · s_k / Σ_g (m_g − tr(H_g H⁻¹))``, ``s_k`` the variance component the
-  solve applied);
+  solve applied), taken after the stated inputs moved to where the data put them within their stated σ
+  (a held camera that is off by its stated σ makes the corners worse than their noise: that is not the
+  noise's fault);
 - **robot pose noise** (``pose_noise``): the flange corrections' χ² against the stated σ over their
   redundancy (:func:`jcalib.problems.assemble.robot_statistics`); a kinematic calibration's repeatability
   likewise (the ``kinematic:<robot>`` residuals);
@@ -63,8 +65,12 @@ _UNITS = {"corner": ("px", 1.0), "corner_mean": ("px", 1.0), "tip": ("px", 1.0),
           "contact": ("mm", 1e3), "pose_rotation": ("deg", float(np.degrees(1.0))), "pose_translation": ("mm", 1e3)}
 
 
-def noise_checks(built, r) -> list[dict]:
+def noise_checks(built, r, sens=None) -> list[dict]:
+    """Each residual kind's χ² against its stated σ. With stated inputs (``sens.chi2``), the χ² is taken after
+    the inputs moved to where the data put them within their stated σ: residuals that a held input explains
+    (within what was stated for it) are not charged to the noise."""
     sol = r.sol
+    moved = sens.chi2 if sens is not None else {}
     total_m = max(sol.num_residuals, 1)
     share = max(1.0 - sol.num_free / total_m, 0.0)
     out = []
@@ -75,7 +81,8 @@ def noise_checks(built, r) -> list[dict]:
             if gr.kind != kind:
                 continue
             hat = sol.hat.get(gr.name, float("nan"))
-            chi2 += sol.chi2[gr.name] * scale
+            change = moved[gr.name][1] - moved[gr.name][0] if gr.name in moved else 0.0
+            chi2 += max(sol.chi2[gr.name] + change, 0.0) * scale
             dof += sol.count[gr.name] - hat if np.isfinite(hat) else sol.count[gr.name] * share
         unit, k = _UNITS.get(kind, ("", 1.0))
         sigma = built.sigma[kind] * k
@@ -143,4 +150,4 @@ def assumption_checks(g, built, r, cal, items, sens) -> list[dict]:
     """Every stated σ against the data (see the module docstring): a list of
     ``{what, kind, stated, factor, chi2, dof, p_value, verdict[, message]}``."""
     f0 = float(r.sol.sigma2) if r.cov_noise == "a_posteriori" and r.sol.sigma2 == r.sol.sigma2 else 1.0
-    return noise_checks(built, r) + robot_checks(g, built, r, cal) + score_checks(items, sens, f0)
+    return noise_checks(built, r, sens) + robot_checks(g, built, r, cal) + score_checks(items, sens, f0)

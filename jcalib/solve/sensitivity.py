@@ -52,6 +52,13 @@ class Perturbation(eqx.Module):
     log_sigma: tuple = eqx.field(static=True, default=())
     pose_jacobian: tuple = eqx.field(static=True, default=())
 
+    def factors_of(self, problem: Problem) -> tuple[str, ...]:
+        """The factor groups that depend on ``θ`` (the others drop out of every derivative)."""
+        names = {n for n, _ in self.scale_points} | {n for ns, _ in self.log_sigma for n in ns}
+        names |= {n for n, *_ in self.prior_mean} | {p for *_, p in self.pose_jacobian if p is not None}
+        moved = {v for v, *_ in self.held} | {v for v, *_ in self.pose_jacobian}
+        return tuple(f.name for f in problem.factors if f.name in names or moved & set(f.args))
+
     def apply(self, problem: Problem, theta, jacobians: tuple = ()) -> Problem:
         """The problem with inputs ``θ`` (traceable)."""
         factors = list(problem.factors)
@@ -102,11 +109,17 @@ class Sensitivity(NamedTuple):
         information: ``(p, p)`` marginal information ``M`` of ``θ`` given the data (whitened units: the
             inverse of its sampling covariance were ``θ`` estimated, before the variance factor).
         score: ``(p,)`` ``∂C/∂θ`` at the solution (zero when the data agree with ``θ = 0`` exactly).
+        chi2: factor group -> ``(at the solution, after the stated inputs' adjustment)``: each group's
+            ``2 C_g`` (its χ² in the whitened units the solve used) at ``x*`` and at ``(θ̂, x* + dx/dθ θ̂)``, where
+            ``θ̂ = −(M + P)⁻¹ g`` is the adjustment of the stated inputs that the data ask for under their prior
+            information ``P``: what each kind's residuals would be if the inputs were where the data put them
+            within their stated σ (first order). Empty without ``prior_information``.
     """
 
     dx: dict
     information: np.ndarray
     score: np.ndarray
+    chi2: dict
 
 
 def _x_of(problem: Problem, nominal: Problem, x_star: dict, eps: dict) -> dict:
@@ -124,9 +137,13 @@ def _x_of(problem: Problem, nominal: Problem, x_star: dict, eps: dict) -> dict:
     return out
 
 
+def _group_chi2(problem: Problem, values: dict):
+    return jnp.stack([2.0 * linear.total_cost(replace(problem, factors=(f,)), values) for f in problem.factors])
+
+
 @eqx.filter_jit
 def _core(padded: Problem, system: linear.System, values: dict, perturbation: Perturbation, jacobians: tuple,
-          exact: bool):
+          exact: bool, prior_information):
     layout = linear.make_layout(padded)
     free = linear.free_masks(padded)
     if exact:
@@ -135,10 +152,12 @@ def _core(padded: Problem, system: linear.System, values: dict, perturbation: Pe
         system = linear.exact_system(at_opt, layout, values, free)
     zeros = {v.name: jnp.zeros((v.num, v.tangent_dim), jnp.float64) for v in padded.variables}
     theta0 = jnp.zeros((perturbation.size,), jnp.float64)
+    affected = set(perturbation.factors_of(padded))
+    part = replace(padded, factors=tuple(f for f in padded.factors if f.name in affected))
 
     def cost(eps, theta):
-        prob = perturbation.apply(padded, theta, jacobians)
-        return linear.total_cost(prob, _x_of(prob, padded, values, eps))
+        prob = perturbation.apply(part, theta, jacobians)
+        return linear.total_cost(prob, _x_of(prob, part, values, eps))
 
     def gradients(theta):
         return jax.grad(cost, argnums=(0, 1))(zeros, theta)
@@ -159,11 +178,18 @@ def _core(padded: Problem, system: linear.System, values: dict, perturbation: Pe
     cross = rhs_s.T @ z_s
     for r, z in zip(rhs_e, z_e):
         cross = cross + jnp.einsum("ndp,ndq->pq", r, z)
-    M = C_tt + cross  # C_θθ − Bᵀ H⁻¹ B
-    return dx, 0.5 * (M + M.T), g_theta
+    M = 0.5 * (C_tt + cross + (C_tt + cross).T)  # C_θθ − Bᵀ H⁻¹ B
+    chi2 = None
+    if prior_information is not None:
+        theta_hat = -jnp.linalg.solve(M + prior_information, g_theta)
+        moved = perturbation.apply(padded, theta_hat, jacobians)
+        x_hat = _x_of(moved, padded, values, {n: dx[n] @ theta_hat for n in dx})
+        chi2 = (_group_chi2(padded, values), _group_chi2(moved, x_hat))
+    return dx, M, g_theta, chi2
 
 
-def sensitivities(sol, perturbation: Perturbation, jacobians: tuple = (), exact: bool = False) -> Sensitivity:
+def sensitivities(sol, perturbation: Perturbation, jacobians: tuple = (), exact: bool = False,
+                  prior_information=None) -> Sensitivity:
     """``dx*/dθ`` of a solved problem (see the module docstring).
 
     Args:
@@ -172,10 +198,15 @@ def sensitivities(sol, perturbation: Perturbation, jacobians: tuple = (), exact:
         jacobians: one ``(num, 6, size)`` array per ``perturbation.pose_jacobian`` entry.
         exact: solve with the exact Hessian of the cost (one more assembly and compile) instead of the solve's
             Gauss–Newton system; the two differ by the residuals' curvature terms (first order in the residuals).
+        prior_information: ``(p, p)`` information of the stated inputs (the inverse of their stated covariance;
+            large where an input is to stay put): adds :attr:`Sensitivity.chi2`.
     Returns:
         :class:`Sensitivity`: first order, at the solution; in whitened units the solve used.
     """
     jac = tuple(jnp.asarray(np.asarray(J, np.float64)) for J in jacobians)
-    dx, M, g = _core(sol.padded_problem, sol.raw.system, sol.raw.values, perturbation, jac, bool(exact))
+    P = None if prior_information is None else jnp.asarray(np.asarray(prior_information, np.float64))
+    dx, M, g, chi2 = _core(sol.padded_problem, sol.raw.system, sol.raw.values, perturbation, jac, bool(exact), P)
     nums = {v.name: v.num for v in sol.problem.variables}
-    return Sensitivity({n: np.asarray(dx[n])[:nums[n]] for n in nums}, np.asarray(M), np.asarray(g))
+    groups = {} if chi2 is None else {f.name: (float(a), float(b)) for f, a, b in
+                                      zip(sol.padded_problem.factors, np.asarray(chi2[0]), np.asarray(chi2[1]))}
+    return Sensitivity({n: np.asarray(dx[n])[:nums[n]] for n in nums}, np.asarray(M), np.asarray(g), groups)

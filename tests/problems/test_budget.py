@@ -163,6 +163,33 @@ def test_result_file_keeps_sampling_covariance_and_adds_the_budget(handeye):
     assert {"noise", "robot", "assumption"} <= kinds
 
 
+def test_console_report_and_sensitivity_command_read_the_budget(handeye, tmp_path):
+    from typer.testing import CliRunner
+
+    from jcalib.app.cli import app
+    from jcalib.io.result import load_result
+    from jcalib.report.budget import console_lines, section
+
+    _, _, cal, _ = handeye
+    path = tmp_path / "result.json"
+    result_file(cal, CalibrationOptions(), "0" * 16).save(path)
+    file = load_result(path)  # the budget survives the file
+    lines = console_lines(file)
+    assert lines and lines[0].startswith("error budget: stated inputs board.square")
+    assert any("what limits this result: T_base_cam1" in line for line in lines), lines
+    html = section(file)
+    assert "What limits this result" in html and "Stated σ against the data" in html
+    out = CliRunner().invoke(app, ["sensitivity", str(path), "--wrt", "board.square", "--of", "T_base_cam1", "--json"])
+    assert out.exit_code == 0, out.output
+    import json
+
+    rows = json.loads(out.output)["rows"]
+    J = np.asarray(cal.budget["sensitivities"]["board.square"]["of"]["T_base_cam1"]["jacobian"])
+    assert np.allclose([r["derivative"][0] for r in rows], J[:, 0])
+    bad = CliRunner().invoke(app, ["sensitivity", str(path), "--wrt", "board.colour"])
+    assert bad.exit_code != 0 and "board.square" in str(bad.exception or bad.output)
+
+
 def test_camera_cell_held_intrinsic_and_board_scale():
     cell, obs = _camera(**{"cam0.intrinsics": {"sigma": {"k3": 0.05}}})
     cal, seen = _solved(cell, obs)
@@ -208,3 +235,40 @@ def test_kinematic_cell_held_parameters_and_board_scale():
     cal, seen = _solved(cell, obs)
     assert "robot" in cal.budget["unknowns"] and cal.budget["unknowns"]["robot"]["kind"] == "kinematics"
     assert _check_against_resolves(cal, seen, {"robot.kinematics", "board.square"}) > 0
+
+
+def _bench():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_budget.py"
+    spec = importlib.util.spec_from_file_location("_bench_budget", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.slow
+def test_combined_sigma_predicts_the_scatter_when_the_assumptions_are_drawn():
+    """Monte Carlo (fixed seeds): the board printed at a scale drawn from its stated σ and the held intrinsics
+    drawn from theirs scatter the transforms as covariance_combined predicts (mean χ² within its 95 % band),
+    while the sampling-only covariance is too small for the fixed camera's pose."""
+    bench = _bench()
+    trials = 30
+    rows = [bench.budget_trial(s) for s in range(trials)]
+    lo, hi = bench.chi2_band(6, trials)
+    for name in bench.TRANSFORMS:
+        combined = np.mean([r[name][1] for r in rows])
+        assert lo <= combined <= hi, (name, combined, (lo, hi))
+    assert np.mean([r["T_base_cam1"][0] for r in rows]) > hi
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("what", ["pose_noise", "pixel_noise", "intrinsics"])
+def test_stated_sigma_checks_name_a_fivefold_error_and_stay_silent_otherwise(what):
+    bench = _bench()
+    seeds = 10
+    named = [bench.check_trial(s, what, 5.0)["named"] for s in range(seeds)]
+    silent = [not bench.check_trial(s, what, 1.0)["any_worse"] for s in range(seeds)]
+    assert np.mean(named) >= 0.95, named
+    assert np.mean(silent) >= 0.9, silent
