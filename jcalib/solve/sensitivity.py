@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jcalib.solve import linear
+from jcalib.solve import linear, traced
 from jcalib.solve.problem import Problem, replace
 
 
@@ -188,6 +188,25 @@ def _core(padded: Problem, system: linear.System, values: dict, perturbation: Pe
     return dx, M, g_theta, chi2
 
 
+class _Inputs(eqx.Module):
+    """The arguments of :func:`_core` besides the problem, as the ``options`` of :func:`jcalib.solve.traced.run`
+    (arrays are inputs of the exported program; the perturbation is static and part of its key)."""
+
+    system: linear.System
+    values: dict
+    perturbation: Perturbation
+    jacobians: tuple
+    prior_information: jax.Array
+
+    def traced(self):
+        return self
+
+
+def _traced_core(problem: Problem, inputs: _Inputs, exact: bool):
+    return _core(problem, inputs.system, inputs.values, inputs.perturbation, inputs.jacobians, exact,
+                 inputs.prior_information)
+
+
 def sensitivities(sol, perturbation: Perturbation, jacobians: tuple = (), exact: bool = False,
                   prior_information=None) -> Sensitivity:
     """``dx*/dθ`` of a solved problem (see the module docstring).
@@ -205,7 +224,15 @@ def sensitivities(sol, perturbation: Perturbation, jacobians: tuple = (), exact:
     """
     jac = tuple(jnp.asarray(np.asarray(J, np.float64)) for J in jacobians)
     P = None if prior_information is None else jnp.asarray(np.asarray(prior_information, np.float64))
-    dx, M, g, chi2 = _core(sol.padded_problem, sol.raw.system, sol.raw.values, perturbation, jac, bool(exact), P)
+    out = None
+    if P is not None:  # through the cache of traced programs: a warm process neither traces nor compiles
+        names = [v.name for v in sol.padded_problem.variables]
+        treedef = jax.tree.structure(({n: 0 for n in names}, 0, 0, (0, 0)))
+        out = traced.run(_traced_core, sol.padded_problem, _Inputs(sol.raw.system, sol.raw.values, perturbation, jac, P),
+                         bool(exact), treedef)
+    if out is None:
+        out = _core(sol.padded_problem, sol.raw.system, sol.raw.values, perturbation, jac, bool(exact), P)
+    dx, M, g, chi2 = out
     nums = {v.name: v.num for v in sol.problem.variables}
     groups = {} if chi2 is None else {f.name: (float(a), float(b)) for f, a, b in
                                       zip(sol.padded_problem.factors, np.asarray(chi2[0]), np.asarray(chi2[1]))}
