@@ -19,7 +19,7 @@ from jcalib.app.cli import app
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 GUIDES = ["camera", "stereo", "eye-in-hand", "eye-to-hand", "camera-tcp", "pivot-tracker", "two-robots",
-          "kinematics", "zoom", "planning", "import", "operator-app"]
+          "kinematics", "zoom", "planning", "error-budget", "import", "operator-app"]
 FORMATS = ["cell", "observations", "result", "session", "station", "plan"]
 
 

@@ -731,6 +731,8 @@ def _register_compare() -> None:
 
 
 _register_compare()
+from jcalib.app.sensitivity import sensitivity_command  # noqa: E402 (typer only: --help stays instant)
+app.command("sensitivity")(sensitivity_command)
 
 
 def _printable(text: str) -> str:

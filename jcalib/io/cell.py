@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from jcalib.errors import BadInputError
+from jcalib.io.assumptions import assumptions_to_dict, parse_assumptions
 from jcalib.io.goals import Goal, parse_goals
 from jcalib.io.schema.cell import validate_cell_document
 from jcalib.io.schema.reading import read_document
@@ -202,6 +203,7 @@ class CellSpec:
     robots: dict[str, RobotSpec] = field(default_factory=dict)
     goals: tuple[Goal, ...] = ()
     sensors: dict[str, SensorSpec] = field(default_factory=dict)
+    assumptions: tuple = ()  # stated inputs and their uncertainty (jcalib.io.assumptions)
 
     @property
     def multi_robot(self) -> bool:
@@ -552,7 +554,7 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     if schema != SCHEMA:
         raise _fail(source, f"schema is {schema!r}; expected '{SCHEMA}'")
     _check_keys(data, {"schema", "cameras", "sensors", "targets", "tools", "points", "robot", "robots", "fixed",
-                       "goals"}, source)
+                       "goals", "assumptions"}, source)
     # files a cell names (a UR calibration) are relative to the cell file
     base_dir = Path(source).parent if source != "<dict>" and Path(source).is_file() else None
     robots = _parse_robots(data, source, base_dir)
@@ -614,6 +616,9 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
     ) or bool(sensors)
     if needs_robot and robot is None and not robots:
         robot = RobotSpec()
+    entities = {*cameras, *targets, *tools, *points, *robots, "robot"} | {  # transform names: checked at the solve
+        k.split(".")[0] for k in (data.get("assumptions") or {}) if isinstance(k, str) and k.startswith("T_")}
+    assumptions = parse_assumptions(data.get("assumptions"), entities, source, base_dir)
     return CellSpec(
         cameras=cameras,
         targets=targets,
@@ -625,6 +630,7 @@ def parse_cell(data: Any, source: str = "<dict>", base_dir: str | os.PathLike | 
         robots=robots,
         goals=goals,
         sensors=sensors,
+        assumptions=assumptions,
     )
 
 
@@ -691,6 +697,8 @@ def cell_to_dict(cell: CellSpec) -> dict:
         out["fixed"] = list(cell.fixed)
     if cell.goals:
         out["goals"] = [g.text for g in cell.goals]
+    if cell.assumptions:
+        out["assumptions"] = assumptions_to_dict(cell.assumptions)
     return out
 
 

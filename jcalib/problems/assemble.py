@@ -116,6 +116,7 @@ class Calibration:
     rms_per_coordinate: dict[str, float] = field(default_factory=dict)
     view_rms_px_per_coordinate: dict[tuple[str, str], float] = field(default_factory=dict)
     lenses: dict[str, dict] = field(default_factory=dict)
+    budget: dict | None = None  # the error budget (jcalib.problems.budget)
 
     @property
     def rms_px(self) -> float:

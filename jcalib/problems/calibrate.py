@@ -24,6 +24,8 @@ from jcalib.geometry import kinematic_models, kinematic_tables
 from jcalib.io.result import (CameraResult, KinematicsResult, PointResult, Provenance, ResultFile, TargetResult,
                               TransformResult, hash_inputs)
 from jcalib.problems.assemble import Calibration, assemble
+from jcalib.problems.budget import error_budget
+from jcalib.problems.budget_file import attach as attach_budget
 from jcalib.problems.build import CORNER_KINDS, build, se3_params, sqrt_info
 from jcalib.problems.graph import Graph
 from jcalib.problems import error_model
@@ -280,6 +282,9 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
     """
     options = options or CalibrationOptions()
     kw = dict(prior=prior, prior_names=prior_names, start=start, given=given, priors=priors, known=known)
+    # the error budget (jcalib.problems.budget) when the cell states assumptions: it compiles a program of its
+    # own (a cold calibrate of a camera cell took 15 s without it, 30 s with it), so it is asked for
+    kw["budget"] = bool(cell.assumptions)
     runs, why = error_model.candidates(tracked_tools(cell), obs, options)
     if len(runs) == 1:
         cal = _calibrate_one(runs[0][1], obs, options, **kw)
@@ -300,13 +305,17 @@ def calibrate_cell(cell: CellSpec, obs: Observations, options: CalibrationOption
     return cal
 
 
-def _calibrate_one(cell: CellSpec, obs: Observations, options: CalibrationOptions, **kw) -> Calibration:
-    """One calibration of a cell whose robot error model is decided (:func:`calibrate_cell`)."""
+def _calibrate_one(cell: CellSpec, obs: Observations, options: CalibrationOptions, *, budget: bool = False,
+                   **kw) -> Calibration:
+    """One calibration of a cell whose robot error model is decided (:func:`calibrate_cell`); with its error
+    budget when ``budget``."""
     g, s, built = prepare(cell, obs, options, **kw)
     r = refine(g, s, built, options)
     g, built, r, level = error_model.tune_pose_level(g, built, r, options)
     cal = assemble(g, s, built, r)
     cal.robot_error_model = error_model.single(g, built, level)
+    if budget:
+        cal.budget = error_budget(g, built, s, r, cal)
     for robot, held in heldout_accuracy(g, built, r, options).items():
         cal.kinematics[robot]["heldout"] = held
     if options.prediction:
@@ -481,8 +490,8 @@ def result_file(cal: Calibration, options: CalibrationOptions, hash_: str, extra
         extra["T_cam_target"] = {s: {c: T.tolist() for c, T in per.items()} for s, per in cal.T_cam_target.items()}
     provenance = Provenance.now(input_hash=hash_, options=asdict(options))
     kinematics = {r: kinematics_result(k) for r, k in cal.kinematics.items()}
-    return ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
-                      provenance=provenance, extra=extra, kinematics=kinematics)
+    return attach_budget(ResultFile(cameras=cameras, transforms=transforms, points=points, targets=targets, stats=stats,
+                                    provenance=provenance, extra=extra, kinematics=kinematics), cal.budget)
 
 
 def kinematics_notes(g: Graph | None) -> list[str]:

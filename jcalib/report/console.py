@@ -148,6 +148,10 @@ def print_result(result: ResultFile, console: Console | None = None, truth=None)
         console.print(f"note: {note}", highlight=False)
     for warning in s.get("warnings", []):
         console.print(f"[bold yellow]warning:[/] {warning}", highlight=False)
+    from jcalib.report.budget import console_lines
+
+    for line in console_lines(result):
+        console.print(line, highlight=False, markup=False)
 
 
 def rms_text(stats: dict, key: str = "rms_px") -> str:

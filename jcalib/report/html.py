@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from jcalib.io.atomic import write_text_atomic
-from jcalib.report import findings, kinematics, sections
+from jcalib.report import budget, findings, kinematics, sections
 from jcalib.report.error_model import error_model_section
 from jcalib.report.goals import goals_html
 from jcalib.report.markup import CSS, esc, note
@@ -152,7 +152,7 @@ def render_report(
         "<h2>Summary</h2>", sections.statistics(file.stats), sections.intrinsics(file), sections.transforms(file),
         sections.points(file),
         sections.targets(file), sections.lenses(file), kinematics.section(file), goals_html(goals) if goals else "",
-        sections.prediction(file.stats), error_model_section(file.stats),
+        sections.prediction(file.stats), error_model_section(file.stats), budget.section(file),
         "<h2>Per-view reprojection error</h2>", sections.view_rms(file.stats),
         "<h2>Task-space uncertainty</h2>", sections.INCLUDES, sections.task_space(file),
         sections.tcps(file, reference, robot_of), "<h3>Projection uncertainty</h3>",

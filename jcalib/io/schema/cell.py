@@ -281,6 +281,9 @@ class CellDocument(Closed):
     fixed: list[str] | None = _d("names held at their prior value: entities (cam1) or transforms (T_base_cam1)", None)
     goals: list[str] | None = _d("accuracy goals NAME:QUANTITY<=VALUE (e.g. T_flange_cam0:translation_mm<=0.05) for "
                                  "station planning and adaptive capture; they do not change a calibration", None)
+    assumptions: dict[str, dict[str, Any]] | None = _d(
+        "stated inputs and their uncertainty, <entry>.<quantity>: {sigma...} (e.g. board.square: {sigma_rel: "
+        "0.001}); propagated into the result's error budget, never into its sampling covariance", None)
 
 
 def intrinsic_names(model: str, skew: bool) -> tuple[str, ...]:

@@ -22,6 +22,9 @@ __all__ = ["ResultDocument", "validate_result_document"]
 SCHEMA = "jcalib.result/1"
 
 
+_BUDGET = ("error budget: coords, units, sampling (σ per coordinate), assumptions (stated input -> its σ "
+           "contribution per coordinate), combined (docs/guides/error-budget.md)")
+_COMBINED = "sampling covariance plus every stated input's contribution, same shape and order as covariance"
 _COV6 = "6x6 covariance, tangent order (rx, ry, rz, tx, ty, tz), rad and m, right perturbation in frame b"
 
 
@@ -36,6 +39,8 @@ class CameraEntry(Open):
     dist: list[Num] = Field(description="distortion coefficients in OpenCV's order")
     std: dict[str, Num] | None = Field(None, description="σ of each intrinsic by name (fx, fy, cx, cy, k1, ...)")
     covariance: list[list[Num]] | None = Field(None, description="covariance of the intrinsics, in the order of std")
+    budget: dict[str, Any] | None = Field(None, description=_BUDGET)
+    covariance_combined: list[list[Num]] | None = Field(None, description=_COMBINED)
     skew: bool | None = Field(None, description="whether the model has a skew (K[0][1])")
 
 
@@ -44,6 +49,8 @@ class TransformEntry(Open):
 
     matrix: Mat4 = Field(description="4x4 homogeneous transform, translation in m")
     covariance: list[list[Num]] | None = Field(None, description=_COV6)
+    budget: dict[str, Any] | None = Field(None, description=_BUDGET)
+    covariance_combined: list[list[Num]] | None = Field(None, description=_COMBINED)
 
 
 class PointEntry(Open):
