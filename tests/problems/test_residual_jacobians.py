@@ -63,6 +63,12 @@ def _matrix(pose):
     return T
 
 
+def _with_value(r):
+    """``(r, r)``: a reference function for ``jax.jacfwd(..., has_aux=True)``, which then returns the residual
+    from the same forward pass as its derivative (the residual program is traced and compiled once, not twice)."""
+    return r, r
+
+
 @functools.cache
 def _both(model_cls, skew, chain):
     """Jitted: the hand-derived Jacobian, and forward-mode autodiff through the exact retraction."""
@@ -74,10 +80,11 @@ def _both(model_cls, skew, chain):
         se3, euc = SE3(), Euclidean(intr.shape[0])
 
         def through_retract(d_intr, *d_poses):
-            return fn(euc.retract(intr, d_intr), *[se3.retract(T, d) for T, d in zip(poses, d_poses)], obs)
+            return _with_value(fn(euc.retract(intr, d_intr), *[se3.retract(T, d) for T, d in zip(poses, d_poses)], obs))
 
         zeros = (jnp.zeros(intr.shape[0]),) + (jnp.zeros(6),) * num
-        return r, hand, through_retract(*zeros), jax.jacfwd(through_retract, argnums=tuple(range(num + 1)))(*zeros)
+        ref, r_ref = jax.jacfwd(through_retract, argnums=tuple(range(num + 1)), has_aux=True)(*zeros)
+        return r, hand, r_ref, ref
 
     return jax.jit(both)
 
@@ -136,11 +143,13 @@ def _chain_both(chain, num):
     def both(poses, p):
         q, blocks, dp = chain_jacobian(poses, chain, p)
 
-        def through_retract(*deltas):
-            return chain_apply([SE3().retract(T, d) for T, d in zip(poses, deltas)], chain, p)
+        def through_retract(*deltas):  # the poses' tangents, then the point's
+            *d_poses, d_p = deltas
+            return _with_value(chain_apply([SE3().retract(T, d) for T, d in zip(poses, d_poses)], chain, p + d_p))
 
-        ref = jax.jacfwd(through_retract, argnums=tuple(range(num)))(*(jnp.zeros(6),) * num)
-        return q, blocks, dp, chain_apply(poses, chain, p), ref, jax.jacfwd(lambda x: chain_apply(poses, chain, x))(p)
+        zeros = (jnp.zeros(6),) * num + (jnp.zeros(3),)
+        (*ref, dp_ref), q_ref = jax.jacfwd(through_retract, argnums=tuple(range(num + 1)), has_aux=True)(*zeros)
+        return q, blocks, dp, q_ref, ref, dp_ref
 
     return jax.jit(both)
 
@@ -179,11 +188,12 @@ def _contact_both(chain):
     def both(poses, point, obs):
         def through_retract(*deltas):
             *d_poses, d_point = deltas
-            return fn(*[SE3().retract(T, d) for T, d in zip(poses, d_poses)], point + d_point, obs)
+            return _with_value(fn(*[SE3().retract(T, d) for T, d in zip(poses, d_poses)], point + d_point, obs))
 
         zeros = (jnp.zeros(6),) * len(poses) + (jnp.zeros(3),)
         r, hand = jac(*poses, point, obs)
-        return r, hand, fn(*poses, point, obs), jax.jacfwd(through_retract, argnums=tuple(range(len(zeros))))(*zeros)
+        ref, r_ref = jax.jacfwd(through_retract, argnums=tuple(range(len(zeros))), has_aux=True)(*zeros)
+        return r, hand, r_ref, ref
 
     return jax.jit(both)
 
@@ -258,10 +268,11 @@ def _axis_both(model_cls):
         se3, euc = SE3(), Euclidean(intr.shape[0])
 
         def through_retract(d_intr, *d_poses):  # autodiff through the foot's iterations
-            return fn(euc.retract(intr, d_intr), *[se3.retract(T, d) for T, d in zip(poses, d_poses)], obs)
+            return _with_value(fn(euc.retract(intr, d_intr), *[se3.retract(T, d) for T, d in zip(poses, d_poses)], obs))
 
         zeros = (jnp.zeros(intr.shape[0]),) + (jnp.zeros(6),) * 3
-        return r, hand, through_retract(*zeros), jax.jacfwd(through_retract, argnums=(0, 1, 2, 3))(*zeros)
+        ref, r_ref = jax.jacfwd(through_retract, argnums=(0, 1, 2, 3), has_aux=True)(*zeros)
+        return r, hand, r_ref, ref
 
     return jax.jit(both)
 
@@ -340,8 +351,9 @@ def _prior_both(manifold):
 
     def both(x, obs):
         r, (J,) = jac(x, obs)
-        ref = jax.jacfwd(lambda d: fn(manifold.retract(x, d), obs))(jnp.zeros(manifold.tangent_dim))
-        return r, J, fn(x, obs), ref
+        ref, r_ref = jax.jacfwd(lambda d: _with_value(fn(manifold.retract(x, d), obs)), has_aux=True)(
+            jnp.zeros(manifold.tangent_dim))
+        return r, J, r_ref, ref
 
     return jax.jit(both)
 
@@ -377,10 +389,10 @@ def _kinematic_both(preset):
         r, hand = jac(params, F, obs)
 
         def through_retract(dp, dF):
-            return fn(params + dp, SE3().retract(F, dF), obs)
+            return _with_value(fn(params + dp, SE3().retract(F, dF), obs))
 
-        ref = jax.jacfwd(through_retract, argnums=(0, 1))(jnp.zeros_like(params), jnp.zeros(6))
-        return r, hand, fn(params, F, obs), ref
+        ref, r_ref = jax.jacfwd(through_retract, argnums=(0, 1), has_aux=True)(jnp.zeros_like(params), jnp.zeros(6))
+        return r, hand, r_ref, ref
 
     return model, jax.jit(both)
 
