@@ -1,8 +1,18 @@
-"""`jcalib calibrate` and `jcalib demo` as a user runs them: files in, result out, exit statuses."""
+"""`jcalib calibrate` and `jcalib demo` as a user runs them: files in, result out, exit statuses.
 
+The commands run in this process (``jcalib.app.cli.main`` with the arguments, in the folder of the files, stdout
+and stderr captured apart): what the user sees, without a JAX import and a fresh compilation per command. One
+bad input runs as a separate process (``process=True``), so that the exit status and stderr of a real process
+are checked too.
+"""
+
+import contextlib
+import io
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +21,8 @@ from jcalib.geometry import Checkerboard, camera_from_opencv
 from jcalib.sim.scene import project_target, random_calibration_views
 
 JCALIB = [sys.executable, "-c", "from jcalib.app.cli import main; main()"]
+#: the checkout under test (a subprocess started elsewhere would import whichever jcalib is installed)
+ROOT = Path(__file__).resolve().parents[2]
 BOARD = Checkerboard(cols=9, rows=6, square=0.025)
 CELL = """schema: jcalib.cell/1
 cameras:
@@ -20,8 +32,25 @@ targets:
 """
 
 
-def run(*args, cwd):
-    return subprocess.run([*JCALIB, *map(str, args)], capture_output=True, text=True, cwd=cwd)
+def run(*args, cwd, process=False) -> subprocess.CompletedProcess:
+    """``jcalib ARGS`` run in folder ``cwd``: its exit status, stdout and stderr; in this process unless ``process``."""
+    args = [str(a) for a in args]
+    if process:
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        return subprocess.run([*JCALIB, *args], capture_output=True, text=True, cwd=cwd, env=env)
+    from jcalib.app.cli import main
+
+    out, err, here = io.StringIO(), io.StringIO(), os.getcwd()
+    try:
+        os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            main(args)
+        code = 0
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["jcalib", *args], code, out.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +92,7 @@ def _mutated(observations, fn):
 @pytest.mark.parametrize(
     "case, mutate, cell, status, needle",
     [
+        # "nan" runs in a separate process (the exit status and stderr of a real `jcalib` process)
         ("nan", lambda d: d["stations"][1]["detections"][0]["pixels"][4].__setitem__(0, float("nan")), CELL, 2, "NaN"),
         ("three points", lambda d: d["stations"][2]["detections"][0].update(
             point_index=[0, 1, 2], pixels=d["stations"][2]["detections"][0]["pixels"][:3]), CELL, 2, "s02"),
@@ -77,7 +107,7 @@ def _mutated(observations, fn):
 def test_bad_input_exit_status_and_message(tmp_path, observations, case, mutate, cell, status, needle):
     (tmp_path / "cell.yaml").write_text(cell)
     (tmp_path / "obs.json").write_text(json.dumps(_mutated(observations, mutate), allow_nan=True))
-    proc = run("calibrate", "cell.yaml", "obs.json", "-o", "result.json", cwd=tmp_path)
+    proc = run("calibrate", "cell.yaml", "obs.json", "-o", "result.json", cwd=tmp_path, process=case == "nan")
     assert proc.returncode == status, (case, proc.stderr)
     assert needle.lower() in proc.stderr.lower(), proc.stderr
     assert "Traceback" not in proc.stderr

@@ -61,9 +61,14 @@ class FakeCell:
         return replace(st, detections=(noisy,))
 
 
+#: the goal of the run that meets it (translation σ in mm)
+MET_LIMIT_MM = 2.0
+
+
 @pytest.fixture(scope="module")
 def met_run(layout):
-    goals = parse_goals(["T_flange_cam0:translation_mm<=1.5"])
+    # met at the 4th station (σ 3.8 mm at 3, 1.6 at 4): two calibrations, the least that shows the stop
+    goals = parse_goals([f"T_flange_cam0:translation_mm<={MET_LIMIT_MM}"])
     fake = FakeCell(layout, goals, fail={1})
     progress = []
     out = run_adaptive(layout, goals, acquire=fake, calibrate=calibrate_stations(layout), max_stations=10,
@@ -85,7 +90,7 @@ def test_stops_when_the_goals_are_met_and_replaces_failed_stations(met_run):
     counts = [p[0] for p in progress]
     assert counts == [h.num_stations for h in out.history] == list(range(counts[0], len(out.stations) + 1))
     assert [p[3] for p in progress] == [False] * (len(progress) - 1) + [True]
-    assert out.history[-1].achieved[g] <= 1.5 < out.history[0].achieved[g]
+    assert out.history[-1].achieved[g] <= MET_LIMIT_MM < out.history[0].achieved[g]
     # twice the stated noise: the a-posteriori σ makes the achieved σ about twice the predicted (what the
     # rescaling corrects); 40 corners per station, so the noise estimate is within ~15 % at 3 stations
     for h in out.history:
