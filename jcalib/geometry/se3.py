@@ -356,10 +356,11 @@ def rotation_z_to(a: np.ndarray) -> np.ndarray:
     e = np.array([0.0, 0.0, 1.0])
     v = np.cross(e, a)
     s, c = np.linalg.norm(v), float(a @ e)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    if s < 1e-12 and c < 0:  # a = -z: a half turn about x
+        return np.diag([1.0, -1.0, -1.0])
     K = skew(v)
-    return np.eye(3) + K + K @ K * ((1.0 - c) / s**2)
+    # (1 - c) / s² = 1 / (1 + c) for a unit a: the form without cancellation on either side of the equator
+    return np.eye(3) + K + K @ K * (1.0 / (1.0 + c) if c >= 0 else (1.0 - c) / s**2)
 
 
 #: Distances from a tool's tip (m) of the points on its shaft that a station shows along the imaged tool axis.

@@ -27,7 +27,8 @@ from jcalib.report.markup import CSS, esc, note
 __all__ = ["SECTIONS", "render_report", "write_report"]
 
 #: The page's sections (``<h2>``), in order; every report has all of them.
-SECTIONS = ("Warnings", "Summary", "Prediction from the robot's poses", "Per-view reprojection error",
+SECTIONS = ("Warnings", "Summary", "Prediction from the robot's poses", "What limits this result",
+            "Per-view reprojection error",
             "Task-space uncertainty", "Correlations", "Weakest directions", "What would help", "Residuals",
             "Cross-validation", "Provenance")
 
